@@ -1,0 +1,1 @@
+"""Datasets on disk -> typed scenes. All frame and unit conversions happen here, once."""

@@ -1,0 +1,215 @@
+"""Reading and writing BOP files: JSON, PLY, 16-bit depth PNGs, masks; atomic writes.
+
+Every reader raises :class:`DatasetError` naming the file (and the line for JSON) instead of a
+bare exception, and every writer writes to a temporary file beside the target and renames it,
+so an interrupted run never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bop_cender.errors import DatasetError
+
+
+def load_json(path: str | Path, keys_to_int: bool = False) -> Any:
+    """Load a JSON file; with ``keys_to_int`` turn digit keys of dicts into ints, as BOP does.
+
+    Raises:
+        DatasetError: the file is missing or is not valid JSON (with line and column).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DatasetError("file not found", file=path) from None
+    except OSError as e:
+        raise DatasetError(f"cannot read: {e.strerror}", file=path) from None
+    try:
+        hook = _int_keys if keys_to_int else None
+        return json.loads(text, object_pairs_hook=hook)
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=path) from None
+
+
+def _int_keys(pairs: list[tuple[str, Any]]) -> dict:
+    return {(int(k) if isinstance(k, str) and k.lstrip("-").isdigit() else k): v for k, v in pairs}
+
+
+@contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (UTF-8)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def dumps_bop_json(content: Any) -> str:
+    """Serialise like the BOP toolkit's ``save_json``: dicts by sorted key, one entry per line."""
+    if isinstance(content, Mapping):
+        items = sorted(content.items(), key=lambda kv: _sort_key(kv[0]))
+        lines = [f"  {json.dumps(str(k))}: {json.dumps(v, sort_keys=True, default=_json_default)}" for k, v in items]
+        return "{\n" + ",\n".join(lines) + "\n}"
+    if isinstance(content, list):
+        lines = [f"  {json.dumps(v, sort_keys=True, default=_json_default)}" for v in content]
+        return "[\n" + ",\n".join(lines) + "\n]"
+    return json.dumps(content, sort_keys=True, default=_json_default)
+
+
+def _sort_key(k: Any) -> tuple:
+    s = str(k)
+    return (0, int(s), s) if s.lstrip("-").isdigit() else (1, 0, s)
+
+
+def save_json(path: str | Path, content: Any) -> None:
+    """Write BOP-style JSON atomically (digit keys sorted numerically)."""
+    write_text_atomic(path, dumps_bop_json(content) + "\n")
+
+
+def load_ply(path: str | Path):
+    """Load a triangle mesh (mm) with trimesh, keeping vertices exactly as stored (no merging).
+
+    Returns:
+        trimesh.Trimesh with ``vertices (N, 3)`` float64 and ``faces (F, 3)``.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError("model file not found", file=path)
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except Exception as e:  # trimesh raises many types on corrupt input
+        raise DatasetError(f"cannot read PLY: {e}", file=path) from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
+        raise DatasetError("expected a triangle mesh with vertices", file=path)
+    if len(mesh.faces) == 0:
+        raise DatasetError("expected a triangle mesh with faces", file=path)
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise DatasetError("vertex coordinates contain NaN or inf", file=path, field="vertex")
+    return mesh
+
+
+def save_ply(path: str | Path, mesh, binary: bool = False) -> None:
+    """Write a mesh as PLY with vertex normals, atomically (ASCII by default, as BOP models)."""
+    import trimesh
+
+    with atomic_path(path) as tmp:
+        data = trimesh.exchange.ply.export_ply(mesh, encoding="binary" if binary else "ascii", include_attributes=False, vertex_normal=True)
+        tmp.write_bytes(data)
+
+
+def _imread(path: Path, flags: int) -> np.ndarray:
+    import cv2
+
+    if not path.is_file():
+        raise DatasetError("image not found", file=path)
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise DatasetError("cannot decode image", file=path)
+    return img
+
+
+def load_depth(path: str | Path, depth_scale: float) -> np.ndarray:
+    """Depth image in mm ``(H, W)`` float32 from a 16-bit PNG: ``png * depth_scale`` (0 = no depth)."""
+    import cv2
+
+    img = _imread(Path(path), cv2.IMREAD_UNCHANGED)
+    if img.ndim != 2:
+        raise DatasetError(f"expected a single-channel depth image, got shape {img.shape}", file=path)
+    return img.astype(np.float32) * np.float32(depth_scale)
+
+
+def save_depth(path: str | Path, depth_mm: np.ndarray, depth_scale: float) -> None:
+    """Write depth in mm as a uint16 PNG with ``png = round(depth / depth_scale)``, atomically."""
+    units = np.round(np.asarray(depth_mm, dtype=np.float64) / depth_scale)
+    if units.max(initial=0) > 65535:
+        raise ValueError(f"depth {depth_mm.max()} mm does not fit uint16 at depth_scale {depth_scale}")
+    write_image(path, units.astype(np.uint16))
+
+
+def load_mask(path: str | Path) -> np.ndarray:
+    """Binary mask ``(H, W)`` bool from a PNG (non-zero = inside)."""
+    import cv2
+
+    img = _imread(Path(path), cv2.IMREAD_UNCHANGED)
+    if img.ndim == 3:
+        img = img.max(axis=2)
+    return img > 0
+
+
+def load_rgb(path: str | Path) -> np.ndarray:
+    """Colour image ``(H, W, 3)`` uint8 in RGB order."""
+    import cv2
+
+    img = _imread(Path(path), cv2.IMREAD_COLOR)
+    return img[:, :, ::-1].copy()
+
+
+def write_image(path: str | Path, image: np.ndarray, jpeg_quality: int = 95) -> None:
+    """Write an image atomically: PNG (uint8/uint16, lossless) or JPEG by suffix. RGB input order."""
+    import cv2
+
+    path = Path(path)
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = img[:, :, ::-1]
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if path.suffix.lower() in (".jpg", ".jpeg") else []
+    ok, buf = cv2.imencode(path.suffix, np.ascontiguousarray(img), params)
+    if not ok:
+        raise OSError(f"cannot encode image {path}")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())
+
+
+def require_keys(entry: Mapping, keys: tuple[str, ...], file: Path, where: str) -> None:
+    """Raise a DatasetError naming the first missing key of ``entry``."""
+    if not isinstance(entry, Mapping):
+        raise DatasetError(f"expected an object, got {type(entry).__name__}", file=file, field=where)
+    for k in keys:
+        if k not in entry:
+            raise DatasetError(f"missing key '{k}'", file=file, field=where)
+
+
+def as_number(value: Any, file: Path, where: str) -> float:
+    """A finite float from a JSON value (int, float or numeric string), else a DatasetError."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise DatasetError(f"expected a number, got {value!r}", file=file, field=where) from None
+    if not math.isfinite(x):
+        raise DatasetError(f"expected a finite number, got {value!r}", file=file, field=where)
+    return x

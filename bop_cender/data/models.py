@@ -1,0 +1,68 @@
+"""Load a BOP ``models*/`` folder: ``models_info.json`` plus ``obj_{id:06d}.ply`` per object."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from bop_cender.data.bop_io import as_number, load_json, require_keys
+from bop_cender.data.types import ObjectModel
+from bop_cender.errors import DatasetError
+from bop_cender.geometry.symmetry import symmetries_from_model_info
+
+_INFO_KEYS = ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z")
+
+
+def model_path(models_dir: Path, obj_id: int) -> Path:
+    """``models_dir/obj_{obj_id:06d}.ply``."""
+    return Path(models_dir) / f"obj_{obj_id:06d}.ply"
+
+
+def load_models(
+    models_dir: str | Path,
+    is_target: Callable[[int], bool] = lambda obj_id: True,
+    require_ply: bool = True,
+) -> dict[int, ObjectModel]:
+    """Read ``models_info.json`` of a models folder into :class:`ObjectModel` s (meshes lazy).
+
+    Args:
+        models_dir: folder with ``models_info.json`` and the PLY files.
+        is_target: which ids are pose targets (DIMO: ids < 100); the others are occluders.
+        require_ply: check that each model's PLY exists now (cheap; the mesh loads later).
+
+    Raises:
+        DatasetError: missing folder/file, malformed JSON, a missing key or a bad value.
+    """
+    models_dir = Path(models_dir)
+    info_path = models_dir / "models_info.json"
+    if not models_dir.is_dir():
+        raise DatasetError("models folder not found", file=models_dir)
+    info = load_json(info_path, keys_to_int=True)
+    if not isinstance(info, dict) or not info:
+        raise DatasetError("expected a non-empty object keyed by object id", file=info_path)
+    models: dict[int, ObjectModel] = {}
+    for key, entry in info.items():
+        if not isinstance(key, int):
+            raise DatasetError(f"object id keys must be integers, got {key!r}", file=info_path, field=str(key))
+        where = f"{key}"
+        require_keys(entry, _INFO_KEYS, info_path, where)
+        vals = {k: as_number(entry[k], info_path, f"{where}.{k}") for k in _INFO_KEYS}
+        try:
+            discrete, continuous = symmetries_from_model_info(entry)
+        except ValueError as e:
+            raise DatasetError(str(e), file=info_path, field=where) from None
+        path = model_path(models_dir, key)
+        if require_ply and not path.is_file():
+            raise DatasetError(f"model of object {key} listed in models_info.json is missing", file=path)
+        models[key] = ObjectModel(
+            obj_id=key,
+            path=path,
+            diameter=vals["diameter"],
+            bbox_min=[vals["min_x"], vals["min_y"], vals["min_z"]],
+            bbox_size=[vals["size_x"], vals["size_y"], vals["size_z"]],
+            symmetries_discrete=discrete,
+            symmetries_continuous=continuous,
+            is_target=bool(is_target(key)),
+            source=str(info_path),
+        )
+    return dict(sorted(models.items()))

@@ -1,0 +1,287 @@
+"""The dataclasses that flow between stages: cameras, models, GT objects, scenes, datasets.
+
+Everything here is in millimetres and float64, and poses are named by their frames
+(``T_cam_world`` maps world points into the camera frame). Constructors validate shapes,
+finiteness and rotations, so a bad value fails where it enters, naming its source.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from bop_cender.errors import DatasetError
+from bop_cender.geometry.symmetry import (
+    BOP19_MAX_SYM_DISC_STEP,
+    ContinuousSymmetry,
+    symmetry_transforms,
+)
+
+if TYPE_CHECKING:
+    import trimesh
+
+#: A rotation whose ``R R^T - I`` has an entry above this is not accepted (BOP files are rounded
+#: to ~6 digits, so real rotations sit around 1e-6).
+ROTATION_TOLERANCE = 1e-2
+
+
+def check_matrix(value: Any, shape: tuple[int, ...], what: str, source: str | None = None) -> np.ndarray:
+    """Return ``value`` as a finite float64 array of ``shape`` or raise a DatasetError naming it."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"expected numbers of shape {shape}, got {value!r:.80}", file=source, field=what) from None
+    if arr.shape != shape:
+        raise DatasetError(f"expected shape {shape}, got {arr.shape}", file=source, field=what)
+    if not np.all(np.isfinite(arr)):
+        raise DatasetError("expected finite numbers, found NaN or inf", file=source, field=what)
+    return arr
+
+
+def check_pose(T: Any, what: str, source: str | None = None, tol: float = ROTATION_TOLERANCE) -> np.ndarray:
+    """Validate a 4x4 rigid transform: finite, last row (0, 0, 0, 1), R orthonormal with det +1."""
+    T = check_matrix(T, (4, 4), what, source)
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        raise DatasetError("expected last row (0, 0, 0, 1)", file=source, field=what)
+    R = T[:3, :3]
+    err = float(np.abs(R @ R.T - np.eye(3)).max())
+    if err > tol or np.linalg.det(R) < 0:
+        raise DatasetError(
+            f"rotation is not orthonormal (max |R R^T - I| = {err:.3g}, det = {np.linalg.det(R):.4f};"
+            f" expected <= {tol:g} and det +1)",
+            file=source,
+            field=what,
+        )
+    return T
+
+
+def check_intrinsics(K: Any, what: str, source: str | None = None) -> np.ndarray:
+    """Validate a pinhole ``K (3, 3)``: positive focal lengths, last row (0, 0, 1)."""
+    K = check_matrix(K, (3, 3), what, source)
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
+        raise DatasetError("expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0", file=source, field=what)
+    return K
+
+
+@dataclass(frozen=True, eq=False)
+class CameraView:
+    """One calibrated image of a scene.
+
+    Attributes:
+        im_id: BOP image id.
+        K: ``(3, 3)`` pinhole intrinsics (pixel convention: pixel (u, v) centre at (u+0.5, v+0.5)).
+        T_cam_world: ``(4, 4)`` world-to-camera transform, mm.
+        width, height: image size in pixels.
+        rgb_path: colour image (None when the dataset has none for this view).
+        depth_path: 16-bit depth PNG, if any; ``depth_mm = png * depth_scale``.
+        depth_scale: mm per depth unit.
+        mask_paths: full-silhouette masks per GT instance, in ``scene_gt`` order (gt_id).
+        mask_visib_paths: visible-part masks per GT instance, in ``scene_gt`` order.
+        info: extra per-image keys (DIMO ``scene_info``: viewpoint, carrier, ...).
+    """
+
+    im_id: int
+    K: np.ndarray
+    T_cam_world: np.ndarray
+    width: int
+    height: int
+    rgb_path: Path | None = None
+    depth_path: Path | None = None
+    depth_scale: float | None = None
+    mask_paths: tuple[Path, ...] = ()
+    mask_visib_paths: tuple[Path, ...] = ()
+    info: Mapping[str, Any] = field(default_factory=dict)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        what = f"image {self.im_id}"
+        object.__setattr__(self, "K", check_intrinsics(self.K, f"{what}: K", self.source))
+        object.__setattr__(self, "T_cam_world", check_pose(self.T_cam_world, f"{what}: T_cam_world", self.source))
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise DatasetError(f"image size must be positive, got {self.width}x{self.height}", file=self.source, field=what)
+        if self.depth_scale is not None and not (math.isfinite(self.depth_scale) and self.depth_scale > 0):
+            raise DatasetError(f"depth_scale must be a positive number, got {self.depth_scale}", file=self.source, field=what)
+
+    @property
+    def T_world_cam(self) -> np.ndarray:
+        """Camera-to-world ``(4, 4)``."""
+        from bop_cender.geometry.poses import invert_pose
+
+        return invert_pose(self.T_cam_world)
+
+
+@dataclass(eq=False)
+class ObjectModel:
+    """A 3D model with its BOP ``models_info.json`` entry.
+
+    Attributes:
+        obj_id: BOP object id.
+        path: PLY file (mm). The mesh loads on first access to :attr:`mesh`.
+        diameter: max distance between two vertices, mm.
+        bbox_min: ``(3,)`` min corner of the 3D bounding box, mm.
+        bbox_size: ``(3,)`` size of the 3D bounding box, mm.
+        symmetries_discrete: flattened row-major 4x4 matrices.
+        symmetries_continuous: rotational symmetries (axis, offset).
+        is_target: False for DIMO carriers/background (ids >= 100): occluders, never targets.
+    """
+
+    obj_id: int
+    path: Path
+    diameter: float
+    bbox_min: np.ndarray
+    bbox_size: np.ndarray
+    symmetries_discrete: list[list[float]] = field(default_factory=list)
+    symmetries_continuous: list[ContinuousSymmetry] = field(default_factory=list)
+    is_target: bool = True
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        what = f"obj {self.obj_id}"
+        if not (math.isfinite(self.diameter) and self.diameter > 0):
+            raise DatasetError(f"diameter must be a positive number, got {self.diameter}", file=self.source, field=f"{what}: diameter")
+        self.bbox_min = check_matrix(self.bbox_min, (3,), f"{what}: min_x/min_y/min_z", self.source)
+        self.bbox_size = check_matrix(self.bbox_size, (3,), f"{what}: size_x/size_y/size_z", self.source)
+
+    @property
+    def center(self) -> np.ndarray:
+        """3D object centre ``(3,)`` in model coordinates: bounding-box centre (design.md)."""
+        return self.bbox_min + self.bbox_size / 2.0
+
+    @property
+    def is_symmetric(self) -> bool:
+        return bool(self.symmetries_discrete or self.symmetries_continuous)
+
+    @cached_property
+    def mesh(self) -> trimesh.Trimesh:
+        """The triangle mesh (mm), loaded once, vertices kept exactly as in the file."""
+        from bop_cender.data.bop_io import load_ply
+
+        return load_ply(self.path)
+
+    def symmetry_transforms(self, max_sym_disc_step: float = BOP19_MAX_SYM_DISC_STEP) -> tuple[np.ndarray, np.ndarray]:
+        """BOP symmetry set ``R (S, 3, 3)``, ``t (S, 3)``, identity first."""
+        return symmetry_transforms(self.symmetries_discrete, self.symmetries_continuous, max_sym_disc_step)
+
+
+@dataclass(frozen=True, eq=False)
+class GtObject:
+    """One ground-truth object instance, static in the scene's world frame.
+
+    Attributes:
+        obj_id: BOP object id.
+        T_world_model: ``(4, 4)`` model-to-world transform, mm.
+        gt_ids: per image id, this instance's index in that image's ``scene_gt`` list.
+        visib_fract: per image id, visible fraction from ``scene_gt_info.json`` when known.
+    """
+
+    obj_id: int
+    T_world_model: np.ndarray
+    gt_ids: Mapping[int, int] = field(default_factory=dict)
+    visib_fract: Mapping[int, float] = field(default_factory=dict)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "T_world_model", check_pose(self.T_world_model, f"obj {self.obj_id}: T_world_model", self.source)
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A set of calibrated views of one static arrangement of objects, and its ground truth.
+
+    Attributes:
+        dataset: dataset name (``dimo``, ``tless``, or a BOP dataset name).
+        split: the user's split name (``real``, ``sim``, ``train``, ``test``, ``train_pbr``).
+        scene_id: BOP scene folder name as a string (DIMO sim: ``000123_17``).
+        views: the selected views.
+        gt: ground-truth instances (may be empty for unannotated data).
+        key_suffix: distinguishes several Scenes cut from one folder: ``g03`` for the fourth
+            T-LESS view group, ``i000123`` for one train_pbr image; empty for a whole folder.
+        info: free-form notes (e.g. DIMO carrier, composition).
+    """
+
+    dataset: str
+    split: str
+    scene_id: str
+    views: tuple[CameraView, ...]
+    gt: tuple[GtObject, ...] = ()
+    key_suffix: str = ""
+    info: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        ids = [v.im_id for v in self.views]
+        if len(set(ids)) != len(ids):
+            raise DatasetError(f"scene {self.scene_id}: duplicate image ids {sorted(ids)}")
+
+    @property
+    def key(self) -> str:
+        """Unique name within the dataset split: ``scene_id``, or ``scene_id/suffix`` (see key_suffix)."""
+        return f"{self.scene_id}/{self.key_suffix}" if self.key_suffix else self.scene_id
+
+    @property
+    def im_ids(self) -> list[int]:
+        return [v.im_id for v in self.views]
+
+    def view(self, im_id: int) -> CameraView:
+        for v in self.views:
+            if v.im_id == im_id:
+                return v
+        raise KeyError(im_id)
+
+
+@dataclass(eq=False)
+class Dataset:
+    """A dataset split on disk: its models, its scene keys and lazily loaded scenes.
+
+    Attributes:
+        root: dataset root folder.
+        name: dataset name as BOP writes it in result file names (``dimo``, ``tless``, ...).
+        split: the user's split name.
+        models: target and occluder models, by obj_id (``models/`` or ``models_cad/``).
+        eval_models: models used by evaluation (``models_eval/``), by obj_id.
+        scene_keys: keys of the scenes, in order (see :attr:`Scene.key`).
+        selection: human-readable notes on what the split selected and why.
+        residuals: largest pose-consistency residuals seen while loading (mm, rad).
+        image_size: (width, height) of the split's images.
+        has_depth: whether test depth images exist (VSD needs them).
+    """
+
+    root: Path
+    name: str
+    split: str
+    models: dict[int, ObjectModel]
+    scene_keys: list[str]
+    loader: Callable[[str], Scene]
+    eval_models: dict[int, ObjectModel] = field(default_factory=dict)
+    selection: list[str] = field(default_factory=list)
+    residuals: dict[str, float] = field(default_factory=dict)
+    image_size: tuple[int, int] | None = None
+    has_depth: bool = False
+    _cache: dict[str, Scene] = field(default_factory=dict, repr=False)
+
+    def scene(self, key: str) -> Scene:
+        """Load (once) and return the scene with this key."""
+        if key not in self._cache:
+            if key not in self.scene_keys:
+                raise DatasetError(f"unknown scene {key!r}; known: {', '.join(self.scene_keys[:10])}", file=self.root)
+            self._cache[key] = self.loader(key)
+        return self._cache[key]
+
+    def scenes(self) -> Iterator[Scene]:
+        """All scenes of the split in order, loaded lazily."""
+        for key in self.scene_keys:
+            yield self.scene(key)
+
+    @property
+    def target_obj_ids(self) -> list[int]:
+        return sorted(i for i, m in self.models.items() if m.is_target)
+
+    def __len__(self) -> int:
+        return len(self.scene_keys)
