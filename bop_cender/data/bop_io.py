@@ -213,3 +213,23 @@ def as_number(value: Any, file: Path, where: str) -> float:
     if not math.isfinite(x):
         raise DatasetError(f"expected a finite number, got {value!r}", file=file, field=where)
     return x
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """``(width, height)`` of a PNG (read from its header, 24 bytes) or any image cv2 decodes.
+
+    Raises:
+        DatasetError: the file is missing or not an image.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(24)
+    except FileNotFoundError:
+        raise DatasetError("image not found", file=path) from None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    import cv2
+
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    return int(img.shape[1]), int(img.shape[0])
