@@ -1,0 +1,78 @@
+"""A human-readable summary of a dataset split: what ``bop-cender info`` prints."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+from tqdm import tqdm
+
+from bop_cender.data.types import Dataset
+
+
+@dataclass
+class DatasetSummary:
+    """Counts gathered by loading every scene of a split once (which also runs every consistency check)."""
+
+    scenes: int = 0
+    views: int = 0
+    gt_instances: int = 0
+    target_instances: int = 0
+    views_per_scene: Counter = field(default_factory=Counter)
+    objects_per_id: Counter = field(default_factory=Counter)
+    image_sizes: Counter = field(default_factory=Counter)
+
+
+def summarise(dataset: Dataset, progress: bool = True) -> DatasetSummary:
+    """Load every scene (lazily, with a progress bar on stderr) and count what is there."""
+    s = DatasetSummary()
+    keys = dataset.scene_keys
+    for key in tqdm(keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False):
+        scene = dataset.scene(key)
+        s.scenes += 1
+        s.views += len(scene.views)
+        s.views_per_scene[len(scene.views)] += 1
+        for v in scene.views:
+            s.image_sizes[(v.width, v.height)] += 1
+        for g in scene.gt:
+            s.gt_instances += 1
+            s.objects_per_id[g.obj_id] += 1
+            model = dataset.models.get(g.obj_id)
+            if model is not None and model.is_target:
+                s.target_instances += 1
+    return s
+
+
+def _ids(ids: list[int]) -> str:
+    return ", ".join(str(i) for i in ids) if ids else "none"
+
+
+def describe(dataset: Dataset, progress: bool = True) -> str:
+    """Multi-line text: scenes, views, objects, symmetric models, the selection and why, residuals."""
+    s = summarise(dataset, progress=progress)
+    models = dataset.models
+    targets = [i for i, m in models.items() if m.is_target]
+    occluders = [i for i, m in models.items() if not m.is_target]
+    sym_cont = [i for i in targets if models[i].symmetries_continuous]
+    sym_disc = [i for i in targets if models[i].symmetries_discrete and not models[i].symmetries_continuous]
+    sizes = ", ".join(f"{w}x{h} ({n} views)" for (w, h), n in sorted(s.image_sizes.items())) or "-"
+    vps = ", ".join(f"{n} scenes with {v}" for v, n in sorted(s.views_per_scene.items())) or "-"
+    lines = [
+        f"dataset   {dataset.name}, split {dataset.split}",
+        f"root      {dataset.root}",
+        f"models    {len(targets)} targets (ids {_ids(targets)}); {len(occluders)} occluders (ids {_ids(occluders)})",
+        f"symmetric continuous: {_ids(sym_cont)}; discrete only: {_ids(sym_disc)}",
+        f"scenes    {s.scenes}",
+        f"views     {s.views} ({vps}); image size {sizes}; depth images: {'yes' if dataset.has_depth else 'no'}",
+        f"objects   {s.gt_instances} GT instances ({s.target_instances} of target objects); per object id: "
+        + (", ".join(f"{i}: {n}" for i, n in sorted(s.objects_per_id.items())) or "none"),
+    ]
+    if dataset.eval_models and dataset.eval_models is not dataset.models:
+        lines.append(f"eval      {len(dataset.eval_models)} evaluation models")
+    if dataset.selection:
+        lines.append("selection")
+        lines += [f"  - {note}" for note in dataset.selection]
+    if dataset.residuals:
+        parts = [f"{k} {v:.4g}" for k, v in sorted(dataset.residuals.items())]
+        lines.append("pose consistency (largest residuals between files): " + ", ".join(parts))
+    return "\n".join(lines)

@@ -1,0 +1,501 @@
+"""BOP results CSV: world-frame estimates to per-image rows, a strict reader, an exact writer.
+
+The format (BOP'19, ``docs/bop_challenge_2019.md``; ``inout.load_bop_results``) is one line per
+estimate, ``scene_id,im_id,obj_id,score,R,t,time``: ``R`` 9 numbers row-major (model to camera),
+``t`` 3 numbers in mm, ``time`` seconds for the whole image (``-1`` = unknown), an optional header
+on line 1. File names are ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``.
+
+The reader accepts every file the official toolkit accepts that is also sane (real submissions
+unchanged: no final newline, CRLF, trailing blank lines) and checks every row, reporting all bad
+lines at once; the writer applies the same checks before writing, writes floats with ``repr`` so
+that a write/read round trip is exact in float64, and writes atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from collections.abc import Collection, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bop_cender.data.bop_io import atomic_path, save_json
+from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.data.types import ROTATION_TOLERANCE, Scene
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
+from bop_cender.estimates import SceneEstimate
+from bop_cender.geometry.poses import compose, make_pose
+from bop_cender.geometry.rotations import orthonormality_error
+
+HEADER = "scene_id,im_id,obj_id,score,R,t,time"
+#: Above this (max |R R^T - I|) a rotation is accepted with a ResultsWarning; above
+#: ROTATION_TOLERANCE (1e-2) or with det < 0 it is an error. Rotations are never re-orthonormalised.
+ROTATION_WARN_TOLERANCE = 1e-4
+#: All estimates of one image must share their time within this (toolkit's check_consistent_timings).
+TIME_TOLERANCE_S = 0.001
+SIDECAR_FORMAT = "bop-cender-run"
+SIDECAR_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class BopEstimate:
+    """One row of a BOP results CSV: a pose in one image's camera frame.
+
+    Attributes:
+        scene_id: int scene id (DIMO ``000123_17`` -> 12317, see :mod:`bop_cender.data.scene_ids`).
+        im_id: image id. obj_id: object id.
+        score: confidence, higher is better.
+        R: ``(3, 3)`` float64 model-to-camera rotation (read-only copy).
+        t: ``(3,)`` float64 model-to-camera translation, mm (read-only copy).
+        time: seconds for the whole image; negative = unknown.
+        line: line number in the file this row was read from (1-based), None if not read.
+
+    Equality compares every value bit for bit and ignores ``line`` (where a row came from).
+    """
+
+    scene_id: int
+    im_id: int
+    obj_id: int
+    score: float
+    R: np.ndarray
+    t: np.ndarray
+    time: float
+    line: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("scene_id", "im_id", "obj_id"):
+            object.__setattr__(self, name, int(getattr(self, name)))
+        object.__setattr__(self, "score", float(self.score))
+        object.__setattr__(self, "time", float(self.time))
+        for name, shape in (("R", (3, 3)), ("t", (3,))):
+            arr = np.array(getattr(self, name), dtype=np.float64)
+            if arr.size != math.prod(shape):
+                raise ValueError(f"BopEstimate.{name}: expected {math.prod(shape)} numbers, got shape {arr.shape}")
+            arr = arr.reshape(shape)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, BopEstimate):
+            return NotImplemented
+        return (
+            (self.scene_id, self.im_id, self.obj_id, self.score, self.time)
+            == (other.scene_id, other.im_id, other.obj_id, other.score, other.time)
+            and np.array_equal(self.R, other.R)
+            and np.array_equal(self.t, other.t)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    @property
+    def T_cam_model(self) -> np.ndarray:
+        """``(4, 4)`` model-to-camera transform, mm."""
+        return make_pose(self.R, self.t)
+
+
+@dataclass(frozen=True)
+class ResultName:
+    """The parts of a BOP result file name ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``."""
+
+    method: str
+    dataset: str
+    split: str
+    split_type: str | None = None
+    optional_id: str | None = None
+
+    def filename(self, ext: str = "csv") -> str:
+        """The file name these parts make (inverse of :func:`parse_result_filename`)."""
+        parts = "-".join(p for p in (self.dataset, self.split, self.split_type) if p)
+        tail = f"_{self.optional_id}" if self.optional_id else ""
+        return f"{self.method}_{parts}{tail}.{ext}"
+
+
+def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEstimate]:
+    """Per-image camera-frame rows for every (view, object) of a scene: ``T_cam_model = T_cam_world @ T_world_model``.
+
+    Every object is written into every view of the scene (as CosyPose's multi-view results are);
+    BOP's evaluation only looks at the targets of each image, so an object outside one view costs
+    nothing. ``time`` of every row is the scene's ``time_s``: a multi-view method produces no
+    image's estimates before the whole scene is processed, so each image waited that long (dividing
+    by the view count would understate the latency of a single image).
+
+    Returns:
+        ``len(scene.views) * len(estimate.objects)`` rows, view by view, objects in estimate order.
+    """
+    if estimate.scene_key != scene.key or estimate.scene_id != scene.scene_id:
+        raise ValueError(f"estimate for scene {estimate.scene_key!r} given with scene {scene.key!r}")
+    scene_id = scene_folder_to_int(scene.scene_id)
+    rows = []
+    for view in scene.views:
+        for obj in estimate.objects:
+            T = compose(view.T_cam_world, obj.T_world_model)
+            rows.append(BopEstimate(scene_id, view.im_id, obj.obj_id, obj.score, T[:3, :3], T[:3, 3], estimate.time_s))
+    return rows
+
+
+def write_bop_results(
+    path: str | Path, rows: Iterable[BopEstimate], *, sort: bool = True, strict_name: bool = True
+) -> None:
+    """Write rows as a BOP results CSV, atomically (a failure leaves any previous file untouched).
+
+    Floats are written with ``repr`` (shortest string that reads back to the same float64), so
+    :func:`read_bop_results` returns the rows bit for bit. With ``sort`` (default) rows are ordered
+    by ``(scene_id, im_id, score descending)``, ties in the given order, so the file does not depend
+    on the order in which scenes finished; ``sort=False`` keeps the given order.
+
+    Raises:
+        ResultsError: the file name is not a valid BOP result name (``strict_name``), or rows fail
+            the reader's checks (every bad row listed by its 0-based index in the given order).
+    """
+    path = Path(path)
+    if strict_name:
+        parse_result_filename(path.name)
+        if path.suffix != ".csv":
+            raise ResultsError(f"expected the suffix .csv, got {path.suffix!r}", file=path, field="file name")
+    rows = list(rows)
+    arrays = _rows_to_arrays(rows)
+    problems, warn = _check_arrays(*arrays, numbers=np.arange(len(rows)), known_obj_ids=None)
+    if problems:
+        raise ResultsError(
+            f"{len(problems)} problem(s) in the rows to write", file=path, problems=_fmt(problems, "row")
+        )
+    _warn_rotations(warn, path, "row")
+    if sort:
+        rows = sorted(rows, key=lambda r: (r.scene_id, r.im_id, -r.score))
+    with atomic_path(path) as tmp, tmp.open("w", encoding="utf-8", newline="\n") as f:
+        f.write(HEADER + "\n")
+        for row in rows:
+            f.write(_format_row(row) + "\n")
+
+
+def _format_row(row: BopEstimate) -> str:
+    R = " ".join(map(repr, row.R.ravel().tolist()))
+    t = " ".join(map(repr, row.t.tolist()))
+    return f"{row.scene_id},{row.im_id},{row.obj_id},{row.score!r},{R},{t},{row.time!r}"
+
+
+def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = None) -> list[BopEstimate]:
+    """Read and check a BOP results CSV; every bad line is reported, with its number, in one error.
+
+    Accepted as the toolkit accepts it: a header only on line 1 (any line containing the header
+    text), CRLF or LF, no final newline; trailing blank lines are also tolerated. Checked on every
+    row: 7 columns; ids non-negative ints; score, R, t, time finite numbers; R 9 numbers, t 3;
+    R a rotation (error when max|R R^T - I| > 1e-2 or det < 0, one :class:`ResultsWarning` for
+    all rows above 1e-4; never re-orthonormalised); obj_id in ``known_obj_ids`` when given; all
+    rows of one image with a known time (>= 0) within 0.001 s of the image's first such row.
+
+    Returns:
+        The rows in file order, each with its ``line``.
+
+    Raises:
+        ResultsError: missing/unreadable file, or any bad row (``problems`` lists them all).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ResultsError("results file not found", file=path) from None
+    except UnicodeDecodeError as e:
+        raise ResultsError(f"not UTF-8 text (byte {e.start})", file=path) from None
+    except OSError as e:
+        raise ResultsError(f"cannot read: {e.strerror}", file=path) from None
+    lines = text.split("\n")  # read_text already turned CRLF (and lone CR) into LF, as the toolkit's open()
+    end = len(lines)
+    while end and not lines[end - 1].strip():
+        end -= 1
+    problems: list[tuple[int, str]] = []
+    parsed: list[tuple] = []
+    for i in range(1 if lines and HEADER in lines[0] else 0, end):
+        row = _parse_line(lines[i], i + 1, problems)
+        if row is not None:
+            parsed.append(row)
+    if parsed:
+        numbers, sid, im, obj, score, R, t, time = (np.array(c) for c in zip(*parsed, strict=True))
+        R = R.reshape(-1, 3, 3)
+    else:
+        numbers, sid, im, obj, score, R, t, time = _empty_arrays()
+    more, warn = _check_arrays(sid, im, obj, score, R, t, time, numbers=numbers, known_obj_ids=known_obj_ids)
+    problems += more
+    if problems:
+        bad = len({n for n, _ in problems})
+        raise ResultsError(
+            f"{bad} bad line(s) in BOP results (expected '{HEADER}')", file=path, problems=_fmt(problems, "line")
+        )
+    _warn_rotations(warn, path, "line")
+    return [
+        BopEstimate(int(sid[k]), int(im[k]), int(obj[k]), float(score[k]), R[k], t[k], float(time[k]), int(numbers[k]))
+        for k in range(len(parsed))
+    ]
+
+
+def _parse_line(line: str, number: int, problems: list[tuple[int, str]]) -> tuple | None:
+    """One CSV line to ``(number, scene_id, im_id, obj_id, score, R[9], t[3], time)``; None on a problem."""
+    fields = line.split(",")
+    if len(fields) != 7:
+        what = "an empty line" if not line.strip() else f"{len(fields)} comma-separated fields"
+        problems.append((number, f"expected 7 comma-separated fields, got {what}"))
+        return None
+    ok = True
+    ids = []
+    for name, value in zip(("scene_id", "im_id", "obj_id"), fields[:3], strict=False):
+        s = value.strip()
+        if s.isascii() and s.isdigit() and len(s) <= 18:  # fits int64
+            ids.append(int(s))
+        else:
+            problems.append((number, f"{name}: expected a non-negative integer, got {value!r}"))
+            ok = False
+    numbers = []
+    for name, value, count in (
+        ("score", fields[3], 1),
+        ("R", fields[4], 9),
+        ("t", fields[5], 3),
+        ("time", fields[6], 1),
+    ):
+        tokens = value.split()
+        if len(tokens) != count:
+            problems.append((number, f"{name}: expected {count} number(s), got {len(tokens)}"))
+            ok = False
+            continue
+        try:
+            numbers.append([float(x) for x in tokens])
+        except ValueError:
+            problems.append((number, f"{name}: expected number(s), got {value.strip()!r}"))
+            ok = False
+    if not ok:
+        return None
+    return (number, *ids, numbers[0][0], numbers[1], numbers[2], numbers[3][0])
+
+
+def _empty_arrays() -> tuple[np.ndarray, ...]:
+    i = np.zeros(0, dtype=np.int64)
+    f = np.zeros(0)
+    return i, i, i, i, f, np.zeros((0, 3, 3)), np.zeros((0, 3)), f
+
+
+def _rows_to_arrays(rows: list[BopEstimate]) -> tuple[np.ndarray, ...]:
+    """Column arrays ``(scene_id, im_id, obj_id, score, R (N,3,3), t (N,3), time)`` of rows."""
+    if not rows:
+        return _empty_arrays()[1:]
+    cols = list(zip(*((r.scene_id, r.im_id, r.obj_id, r.score, r.R, r.t, r.time) for r in rows), strict=True))
+    return tuple(np.array(c) for c in cols)
+
+
+def _check_arrays(
+    sid: np.ndarray,
+    im: np.ndarray,
+    obj: np.ndarray,
+    score: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    time: np.ndarray,
+    *,
+    numbers: np.ndarray,
+    known_obj_ids: Collection[int] | None,
+) -> tuple[list[tuple[int, str]], tuple[int, int, float] | None]:
+    """Row checks shared by reader and writer, vectorised over N rows.
+
+    Args:
+        sid, im, obj: ``(N,)`` ints. score, time: ``(N,)``. R: ``(N, 3, 3)``. t: ``(N, 3)``.
+        numbers: ``(N,)`` the line (reader) or row index (writer) each row is reported under.
+
+    Returns:
+        ``(problems, warn)``: problems as ``(number, message)``; warn is ``(count, worst number,
+        worst error)`` of rotations above ROTATION_WARN_TOLERANCE but accepted, or None.
+    """
+    problems: list[tuple[int, str]] = []
+    for name, ids in (("scene_id", sid), ("im_id", im), ("obj_id", obj)):
+        for k in np.flatnonzero(ids < 0):
+            problems.append((int(numbers[k]), f"{name}: expected a non-negative integer, got {ids[k]}"))
+    finite_R = np.isfinite(R).all(axis=(1, 2))
+    for name, ok in (("score", np.isfinite(score)), ("R", finite_R), ("t", np.isfinite(t).all(axis=1)),
+                     ("time", np.isfinite(time))):  # fmt: skip
+        for k in np.flatnonzero(~ok):
+            problems.append((int(numbers[k]), f"{name}: expected finite numbers, found NaN or inf"))
+    err = np.full(len(R), np.nan)
+    det = np.full(len(R), np.nan)
+    err[finite_R] = orthonormality_error(R[finite_R])
+    det[finite_R] = np.linalg.det(R[finite_R])
+    for k in np.flatnonzero(finite_R & ((err > ROTATION_TOLERANCE) | (det < 0))):
+        problems.append(
+            (
+                int(numbers[k]),
+                f"R: not a rotation (max |R R^T - I| = {err[k]:.3g}, det = {det[k]:.4f};"
+                f" expected <= {ROTATION_TOLERANCE:g} and det +1)",
+            )
+        )
+    if known_obj_ids is not None:
+        known = {int(i) for i in known_obj_ids}
+        for k in np.flatnonzero(~np.isin(obj, list(known))):
+            problems.append((int(numbers[k]), f"obj_id: unknown object {obj[k]} (known: {sorted(known)})"))
+    problems += _check_times(sid, im, time, numbers)
+    soft = finite_R & (err > ROTATION_WARN_TOLERANCE) & (err <= ROTATION_TOLERANCE) & (det >= 0)
+    warn = None
+    if soft.any():
+        worst = int(np.nanargmax(np.where(soft, err, np.nan)))
+        warn = (int(soft.sum()), int(numbers[worst]), float(err[worst]))
+    problems.sort(key=lambda p: p[0])
+    return problems, warn
+
+
+def _check_times(sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.ndarray) -> list[tuple[int, str]]:
+    """Per image, every known time (>= 0) within TIME_TOLERANCE_S of that image's first known time."""
+    first: dict[tuple[int, int], int] = {}
+    problems = []
+    times = time.tolist()
+    for k, (s, i, tm) in enumerate(zip(sid.tolist(), im.tolist(), times, strict=True)):
+        if not tm >= 0:  # unknown (-1), as in the toolkit; NaN is reported elsewhere
+            continue
+        j = first.setdefault((s, i), k)
+        if abs(tm - times[j]) > TIME_TOLERANCE_S:
+            msg = f"time: {tm!r} s differs from {times[j]!r} s of the same image (scene {s}, image {i}) at {numbers[j]}"
+            problems.append(
+                (int(numbers[k]), msg + f"; one image's estimates must share its time within {TIME_TOLERANCE_S} s")
+            )
+    return problems
+
+
+def _fmt(problems: list[tuple[int, str]], word: str) -> list[str]:
+    return [f"{word} {n}: {msg}" for n, msg in problems]
+
+
+def _warn_rotations(warn: tuple[int, int, float] | None, path: Path, word: str) -> None:
+    if warn is not None:
+        count, worst, err = warn
+        warnings.warn(
+            f"{path}: {count} rotation(s) slightly non-orthonormal (max |R R^T - I| > {ROTATION_WARN_TOLERANCE:g});"
+            f" worst {err:.3g} at {word} {worst}; used as they are",
+            ResultsWarning,
+            stacklevel=3,
+        )
+
+
+def group_by_image(rows: Iterable[BopEstimate]) -> dict[tuple[int, int], list[BopEstimate]]:
+    """Rows keyed by ``(scene_id, im_id)``, images in first-seen order, rows in given order."""
+    groups: dict[tuple[int, int], list[BopEstimate]] = {}
+    for row in rows:
+        groups.setdefault((row.scene_id, row.im_id), []).append(row)
+    return groups
+
+
+def parse_result_filename(name: str | Path) -> ResultName:
+    """Parse ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].{ext}`` as the toolkit does.
+
+    Like ``inout.parse_result_filename``: the extension is everything after the first ``.``, the
+    rest is split on ``_`` (method, dataset-split, optional id) and the second part on ``-``. Names
+    the toolkit would read differently from what they say are refused: no ``_`` or no ``-``, an
+    empty part, or a fourth ``-`` part (the toolkit would silently drop it).
+
+    Raises:
+        ResultsError: the name does not follow the pattern.
+    """
+    base = Path(name).name
+    stem = base.split(".")[0]
+    parts = stem.split("_")
+    expected = "expected {method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv (no '_' in the method)"
+    if len(parts) < 2:
+        raise ResultsError(f"no '_' after the method name; {expected}", file=base, field="file name")
+    ds = parts[1].split("-")
+    optional_id = "_".join(parts[2:]) or None
+    if len(ds) not in (2, 3) or not all(ds) or not all(parts):
+        raise ResultsError(f"cannot read method/dataset/split from {stem!r}; {expected}", file=base, field="file name")
+    return ResultName(parts[0], ds[0], ds[1], ds[2] if len(ds) == 3 else None, optional_id)
+
+
+def result_filename(
+    method: str, dataset: str, split: str, split_type: str | None = None, optional_id: str | None = None
+) -> str:
+    """``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``, checked to parse back the same.
+
+    BOP names a ``train_pbr`` folder as split ``train``, split type ``pbr``.
+
+    Raises:
+        ConfigError: a part is empty or contains a character the toolkit splits on (``_`` in the
+            method; ``_``, ``-`` in dataset/split/split type; ``.`` anywhere).
+    """
+    checks = [("method", method, "_."), ("dataset", dataset, "_-."), ("split", split, "_-.")]
+    if split_type is not None:
+        checks.append(("split_type", split_type, "_-."))
+    if optional_id is not None:
+        checks.append(("optional_id", optional_id, "."))
+    for what, value, bad in checks:
+        if not value or any(c in value for c in bad) or "/" in value:
+            raise ConfigError(
+                f"{value!r} cannot be a BOP result-name part: must be non-empty without {' '.join(bad)} or /",
+                field=what,
+            )
+    return ResultName(method, dataset, split, split_type, optional_id).filename()
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    """The run sidecar beside a results CSV: ``<csv stem>.json``."""
+    csv_path = Path(csv_path)
+    return csv_path.with_name(csv_path.name.split(".")[0] + ".json")
+
+
+def write_run_sidecar(
+    csv_path: str | Path,
+    data_root: str | Path,
+    dataset: str,
+    split: str,
+    selection: Mapping[str, Any],
+    seed: int,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Record how a results CSV was made (data root, dataset, split, selection, seed) in ``<stem>.json``.
+
+    ``bop-cender score`` reads it to find the data the results belong to. No time stamp is written,
+    so the same run writes the same bytes. Returns the sidecar path.
+    """
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise ConfigError(f"seed must be an int, got {seed!r}", field="seed")
+    content = {
+        "format": SIDECAR_FORMAT,
+        "version": SIDECAR_VERSION,
+        "results": Path(csv_path).name,
+        "data_root": str(Path(data_root).resolve()),
+        "dataset": dataset,
+        "split": split,
+        "selection": dict(selection),
+        "seed": seed,
+        "extra": dict(extra or {}),
+    }
+    path = sidecar_path(csv_path)
+    save_json(path, content)
+    return path
+
+
+_SIDECAR_TYPES = {"format": str, "version": int, "data_root": str, "dataset": str, "split": str,
+                  "selection": dict, "seed": int, "extra": dict}  # fmt: skip
+
+
+def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
+    """The sidecar of a results CSV as a dict, or None when there is none.
+
+    Raises:
+        ResultsError: the sidecar is not JSON, not ours, or a key is missing or of the wrong type.
+    """
+    path = sidecar_path(csv_path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ResultsError(f"malformed run sidecar: {e}", file=path) from None
+    if not isinstance(data, dict) or data.get("format") != SIDECAR_FORMAT:
+        raise ResultsError(f"not a run sidecar (expected an object with format {SIDECAR_FORMAT!r})", file=path)
+    problems = [
+        f"{key}: expected {kind.__name__}, got {type(data.get(key)).__name__}"
+        for key, kind in _SIDECAR_TYPES.items()
+        if not isinstance(data.get(key), kind) or (kind is int and isinstance(data.get(key), bool))
+    ]
+    if problems:
+        raise ResultsError("malformed run sidecar", file=path, problems=problems)
+    if data["version"] > SIDECAR_VERSION:
+        raise ResultsError(
+            f"sidecar version {data['version']} is newer than this bop-cender's {SIDECAR_VERSION}", file=path
+        )
+    return data

@@ -1,0 +1,102 @@
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from bop_cender.data.bop_io import (
+    atomic_path,
+    dumps_bop_json,
+    image_size,
+    load_depth,
+    load_json,
+    load_mask,
+    load_ply,
+    load_rgb,
+    save_depth,
+    save_json,
+    save_ply,
+    write_image,
+)
+from bop_cender.errors import DatasetError
+
+
+def test_json_keys_to_int_and_round_trip(tmp_path):
+    content = {"10": [1, 2], "2": {"a": 1.5}, "name": "x"}
+    save_json(tmp_path / "a.json", content)
+    text = (tmp_path / "a.json").read_text()
+    # Digit keys sorted numerically, one entry per line, as the BOP toolkit writes.
+    assert text.index('"2"') < text.index('"10"')
+    assert json.loads(text) == content
+    loaded = load_json(tmp_path / "a.json", keys_to_int=True)
+    assert loaded == {2: {"a": 1.5}, 10: [1, 2], "name": "x"}
+
+
+def test_json_list_of_dicts_one_per_line():
+    text = dumps_bop_json([{"b": 1, "a": 2}, {"a": 3}])
+    assert text.splitlines()[1].strip() == '{"a": 2, "b": 1},'
+
+
+def test_json_errors_name_file_and_position(tmp_path):
+    with pytest.raises(DatasetError, match="missing.json: file not found"):
+        load_json(tmp_path / "missing.json")
+    (tmp_path / "bad.json").write_text('{"0": [1, 2,\n]}')
+    with pytest.raises(DatasetError, match=r"bad.json: malformed JSON: .* line 2, column 1"):
+        load_json(tmp_path / "bad.json")
+
+
+def test_atomic_path_leaves_nothing_on_error(tmp_path):
+    target = tmp_path / "out.txt"
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("boom")
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_depth_round_trip(tmp_path):
+    depth = np.array([[0.0, 600.1], [812.3, 6553.5]], dtype=np.float32)
+    save_depth(tmp_path / "d.png", depth, 0.1)
+    back = load_depth(tmp_path / "d.png", 0.1)
+    assert back.dtype == np.float32
+    np.testing.assert_allclose(back, depth, atol=0.05)
+    assert back[0, 0] == 0
+    with pytest.raises(ValueError, match="uint16"):
+        save_depth(tmp_path / "e.png", np.array([[7000.0]]), 0.1)
+
+
+def test_rgb_mask_and_size(tmp_path):
+    rgb = np.zeros((5, 7, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    write_image(tmp_path / "c.png", rgb)
+    np.testing.assert_array_equal(load_rgb(tmp_path / "c.png"), rgb)
+    assert image_size(tmp_path / "c.png") == (7, 5)
+    write_image(tmp_path / "c.jpg", rgb)
+    assert image_size(tmp_path / "c.jpg") == (7, 5)
+    mask = np.zeros((5, 7), np.uint8)
+    mask[1:3, 2:4] = 255
+    write_image(tmp_path / "m.png", mask)
+    assert load_mask(tmp_path / "m.png").sum() == 4
+    with pytest.raises(DatasetError, match="image not found"):
+        load_mask(tmp_path / "nope.png")
+    (tmp_path / "junk.png").write_bytes(b"not a png")
+    with pytest.raises(DatasetError, match="cannot decode"):
+        load_rgb(tmp_path / "junk.png")
+
+
+def test_ply_round_trip_keeps_vertices(tmp_path):
+    mesh = trimesh.creation.box(extents=(10.0, 20.0, 30.0))
+    save_ply(tmp_path / "obj_000001.ply", mesh)
+    back = load_ply(tmp_path / "obj_000001.ply")
+    np.testing.assert_allclose(back.vertices, mesh.vertices)
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    header = (tmp_path / "obj_000001.ply").read_text().split("end_header")[0]
+    assert "property float nx" in header or "property double nx" in header
+
+
+def test_ply_errors(tmp_path):
+    with pytest.raises(DatasetError, match="model file not found"):
+        load_ply(tmp_path / "obj_000009.ply")
+    (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
+    with pytest.raises(DatasetError, match="bad.ply"):
+        load_ply(tmp_path / "bad.ply")
