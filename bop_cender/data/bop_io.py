@@ -128,7 +128,9 @@ def save_ply(path: str | Path, mesh, binary: bool = False) -> None:
     import trimesh
 
     with atomic_path(path) as tmp:
-        data = trimesh.exchange.ply.export_ply(mesh, encoding="binary" if binary else "ascii", include_attributes=False, vertex_normal=True)
+        data = trimesh.exchange.ply.export_ply(
+            mesh, encoding="binary" if binary else "ascii", include_attributes=False, vertex_normal=True
+        )
         tmp.write_bytes(data)
 
 

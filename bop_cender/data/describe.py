@@ -67,7 +67,7 @@ def describe(dataset: Dataset, progress: bool = True) -> str:
         f"objects   {s.gt_instances} GT instances ({s.target_instances} of target objects); per object id: "
         + (", ".join(f"{i}: {n}" for i, n in sorted(s.objects_per_id.items())) or "none"),
     ]
-    if dataset.eval_models and dataset.eval_models is not dataset.models:
+    if dataset.eval_models and any(m.path != models.get(i, m).path for i, m in dataset.eval_models.items()):
         lines.append(f"eval      {len(dataset.eval_models)} evaluation models")
     if dataset.selection:
         lines.append("selection")

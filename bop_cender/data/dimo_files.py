@@ -160,9 +160,7 @@ def read_gt_world(path: Path, known_obj_ids: Iterable[int]) -> list[WorldObject]
     """
     data = load_json(path)
     if not isinstance(data, list):
-        raise DatasetError(
-            f"expected a list with one entry per object instance, got {type(data).__name__}", file=path
-        )
+        raise DatasetError(f"expected a list with one entry per object instance, got {type(data).__name__}", file=path)
     known = set(known_obj_ids)
     objects = []
     for k, entry in enumerate(data):

@@ -51,7 +51,9 @@ def open_dataset(
 
         data_root = ensure_demo(name)
         if not quiet:
-            print(f"[bop-cender] no --data-root: using the embedded synthetic {name} demo at {data_root}", file=sys.stderr)
+            print(
+                f"[bop-cender] no --data-root: using the embedded synthetic {name} demo at {data_root}", file=sys.stderr
+            )
     root = Path(data_root)
     if name == "dimo":
         from bop_cender.data.dimo import open_dimo

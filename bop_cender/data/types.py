@@ -104,9 +104,13 @@ class CameraView:
         object.__setattr__(self, "K", check_intrinsics(self.K, f"{what}: K", self.source))
         object.__setattr__(self, "T_cam_world", check_pose(self.T_cam_world, f"{what}: T_cam_world", self.source))
         if int(self.width) <= 0 or int(self.height) <= 0:
-            raise DatasetError(f"image size must be positive, got {self.width}x{self.height}", file=self.source, field=what)
+            raise DatasetError(
+                f"image size must be positive, got {self.width}x{self.height}", file=self.source, field=what
+            )
         if self.depth_scale is not None and not (math.isfinite(self.depth_scale) and self.depth_scale > 0):
-            raise DatasetError(f"depth_scale must be a positive number, got {self.depth_scale}", file=self.source, field=what)
+            raise DatasetError(
+                f"depth_scale must be a positive number, got {self.depth_scale}", file=self.source, field=what
+            )
 
     @property
     def T_world_cam(self) -> np.ndarray:
@@ -144,7 +148,9 @@ class ObjectModel:
     def __post_init__(self) -> None:
         what = f"obj {self.obj_id}"
         if not (math.isfinite(self.diameter) and self.diameter > 0):
-            raise DatasetError(f"diameter must be a positive number, got {self.diameter}", file=self.source, field=f"{what}: diameter")
+            raise DatasetError(
+                f"diameter must be a positive number, got {self.diameter}", file=self.source, field=f"{what}: diameter"
+            )
         self.bbox_min = check_matrix(self.bbox_min, (3,), f"{what}: min_x/min_y/min_z", self.source)
         self.bbox_size = check_matrix(self.bbox_size, (3,), f"{what}: size_x/size_y/size_z", self.source)
 

@@ -63,8 +63,14 @@ def w2c_to_c2w(T_cam_world: np.ndarray) -> np.ndarray:
 
 
 def pose_residual(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
-    """Difference of two transforms: (translation distance in mm, rotation angle in radians)."""
+    """Difference of two transforms: (translation distance in mm, rotation angle in radians).
+
+    The angle is ``atan2(|skew(dR)|, (tr(dR) - 1) / 2)``, exact for rotations and, unlike
+    ``arccos`` of the trace, not inflated near zero by files that round R to 6 digits (an
+    ``arccos`` reads a 1e-6 non-orthonormality as ~1e-3 rad).
+    """
     dt = float(np.linalg.norm(np.asarray(T_a)[:3, 3] - np.asarray(T_b)[:3, 3]))
     dR = np.asarray(T_a)[:3, :3].T @ np.asarray(T_b)[:3, :3]
-    cos = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
-    return dt, float(np.arccos(cos))
+    sin = 0.5 * np.linalg.norm([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+    cos = (np.trace(dR) - 1.0) / 2.0
+    return dt, float(np.arctan2(sin, cos))

@@ -9,7 +9,14 @@ K = np.array([[600.0, 0, 160], [0, 600, 128], [0, 0, 1]])
 
 
 def view(im_id=0, **kw):
-    args = {"im_id": im_id, "K": K, "T_cam_world": np.eye(4), "width": 320, "height": 256, "source": "scene_camera.json"}
+    args = {
+        "im_id": im_id,
+        "K": K,
+        "T_cam_world": np.eye(4),
+        "width": 320,
+        "height": 256,
+        "source": "scene_camera.json",
+    }
     args.update(kw)
     return CameraView(**args)
 
