@@ -13,23 +13,29 @@ that a write/read round trip is exact in float64, and writes atomically.
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import atomic_path, save_json
+from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import ROTATION_TOLERANCE, Scene
-from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
+from bop_cender.errors import ResultsError, ResultsWarning
 from bop_cender.estimates import SceneEstimate
 from bop_cender.geometry.poses import compose, make_pose
 from bop_cender.geometry.rotations import orthonormality_error
+from bop_cender.result_files import (  # noqa: F401  (re-exported: one import site for users)
+    ResultName,
+    parse_result_filename,
+    read_run_sidecar,
+    result_filename,
+    sidecar_path,
+    write_run_sidecar,
+)
 
 HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 #: Above this (max |R R^T - I|) a rotation is accepted with a ResultsWarning; above
@@ -37,8 +43,6 @@ HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 ROTATION_WARN_TOLERANCE = 1e-4
 #: All estimates of one image must share their time within this (toolkit's check_consistent_timings).
 TIME_TOLERANCE_S = 0.001
-SIDECAR_FORMAT = "bop-cender-run"
-SIDECAR_VERSION = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,8 +53,8 @@ class BopEstimate:
         scene_id: int scene id (DIMO ``000123_17`` -> 12317, see :mod:`bop_cender.data.scene_ids`).
         im_id: image id. obj_id: object id.
         score: confidence, higher is better.
-        R: ``(3, 3)`` float64 model-to-camera rotation (read-only copy).
-        t: ``(3,)`` float64 model-to-camera translation, mm (read-only copy).
+        R: ``(3, 3)`` float64 model-to-camera rotation (read-only).
+        t: ``(3,)`` float64 model-to-camera translation, mm (read-only).
         time: seconds for the whole image; negative = unknown.
         line: line number in the file this row was read from (1-based), None if not read.
 
@@ -72,7 +76,15 @@ class BopEstimate:
         object.__setattr__(self, "score", float(self.score))
         object.__setattr__(self, "time", float(self.time))
         for name, shape in (("R", (3, 3)), ("t", (3,))):
-            arr = np.array(getattr(self, name), dtype=np.float64)
+            arr = getattr(self, name)
+            if (
+                isinstance(arr, np.ndarray)
+                and arr.dtype == np.float64
+                and arr.shape == shape
+                and not arr.flags.writeable
+            ):
+                continue  # already read-only (the reader's rows share its arrays): no copy
+            arr = np.array(arr, dtype=np.float64)  # a private copy, so the caller's array stays theirs
             if arr.size != math.prod(shape):
                 raise ValueError(f"BopEstimate.{name}: expected {math.prod(shape)} numbers, got shape {arr.shape}")
             arr = arr.reshape(shape)
@@ -95,23 +107,6 @@ class BopEstimate:
     def T_cam_model(self) -> np.ndarray:
         """``(4, 4)`` model-to-camera transform, mm."""
         return make_pose(self.R, self.t)
-
-
-@dataclass(frozen=True)
-class ResultName:
-    """The parts of a BOP result file name ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``."""
-
-    method: str
-    dataset: str
-    split: str
-    split_type: str | None = None
-    optional_id: str | None = None
-
-    def filename(self, ext: str = "csv") -> str:
-        """The file name these parts make (inverse of :func:`parse_result_filename`)."""
-        parts = "-".join(p for p in (self.dataset, self.split, self.split_type) if p)
-        tail = f"_{self.optional_id}" if self.optional_id else ""
-        return f"{self.method}_{parts}{tail}.{ext}"
 
 
 def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEstimate]:
@@ -157,8 +152,7 @@ def write_bop_results(
         if path.suffix != ".csv":
             raise ResultsError(f"expected the suffix .csv, got {path.suffix!r}", file=path, field="file name")
     rows = list(rows)
-    arrays = _rows_to_arrays(rows)
-    problems, warn = _check_arrays(*arrays, numbers=np.arange(len(rows)), known_obj_ids=None)
+    problems, warn = _check_arrays(_rows_to_arrays(rows), np.arange(len(rows)), "row", known_obj_ids=None)
     if problems:
         raise ResultsError(
             f"{len(problems)} problem(s) in the rows to write", file=path, problems=_fmt(problems, "row")
@@ -216,10 +210,12 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
     if parsed:
         numbers, sid, im, obj, score, R, t, time = (np.array(c) for c in zip(*parsed, strict=True))
         R = R.reshape(-1, 3, 3)
+        R.setflags(write=False)  # rows below share these read-only arrays instead of copying them
+        t.setflags(write=False)
     else:
         numbers, sid, im, obj, score, R, t, time = _empty_arrays()
-    more, warn = _check_arrays(sid, im, obj, score, R, t, time, numbers=numbers, known_obj_ids=known_obj_ids)
-    problems += more
+    more, warn = _check_arrays((sid, im, obj, score, R, t, time), numbers, "line", known_obj_ids)
+    problems = sorted(problems + more, key=lambda p: p[0])  # stable: a line's problems stay in column order
     if problems:
         bad = len({n for n, _ in problems})
         raise ResultsError(
@@ -232,11 +228,14 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
     ]
 
 
+_NUMBER_FIELDS = (("score", 3, 1), ("R", 4, 9), ("t", 5, 3), ("time", 6, 1))  # name, column, count
+
+
 def _parse_line(line: str, number: int, problems: list[tuple[int, str]]) -> tuple | None:
     """One CSV line to ``(number, scene_id, im_id, obj_id, score, R[9], t[3], time)``; None on a problem."""
     fields = line.split(",")
     if len(fields) != 7:
-        what = "an empty line" if not line.strip() else f"{len(fields)} comma-separated fields"
+        what = "an empty line" if not line.strip() else str(len(fields))
         problems.append((number, f"expected 7 comma-separated fields, got {what}"))
         return None
     ok = True
@@ -249,19 +248,15 @@ def _parse_line(line: str, number: int, problems: list[tuple[int, str]]) -> tupl
             problems.append((number, f"{name}: expected a non-negative integer, got {value!r}"))
             ok = False
     numbers = []
-    for name, value, count in (
-        ("score", fields[3], 1),
-        ("R", fields[4], 9),
-        ("t", fields[5], 3),
-        ("time", fields[6], 1),
-    ):
+    for name, column, count in _NUMBER_FIELDS:
+        value = fields[column]
         tokens = value.split()
         if len(tokens) != count:
             problems.append((number, f"{name}: expected {count} number(s), got {len(tokens)}"))
             ok = False
             continue
         try:
-            numbers.append([float(x) for x in tokens])
+            numbers.append(list(map(float, tokens)))
         except ValueError:
             problems.append((number, f"{name}: expected number(s), got {value.strip()!r}"))
             ok = False
@@ -277,42 +272,35 @@ def _empty_arrays() -> tuple[np.ndarray, ...]:
 
 
 def _rows_to_arrays(rows: list[BopEstimate]) -> tuple[np.ndarray, ...]:
-    """Column arrays ``(scene_id, im_id, obj_id, score, R (N,3,3), t (N,3), time)`` of rows."""
     if not rows:
         return _empty_arrays()[1:]
     cols = list(zip(*((r.scene_id, r.im_id, r.obj_id, r.score, r.R, r.t, r.time) for r in rows), strict=True))
-    return tuple(np.array(c) for c in cols)
+    return tuple(np.array(c) for c in cols)  # (N,) ids, score, (N, 3, 3) R, (N, 3) t, time
 
 
 def _check_arrays(
-    sid: np.ndarray,
-    im: np.ndarray,
-    obj: np.ndarray,
-    score: np.ndarray,
-    R: np.ndarray,
-    t: np.ndarray,
-    time: np.ndarray,
-    *,
-    numbers: np.ndarray,
-    known_obj_ids: Collection[int] | None,
+    cols: tuple[np.ndarray, ...], numbers: np.ndarray, word: str, known_obj_ids: Collection[int] | None
 ) -> tuple[list[tuple[int, str]], tuple[int, int, float] | None]:
     """Row checks shared by reader and writer, vectorised over N rows.
 
     Args:
-        sid, im, obj: ``(N,)`` ints. score, time: ``(N,)``. R: ``(N, 3, 3)``. t: ``(N, 3)``.
+        cols: ``(scene_id, im_id, obj_id)`` ``(N,)`` ints, score ``(N,)``, R ``(N, 3, 3)``,
+            t ``(N, 3)``, time ``(N,)``.
         numbers: ``(N,)`` the line (reader) or row index (writer) each row is reported under.
+        word: ``line`` or ``row``, for messages that refer to another row.
 
     Returns:
         ``(problems, warn)``: problems as ``(number, message)``; warn is ``(count, worst number,
         worst error)`` of rotations above ROTATION_WARN_TOLERANCE but accepted, or None.
     """
+    sid, im, obj, score, R, t, time = cols
     problems: list[tuple[int, str]] = []
     for name, ids in (("scene_id", sid), ("im_id", im), ("obj_id", obj)):
         for k in np.flatnonzero(ids < 0):
             problems.append((int(numbers[k]), f"{name}: expected a non-negative integer, got {ids[k]}"))
     finite_R = np.isfinite(R).all(axis=(1, 2))
-    for name, ok in (("score", np.isfinite(score)), ("R", finite_R), ("t", np.isfinite(t).all(axis=1)),
-                     ("time", np.isfinite(time))):  # fmt: skip
+    finite = {"score": np.isfinite(score), "R": finite_R, "t": np.isfinite(t).all(axis=1), "time": np.isfinite(time)}
+    for name, ok in finite.items():
         for k in np.flatnonzero(~ok):
             problems.append((int(numbers[k]), f"{name}: expected finite numbers, found NaN or inf"))
     err = np.full(len(R), np.nan)
@@ -320,18 +308,13 @@ def _check_arrays(
     err[finite_R] = orthonormality_error(R[finite_R])
     det[finite_R] = np.linalg.det(R[finite_R])
     for k in np.flatnonzero(finite_R & ((err > ROTATION_TOLERANCE) | (det < 0))):
-        problems.append(
-            (
-                int(numbers[k]),
-                f"R: not a rotation (max |R R^T - I| = {err[k]:.3g}, det = {det[k]:.4f};"
-                f" expected <= {ROTATION_TOLERANCE:g} and det +1)",
-            )
-        )
+        msg = f"R: not a rotation (max |R R^T - I| = {err[k]:.3g}, det = {det[k]:.4f};"
+        problems.append((int(numbers[k]), msg + f" expected <= {ROTATION_TOLERANCE:g} and det +1)"))
     if known_obj_ids is not None:
         known = {int(i) for i in known_obj_ids}
         for k in np.flatnonzero(~np.isin(obj, list(known))):
             problems.append((int(numbers[k]), f"obj_id: unknown object {obj[k]} (known: {sorted(known)})"))
-    problems += _check_times(sid, im, time, numbers)
+    problems += _check_times(sid, im, time, numbers, word)
     soft = finite_R & (err > ROTATION_WARN_TOLERANCE) & (err <= ROTATION_TOLERANCE) & (det >= 0)
     warn = None
     if soft.any():
@@ -341,7 +324,9 @@ def _check_arrays(
     return problems, warn
 
 
-def _check_times(sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.ndarray) -> list[tuple[int, str]]:
+def _check_times(
+    sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.ndarray, word: str
+) -> list[tuple[int, str]]:
     """Per image, every known time (>= 0) within TIME_TOLERANCE_S of that image's first known time."""
     first: dict[tuple[int, int], int] = {}
     problems = []
@@ -351,7 +336,7 @@ def _check_times(sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.
             continue
         j = first.setdefault((s, i), k)
         if abs(tm - times[j]) > TIME_TOLERANCE_S:
-            msg = f"time: {tm!r} s differs from {times[j]!r} s of the same image (scene {s}, image {i}) at {numbers[j]}"
+            msg = f"time: {tm!r} s differs from {times[j]!r} s of the same image (scene {s}, image {i}) at {word} {numbers[j]}"
             problems.append(
                 (int(numbers[k]), msg + f"; one image's estimates must share its time within {TIME_TOLERANCE_S} s")
             )
@@ -379,123 +364,3 @@ def group_by_image(rows: Iterable[BopEstimate]) -> dict[tuple[int, int], list[Bo
     for row in rows:
         groups.setdefault((row.scene_id, row.im_id), []).append(row)
     return groups
-
-
-def parse_result_filename(name: str | Path) -> ResultName:
-    """Parse ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].{ext}`` as the toolkit does.
-
-    Like ``inout.parse_result_filename``: the extension is everything after the first ``.``, the
-    rest is split on ``_`` (method, dataset-split, optional id) and the second part on ``-``. Names
-    the toolkit would read differently from what they say are refused: no ``_`` or no ``-``, an
-    empty part, or a fourth ``-`` part (the toolkit would silently drop it).
-
-    Raises:
-        ResultsError: the name does not follow the pattern.
-    """
-    base = Path(name).name
-    stem = base.split(".")[0]
-    parts = stem.split("_")
-    expected = "expected {method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv (no '_' in the method)"
-    if len(parts) < 2:
-        raise ResultsError(f"no '_' after the method name; {expected}", file=base, field="file name")
-    ds = parts[1].split("-")
-    optional_id = "_".join(parts[2:]) or None
-    if len(ds) not in (2, 3) or not all(ds) or not all(parts):
-        raise ResultsError(f"cannot read method/dataset/split from {stem!r}; {expected}", file=base, field="file name")
-    return ResultName(parts[0], ds[0], ds[1], ds[2] if len(ds) == 3 else None, optional_id)
-
-
-def result_filename(
-    method: str, dataset: str, split: str, split_type: str | None = None, optional_id: str | None = None
-) -> str:
-    """``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``, checked to parse back the same.
-
-    BOP names a ``train_pbr`` folder as split ``train``, split type ``pbr``.
-
-    Raises:
-        ConfigError: a part is empty or contains a character the toolkit splits on (``_`` in the
-            method; ``_``, ``-`` in dataset/split/split type; ``.`` anywhere).
-    """
-    checks = [("method", method, "_."), ("dataset", dataset, "_-."), ("split", split, "_-.")]
-    if split_type is not None:
-        checks.append(("split_type", split_type, "_-."))
-    if optional_id is not None:
-        checks.append(("optional_id", optional_id, "."))
-    for what, value, bad in checks:
-        if not value or any(c in value for c in bad) or "/" in value:
-            raise ConfigError(
-                f"{value!r} cannot be a BOP result-name part: must be non-empty without {' '.join(bad)} or /",
-                field=what,
-            )
-    return ResultName(method, dataset, split, split_type, optional_id).filename()
-
-
-def sidecar_path(csv_path: str | Path) -> Path:
-    """The run sidecar beside a results CSV: ``<csv stem>.json``."""
-    csv_path = Path(csv_path)
-    return csv_path.with_name(csv_path.name.split(".")[0] + ".json")
-
-
-def write_run_sidecar(
-    csv_path: str | Path,
-    data_root: str | Path,
-    dataset: str,
-    split: str,
-    selection: Mapping[str, Any],
-    seed: int,
-    extra: Mapping[str, Any] | None = None,
-) -> Path:
-    """Record how a results CSV was made (data root, dataset, split, selection, seed) in ``<stem>.json``.
-
-    ``bop-cender score`` reads it to find the data the results belong to. No time stamp is written,
-    so the same run writes the same bytes. Returns the sidecar path.
-    """
-    if not isinstance(seed, int) or isinstance(seed, bool):
-        raise ConfigError(f"seed must be an int, got {seed!r}", field="seed")
-    content = {
-        "format": SIDECAR_FORMAT,
-        "version": SIDECAR_VERSION,
-        "results": Path(csv_path).name,
-        "data_root": str(Path(data_root).resolve()),
-        "dataset": dataset,
-        "split": split,
-        "selection": dict(selection),
-        "seed": seed,
-        "extra": dict(extra or {}),
-    }
-    path = sidecar_path(csv_path)
-    save_json(path, content)
-    return path
-
-
-_SIDECAR_TYPES = {"format": str, "version": int, "data_root": str, "dataset": str, "split": str,
-                  "selection": dict, "seed": int, "extra": dict}  # fmt: skip
-
-
-def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
-    """The sidecar of a results CSV as a dict, or None when there is none.
-
-    Raises:
-        ResultsError: the sidecar is not JSON, not ours, or a key is missing or of the wrong type.
-    """
-    path = sidecar_path(csv_path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ResultsError(f"malformed run sidecar: {e}", file=path) from None
-    if not isinstance(data, dict) or data.get("format") != SIDECAR_FORMAT:
-        raise ResultsError(f"not a run sidecar (expected an object with format {SIDECAR_FORMAT!r})", file=path)
-    problems = [
-        f"{key}: expected {kind.__name__}, got {type(data.get(key)).__name__}"
-        for key, kind in _SIDECAR_TYPES.items()
-        if not isinstance(data.get(key), kind) or (kind is int and isinstance(data.get(key), bool))
-    ]
-    if problems:
-        raise ResultsError("malformed run sidecar", file=path, problems=problems)
-    if data["version"] > SIDECAR_VERSION:
-        raise ResultsError(
-            f"sidecar version {data['version']} is newer than this bop-cender's {SIDECAR_VERSION}", file=path
-        )
-    return data

@@ -1,0 +1,157 @@
+"""BOP result file names and the run sidecar JSON written beside a results CSV.
+
+The official toolkit parses ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv`` by
+splitting on ``_`` then ``-``; these helpers build and parse names the same way and refuse names it
+would misread. The sidecar records where a run's data came from so ``bop-cender score`` can find it.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bop_cender.data.bop_io import save_json
+from bop_cender.errors import ConfigError, ResultsError
+
+SIDECAR_FORMAT = "bop-cender-run"
+SIDECAR_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ResultName:
+    """The parts of a BOP result file name ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``."""
+
+    method: str
+    dataset: str
+    split: str
+    split_type: str | None = None
+    optional_id: str | None = None
+
+    def filename(self, ext: str = "csv") -> str:
+        """The file name these parts make (inverse of :func:`parse_result_filename`)."""
+        parts = "-".join(p for p in (self.dataset, self.split, self.split_type) if p)
+        tail = f"_{self.optional_id}" if self.optional_id else ""
+        return f"{self.method}_{parts}{tail}.{ext}"
+
+
+def parse_result_filename(name: str | Path) -> ResultName:
+    """Parse ``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].{ext}`` as the toolkit does.
+
+    Like ``inout.parse_result_filename``: the extension is everything after the first ``.``, the
+    rest is split on ``_`` (method, dataset-split, optional id) and the second part on ``-``. Names
+    the toolkit would read differently from what they say are refused: no ``_`` or no ``-``, an
+    empty part, or a fourth ``-`` part (the toolkit would silently drop it).
+
+    Raises:
+        ResultsError: the name does not follow the pattern.
+    """
+    base = Path(name).name
+    stem = base.split(".")[0]
+    parts = stem.split("_")
+    expected = "expected {method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv (no '_' in the method)"
+    if len(parts) < 2:
+        raise ResultsError(f"no '_' after the method name; {expected}", file=base, field="file name")
+    ds = parts[1].split("-")
+    optional_id = "_".join(parts[2:]) or None
+    if len(ds) not in (2, 3) or not all(ds) or not all(parts):
+        raise ResultsError(f"cannot read method/dataset/split from {stem!r}; {expected}", file=base, field="file name")
+    return ResultName(parts[0], ds[0], ds[1], ds[2] if len(ds) == 3 else None, optional_id)
+
+
+def result_filename(
+    method: str, dataset: str, split: str, split_type: str | None = None, optional_id: str | None = None
+) -> str:
+    """``{method}_{dataset}-{split}[-{split_type}][_{optional_id}].csv``, checked to parse back the same.
+
+    BOP names a ``train_pbr`` folder as split ``train``, split type ``pbr``.
+
+    Raises:
+        ConfigError: a part is empty or contains a character the toolkit splits on (``_`` in the
+            method; ``_``, ``-`` in dataset/split/split type; ``.`` anywhere).
+    """
+    checks = [("method", method, "_."), ("dataset", dataset, "_-."), ("split", split, "_-.")]
+    if split_type is not None:
+        checks.append(("split_type", split_type, "_-."))
+    if optional_id is not None:
+        checks.append(("optional_id", optional_id, "."))
+    for what, value, bad in checks:
+        if not value or any(c in value for c in bad) or "/" in value:
+            raise ConfigError(
+                f"{value!r} cannot be a BOP result-name part: must be non-empty without {' '.join(bad)} or /",
+                field=what,
+            )
+    return ResultName(method, dataset, split, split_type, optional_id).filename()
+
+
+def sidecar_path(csv_path: str | Path) -> Path:
+    """The run sidecar beside a results CSV: ``<csv stem>.json``."""
+    csv_path = Path(csv_path)
+    return csv_path.with_name(csv_path.name.split(".")[0] + ".json")
+
+
+def write_run_sidecar(
+    csv_path: str | Path,
+    data_root: str | Path,
+    dataset: str,
+    split: str,
+    selection: Mapping[str, Any],
+    seed: int,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Record how a results CSV was made (data root, dataset, split, selection, seed) in ``<stem>.json``.
+
+    ``bop-cender score`` reads it to find the data the results belong to. No time stamp is written,
+    so the same run writes the same bytes. Returns the sidecar path.
+    """
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise ConfigError(f"seed must be an int, got {seed!r}", field="seed")
+    content = {
+        "format": SIDECAR_FORMAT,
+        "version": SIDECAR_VERSION,
+        "results": Path(csv_path).name,
+        "data_root": str(Path(data_root).resolve()),
+        "dataset": dataset,
+        "split": split,
+        "selection": dict(selection),
+        "seed": seed,
+        "extra": dict(extra or {}),
+    }
+    path = sidecar_path(csv_path)
+    save_json(path, content)
+    return path
+
+
+_SIDECAR_TYPES = {"format": str, "version": int, "data_root": str, "dataset": str, "split": str,
+                  "selection": dict, "seed": int, "extra": dict}  # fmt: skip
+
+
+def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
+    """The sidecar of a results CSV as a dict, or None when there is none.
+
+    Raises:
+        ResultsError: the sidecar is not JSON, not ours, or a key is missing or of the wrong type.
+    """
+    path = sidecar_path(csv_path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ResultsError(f"malformed run sidecar: {e}", file=path) from None
+    if not isinstance(data, dict) or data.get("format") != SIDECAR_FORMAT:
+        raise ResultsError(f"not a run sidecar (expected an object with format {SIDECAR_FORMAT!r})", file=path)
+    problems = [
+        f"{key}: expected {kind.__name__}, got {type(data.get(key)).__name__}"
+        for key, kind in _SIDECAR_TYPES.items()
+        if not isinstance(data.get(key), kind) or (kind is int and isinstance(data.get(key), bool))
+    ]
+    if problems:
+        raise ResultsError("malformed run sidecar", file=path, problems=problems)
+    if data["version"] > SIDECAR_VERSION:
+        raise ResultsError(
+            f"sidecar version {data['version']} is newer than this bop-cender's {SIDECAR_VERSION}", file=path
+        )
+    return data
