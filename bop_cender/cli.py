@@ -7,6 +7,8 @@ with exit code 2; ``--debug`` shows the traceback instead.
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -62,10 +64,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_info)
     for register in _EXTRA_COMMANDS:
         register(sub)
+    for name in COMMAND_MODULES:
+        if importlib.util.find_spec(name) is not None:
+            importlib.import_module(name).register(sub)
     return parser
 
 
-#: Other modules' sub-command registrations: each takes the subparsers object.
+#: Modules with a ``register(subparsers)`` function that adds their sub-commands (synth, score, ...).
+COMMAND_MODULES = ("bop_cender.synth.cli_commands", "bop_cender.eval.cli_commands", "bop_toolkit_adapters.cli_commands")
+
+#: Extra registrations added at run time (plugins, tests): each takes the subparsers object.
 _EXTRA_COMMANDS: list[Callable] = []
 
 

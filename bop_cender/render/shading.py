@@ -107,8 +107,8 @@ def make_environment(
         c = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
         size_rad = rng.uniform(0.15, 0.45) if style == "studio" else rng.uniform(0.05, 0.2)
         ang = np.arccos(np.clip(dirs @ c, -1, 1))
-        patch = 1.0 / (1.0 + np.exp((ang - size_rad) * sharpness / size_rad))
-        env = env + patch[..., None] * rng.uniform(2.0, 8.0) * rng.uniform(0.8, 1.0, 3)
+        patch = 1.0 / (1.0 + np.exp(np.clip((ang - size_rad) * sharpness / size_rad, -50, 50)))
+        env = env + patch[..., None] * rng.uniform(1.0, 4.0) * rng.uniform(0.8, 1.0, 3)
     base = torch.as_tensor(env, dtype=torch.float32, device=device).permute(2, 0, 1)
     out = [base]
     for k in range(1, levels):
@@ -239,7 +239,7 @@ def _material_table(materials: list[Material], dev) -> tuple[torch.Tensor, ...]:
 
 @dataclass(frozen=True)
 class SensorModel:
-    """Camera response: gain, gamma, read noise, shot noise, blur, vignetting, colour cast."""
+    """Camera response: gain, read/shot noise, blur, vignetting, colour cast, exponential tone curve, gamma."""
 
     gain: float = 1.0
     gamma: float = 2.2
@@ -269,7 +269,8 @@ def apply_sensor(linear_rgb: torch.Tensor, sensor: SensorModel, generator: torch
     img = img.clamp(min=0)
     noise = torch.randn(img.shape, generator=generator, device=img.device, dtype=img.dtype)
     img = img + noise * torch.sqrt(sensor.read_noise**2 + sensor.shot_noise**2 * img)
-    img = img.clamp(0, 1) ** (1 / sensor.gamma)
+    # Exponential tone curve: highlights on metal compress instead of clipping flat white.
+    img = (1 - torch.exp(-img.clamp(min=0) * 1.6)).clamp(0, 1) ** (1 / sensor.gamma)
     return (img * 255 + 0.5).clamp(0, 255).to(torch.uint8)
 
 

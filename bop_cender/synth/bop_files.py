@@ -1,0 +1,116 @@
+"""Small pieces shared by the DIMO and T-LESS writers: BOP JSON entries, atomic scene folders.
+
+A scene folder is written into a hidden ``.NAME.partial`` sibling and renamed when complete, so a
+folder that exists is complete: that is what makes ``bop-cender synth`` resumable (complete scenes
+are skipped) without any marker file that the real datasets do not have.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bop_cender.geometry.poses import invert_pose
+from bop_cender.render.mesh import RenderMesh, prepare_mesh
+from bop_cender.synth.parts import Part
+from bop_cender.synth.piles import build_pile
+
+
+def flat(a: np.ndarray) -> list[float]:
+    """A float list (row-major) for JSON."""
+    return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
+
+
+def camera_entry(K: np.ndarray, T_cam_world: np.ndarray, *, with_c2w: bool, with_w2c: bool = True, **extra) -> dict:
+    """A ``scene_camera.json`` entry: ``cam_K`` and the camera pose (w2c and/or DIMO's c2w)."""
+    entry: dict = {"cam_K": flat(K)}
+    if with_c2w:
+        T_world_cam = invert_pose(T_cam_world)
+        entry["cam_R_c2w"] = flat(T_world_cam[:3, :3])
+        entry["cam_t_c2w"] = flat(T_world_cam[:3, 3])
+    if with_w2c:
+        entry["cam_R_w2c"] = flat(T_cam_world[:3, :3])
+        entry["cam_t_w2c"] = flat(T_cam_world[:3, 3])
+    entry.update(extra)
+    return entry
+
+
+def gt_entry(obj_id: int, T_cam_model: np.ndarray) -> dict:
+    """A ``scene_gt.json`` entry (model-to-camera)."""
+    return {"obj_id": int(obj_id), "cam_R_m2c": flat(T_cam_model[:3, :3]), "cam_t_m2c": flat(T_cam_model[:3, 3])}
+
+
+@contextmanager
+def scene_folder(final_dir: Path) -> Iterator[Path | None]:
+    """Yield a temporary folder to write a scene into, renamed onto ``final_dir`` on success.
+
+    Yields None when ``final_dir`` already exists (complete: skip it).
+    """
+    final_dir = Path(final_dir)
+    if final_dir.is_dir():
+        yield None
+        return
+    tmp = final_dir.with_name(f".{final_dir.name}.partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    try:
+        yield tmp
+        os.replace(tmp, final_dir)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+
+
+@dataclass
+class Pile:
+    """A static arrangement: which model each instance is and where it is.
+
+    Attributes:
+        obj_ids: ``(M,)`` BOP object id per instance (the support, carrier or table, first).
+        T_world_model: ``(M, 4, 4)`` poses (mm).
+        gt_indices: indices of the instances written to scene_gt (DIMO: all; T-LESS: not the table).
+    """
+
+    obj_ids: list[int]
+    T_world_model: np.ndarray
+    gt_indices: list[int]
+
+
+def make_pile(
+    models: dict[int, Part],
+    part_ids: list[int],
+    support_id: int,
+    support: Part,
+    n_parts: int,
+    composition: str | list[int],
+    rng: np.random.Generator,
+    support_in_gt: bool,
+) -> Pile:
+    """Drop ``n_parts`` of ``part_ids`` on the support (carrier or table) centred at the origin."""
+    meshes = [models[i].mesh for i in part_ids]
+    placements = build_pile(meshes, support.mesh, np.eye(4), n_parts, rng, composition=composition)
+    obj_ids = [support_id] + [part_ids[p.part_index] for p in placements]
+    T = np.stack([np.eye(4)] + [p.T_world_model for p in placements])
+    gt = list(range(len(obj_ids))) if support_in_gt else list(range(1, len(obj_ids)))
+    return Pile(obj_ids=obj_ids, T_world_model=T, gt_indices=gt)
+
+
+class MeshCache:
+    """Render meshes prepared once per model id (a worker process keeps its own)."""
+
+    def __init__(self, models: dict[int, Part]):
+        self._models = models
+        self._cache: dict[int, RenderMesh] = {}
+
+    def __call__(self, obj_ids: list[int]) -> list[RenderMesh]:
+        for i in obj_ids:
+            if i not in self._cache:
+                self._cache[i] = prepare_mesh(self._models[i].mesh)
+        return [self._cache[i] for i in obj_ids]

@@ -1,0 +1,139 @@
+"""Appearance styles of synthetic images: materials, lights, environment and sensor per domain.
+
+Four domains, so that there is a gap to measure between them:
+- ``sim``: DIMO's synthetic camera (studio environment, clean metal, mild sensor noise);
+- ``real``: DIMO's "real" camera, deliberately different in light, material and noise
+  (hall environment with hard reflections, scratched/brushed metal with stronger saw patterns,
+  warmer colour cast, vignetting, blur, more noise): a sim-to-real gap to measure;
+- ``tless``: T-LESS-like textureless, non-reflective light-grey plastic, Primesense-like noise;
+- ``pbr``: T-LESS ``train_pbr``-like renders: random object colours and lights.
+
+"Real-world lighting" in DIMO means the same light set-up for a scene's real capture and its sim
+twins (variants 00 and 16-30): :func:`fixed_lights` is a pure function of the light id.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bop_cender.render.shading import Material, PointLight, SensorModel
+
+DOMAINS = ("sim", "real", "tless", "pbr")
+
+
+@dataclass(frozen=True)
+class Style:
+    """Everything that decides how a view looks, apart from geometry."""
+
+    domain: str
+    materials: list[Material]  # one per object instance index (carrier/table included)
+    lights: list[PointLight]
+    env_style: str
+    sensor: SensorModel
+    exposure: float
+    carrier_texture: str
+
+
+def fixed_lights(light_id: int, centre: np.ndarray) -> list[PointLight]:
+    """The "real-world" light set-up number ``light_id``: deterministic, shared by real and sim twins."""
+    rng = np.random.default_rng(9000 + int(light_id))
+    return _random_lights(rng, centre, n=2 + int(light_id) % 2)
+
+
+def random_lights(rng: np.random.Generator, centre: np.ndarray) -> list[PointLight]:
+    """A random light set-up (DIMO variants with random lighting, T-LESS, PBR)."""
+    return _random_lights(rng, centre, n=int(rng.integers(1, 4)))
+
+
+def _random_lights(rng: np.random.Generator, centre: np.ndarray, n: int) -> list[PointLight]:
+    lights = []
+    for _ in range(n):
+        azim = rng.uniform(0, 2 * np.pi)
+        elev = rng.uniform(np.deg2rad(30), np.deg2rad(80))
+        dist = rng.uniform(500, 1200)
+        pos = centre + dist * np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+        color = tuple(float(c) for c in rng.uniform(0.85, 1.0, 3))
+        lights.append(PointLight(tuple(float(p) for p in pos), color, float(rng.uniform(2e5, 8e5) * dist**2 / 7e5)))
+    return lights
+
+
+def metal_material(rng: np.random.Generator, domain: str) -> Material:
+    """Reflective metal with random roughness; ``real`` adds stronger brushing and a warmer tint."""
+    grey = rng.uniform(0.55, 0.9)
+    tint = rng.uniform(0.95, 1.05, 3) if domain == "sim" else rng.uniform(0.95, 1.12, 3) * [1.05, 1.0, 0.9]
+    rough = rng.uniform(0.1, 0.45) if domain == "sim" else rng.uniform(0.05, 0.3)
+    stripes = rng.uniform(0.0, 0.4) if domain == "sim" else rng.uniform(0.3, 0.8)
+    return Material(
+        tuple(float(c) for c in np.clip(grey * tint, 0, 1)), 1.0, float(rough), float(stripes), float(rng.uniform(1, 4))
+    )
+
+
+def plastic_material(rng: np.random.Generator, colourful: bool) -> Material:
+    """Textureless plastic: light grey (T-LESS) or a random colour (PBR training renders)."""
+    base = rng.uniform(0.1, 0.9, 3) if colourful else np.full(3, rng.uniform(0.6, 0.8)) * rng.uniform(0.97, 1.03, 3)
+    return Material(tuple(float(c) for c in np.clip(base, 0, 1)), 0.0, float(rng.uniform(0.5, 0.9)))
+
+
+def carrier_material(rng: np.random.Generator) -> Material:
+    """Cardboard / wood carriers and tables: diffuse, textured by the world-xy texture."""
+    return Material((1.0, 1.0, 1.0), 0.0, float(rng.uniform(0.7, 1.0)), texture=True)
+
+
+def sensor_model(rng: np.random.Generator, domain: str) -> SensorModel:
+    """Noise, blur and colour response per domain (``real`` is the harshest)."""
+    if domain == "real":
+        cast = tuple(float(c) for c in rng.uniform(0.9, 1.1, 3) * [1.06, 1.0, 0.9])
+        return SensorModel(
+            gain=float(rng.uniform(0.8, 1.2)),
+            read_noise=float(rng.uniform(0.015, 0.03)),
+            shot_noise=float(rng.uniform(0.03, 0.06)),
+            blur_sigma_px=float(rng.uniform(0.5, 0.9)),
+            vignetting=float(rng.uniform(0.2, 0.4)),
+            color_cast=cast,
+        )
+    if domain == "tless":
+        return SensorModel(read_noise=0.01, shot_noise=0.02, blur_sigma_px=0.4, vignetting=0.1)
+    return SensorModel(
+        gain=float(rng.uniform(0.9, 1.1)),
+        read_noise=float(rng.uniform(0.003, 0.01)),
+        shot_noise=float(rng.uniform(0.005, 0.02)),
+        blur_sigma_px=float(rng.uniform(0.0, 0.4)),
+    )
+
+
+def make_style(
+    rng: np.random.Generator,
+    domain: str,
+    n_objects: int,
+    centre: np.ndarray,
+    light_id: int | None = None,
+    carrier_index: int | None = None,
+) -> Style:
+    """A complete style for a scene of ``n_objects`` instances (index ``carrier_index`` is the carrier).
+
+    Args:
+        domain: one of :data:`DOMAINS`.
+        light_id: use the fixed "real-world" light set-up with this id; None draws random lights.
+    """
+    if domain not in DOMAINS:
+        raise ValueError(f"unknown domain {domain!r}; expected one of {DOMAINS}")
+    materials = []
+    for i in range(n_objects):
+        if i == carrier_index:
+            materials.append(carrier_material(rng))
+        elif domain in ("sim", "real"):
+            materials.append(metal_material(rng, domain))
+        else:
+            materials.append(plastic_material(rng, colourful=domain == "pbr"))
+    lights = fixed_lights(light_id, centre) if light_id is not None else random_lights(rng, centre)
+    return Style(
+        domain=domain,
+        materials=materials,
+        lights=lights,
+        env_style="hall" if domain == "real" else "studio",
+        sensor=sensor_model(rng, domain),
+        exposure=float(rng.uniform(0.8, 1.2)),
+        carrier_texture=str(rng.choice(["cardboard", "wood"])),
+    )

@@ -1,0 +1,168 @@
+"""Write a synthetic dataset in exactly the DIMO layout (shared/reference/datasets.md section 1).
+
+Per scene number ``s``: ``real_jaigo/{s:06d}`` (the "real" camera model: other light, material and
+noise, so there is a sim-to-real gap to measure) and ``sim_jaigo/{s:06d}_{v:02d}`` variants:
+``00`` the sim twin of the real scene (same poses, same light set-up), ``01``-``15`` random light
+with the real poses, ``16``-``30`` real light with random poses, ``31``-``70`` random light and
+random poses. 13 fixed viewpoints (image id = viewpoint id), 320x256. Only the files real DIMO
+has: ``rgb/``, ``scene_camera.json`` (c2w, plus the consistent w2c), ``scene_gt.json``,
+``scene_gt_world.json``, ``scene_info.json``; models in ``models/`` (+ ``models_eval/``).
+
+Our synthetic convention for ``scene_info`` values (DIMO does not document them): ``carrier`` c is
+the model ``100 + c``; ``parts`` (composition) 1, 2 and 4 are piles of ONE part type with few /
+medium / many parts, 0 and 3 are mixed types; ``light`` is the fixed set-up id for real lighting
+and ``100 + variant`` for random lighting.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bop_cender.data.bop_io import save_json, write_image
+from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.synth.contact_sheet import write_contact_sheet
+from bop_cender.synth.imaging import render_views
+from bop_cender.synth.models_info import write_model_folders
+from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.rigs import dimo_rig
+from bop_cender.synth.styles import make_style
+
+CARRIER_BASE_ID = 100
+N_CARRIERS = 3
+#: (min, max) number of parts per composition id; compositions in SAME_TYPE use one part type.
+COMPOSITION_SIZES = {0: (4, 6), 1: (3, 4), 2: (5, 6), 3: (5, 7), 4: (7, 9)}
+SAME_TYPE = (1, 2, 4)
+N_LIGHT_SETUPS = 4
+#: The rig looks at this world point in every scene (the carriers' top is near z = 20 mm).
+RIG_TARGET = (0.0, 0.0, 20.0)
+
+
+@dataclass(frozen=True)
+class DimoSpec:
+    """What to generate.
+
+    Attributes:
+        n_scenes: scene numbers 0..n-1 (each a real scene plus its sim variants).
+        n_viewpoints: views per scene (13 in DIMO).
+        variants: sim suffixes to write per scene.
+        carriers: carrier ids cycled over scenes (the paper selects carrier 2).
+        compositions: composition ids cycled over scenes (the paper selects 1, 2, 4).
+        width, height: image size (DIMO small: 320x256).
+        seed: everything derives from it.
+        write_real: also write ``real_jaigo``.
+    """
+
+    n_scenes: int = 3
+    n_viewpoints: int = 13
+    variants: tuple[int, ...] = (0, 3, 17, 40)
+    carriers: tuple[int, ...] = (2,)
+    compositions: tuple[int, ...] = (1, 2, 4)
+    width: int = 320
+    height: int = 256
+    seed: int = 0
+    write_real: bool = True
+    contact_sheets: bool = True
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        bad = [v for v in self.variants if not 0 <= v <= 70]
+        if bad:
+            raise ValueError(f"sim variants must be 0..70, got {bad}")
+        if any(c not in COMPOSITION_SIZES for c in self.compositions):
+            raise ValueError(f"compositions must be among {sorted(COMPOSITION_SIZES)}")
+        if any(not 0 <= c < N_CARRIERS for c in self.carriers):
+            raise ValueError(f"carriers must be 0..{N_CARRIERS - 1}")
+
+
+def dimo_models(seed: int) -> dict[int, Part]:
+    """The dataset's models: one part per type (ids 1..6) and the carriers (ids 100..102)."""
+    rng = np.random.default_rng([seed, 7])
+    models = {i + 1: p for i, p in enumerate(make_part_set(rng, 6))}
+    for c in range(N_CARRIERS):
+        models[CARRIER_BASE_ID + c] = make_carrier(rng)
+    return models
+
+
+def write_models(root: Path, spec: DimoSpec) -> dict[int, Part]:
+    """Write ``models/`` and ``models_eval/`` once (deterministic from the seed); return the parts."""
+    models = dimo_models(spec.seed)
+    if not (Path(root) / "models" / "models_info.json").is_file():
+        write_model_folders(root, models, "dimo")
+    return models
+
+
+def scene_jobs(spec: DimoSpec) -> list[int]:
+    """The independent units of work: scene numbers."""
+    return list(range(spec.n_scenes))
+
+
+def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], meshes: MeshCache) -> int:
+    """Write the real scene ``s`` and its sim variants; skip folders that exist. Returns folders written."""
+    rng = np.random.default_rng([spec.seed, s])
+    composition = spec.compositions[s % len(spec.compositions)]
+    carrier = spec.carriers[s % len(spec.carriers)]
+    light_id = int(rng.integers(0, N_LIGHT_SETUPS))
+    part_ids = [i for i in models if i < CARRIER_BASE_ID]
+    type_index = int(rng.integers(0, len(part_ids)))
+    lo, hi = COMPOSITION_SIZES[composition]
+
+    def new_pile(pile_rng: np.random.Generator) -> Pile:
+        comp = [type_index] if composition in SAME_TYPE else "mixed"
+        n = int(pile_rng.integers(lo, hi + 1))
+        cid = CARRIER_BASE_ID + carrier
+        return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True)
+
+    real_pile = new_pile(np.random.default_rng([spec.seed, s, 1000]))
+    info = {"carrier": carrier, "parts": composition}
+    written = 0
+    folders: list[tuple[str, str, Pile, str, int | None, int]] = []
+    if spec.write_real:
+        folders.append(("real_jaigo", f"{s:06d}", real_pile, "real", light_id, light_id))
+    for v in spec.variants:
+        pile = real_pile if v <= 15 else new_pile(np.random.default_rng([spec.seed, s, v]))
+        real_light = v == 0 or 16 <= v <= 30
+        lid = light_id if real_light else None
+        folders.append(("sim_jaigo", f"{s:06d}_{v:02d}", pile, "sim", lid, light_id if real_light else 100 + v))
+    for camera, name, pile, domain, lid, light_value in folders:
+        written += _write_folder(
+            root, camera, name, pile, domain, lid, {**info, "light": light_value}, spec, models, meshes, [spec.seed, s]
+        )
+    return written
+
+
+def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: DimoSpec, models, meshes, key) -> int:
+    folder_rng = np.random.default_rng([*key, zlib.crc32(f"{camera}/{name}".encode())])  # stable across runs
+    final = Path(root) / camera / name
+    with scene_folder(final) as tmp:
+        if tmp is None:
+            return 0
+        rig = dimo_rig(spec.n_viewpoints, width=spec.width, height=spec.height, target=RIG_TARGET)
+        cams = [(K, T) for _, K, T in rig]
+        centre = pile.T_world_model[:, :3, 3].mean(axis=0)
+        style = make_style(folder_rng, domain, len(pile.obj_ids), centre, light_id=light_id, carrier_index=0)
+        views = render_views(meshes(pile.obj_ids), pile.T_world_model, cams, spec.height, spec.width, style, folder_rng)
+        scene_camera, scene_gt, scene_info = {}, {}, {}
+        for (vid, K, T_cw), view in zip(rig, views, strict=True):
+            write_image(tmp / "rgb" / f"{vid:06d}.png", view.rgb)
+            scene_camera[vid] = camera_entry(K, T_cw, with_c2w=True)
+            scene_gt[vid] = [gt_entry(pile.obj_ids[i], T_cw @ pile.T_world_model[i]) for i in pile.gt_indices]
+            scene_info[vid] = {**info, "viewpoint": vid}
+        world = [
+            {
+                "obj_id": int(pile.obj_ids[i]),
+                "cam_R_m2w": [float(x) for x in pile.T_world_model[i, :3, :3].ravel()],
+                "cam_t_m2w": [float(x) for x in pile.T_world_model[i, :3, 3]],
+            }
+            for i in pile.gt_indices
+        ]
+        save_json(tmp / "scene_camera.json", scene_camera)
+        save_json(tmp / "scene_gt.json", scene_gt)
+        save_json(tmp / "scene_gt_world.json", world)
+        save_json(tmp / "scene_info.json", scene_info)
+        if spec.contact_sheets:
+            write_contact_sheet(Path(root) / "contact_sheets" / f"{camera}_{name}.png", views)
+    return 1

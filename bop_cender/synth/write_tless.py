@@ -1,0 +1,159 @@
+"""Write a synthetic dataset in exactly the T-LESS BOP layout (shared/reference/datasets.md section 2).
+
+The full BOP set: ``models_cad/`` + ``models_eval/``, ``camera_primesense.json``,
+``test_primesense/{scene:06d}/`` (PNG 720x540, 16-bit depth with depth_scale 0.1, ``mask/``,
+``mask_visib/``, ``scene_camera.json`` with per-image K and w2c, ``scene_gt.json``,
+``scene_gt_info.json``) for static piles seen by per-image cameras, ``train_pbr/{scene:06d}/``
+(JPG; objects re-dropped every ``drop_every`` images, as BOP's PBR renders), and
+``test_targets_bop19.json`` (the visib_fract >= 0.1 rule). The table the objects rest on is
+rendered (it occludes and casts shadows) but is not a BOP object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
+from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.synth.contact_sheet import write_contact_sheet
+from bop_cender.synth.gt_info import MIN_VISIB_FRACT, object_visibility
+from bop_cender.synth.imaging import render_views
+from bop_cender.synth.models_info import write_model_folders
+from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.rigs import tless_cameras
+from bop_cender.synth.styles import make_style
+
+DEPTH_SCALE = 0.1
+TABLE_ID = 0  # render-only support; never written to GT files
+FX, FY = 1075.65091572, 1073.90347929
+
+
+@dataclass(frozen=True)
+class TlessSpec:
+    """What to generate.
+
+    Attributes:
+        n_scenes: test scenes (ids 1..n, as T-LESS numbers them).
+        n_views: images per test scene.
+        n_objects: object models (ids 1..n).
+        objects_per_scene: (min, max) instances per test pile.
+        pbr_scenes, pbr_images: ``train_pbr`` scenes (ids 0..) and images per scene.
+        drop_every: PBR objects are re-dropped every this many images.
+        seed: everything derives from it.
+    """
+
+    n_scenes: int = 2
+    n_views: int = 10
+    n_objects: int = 6
+    objects_per_scene: tuple[int, int] = (5, 8)
+    pbr_scenes: int = 1
+    pbr_images: int = 4
+    drop_every: int = 25
+    width: int = 720
+    height: int = 540
+    seed: int = 0
+    contact_sheets: bool = True
+
+
+def tless_models(spec: TlessSpec) -> dict[int, Part]:
+    """Object models ids 1..n (mixed part types) and the render-only table."""
+    rng = np.random.default_rng([spec.seed, 7])
+    models = {i + 1: p for i, p in enumerate(make_part_set(rng, spec.n_objects))}
+    models[TABLE_ID] = make_carrier(rng, (600.0, 450.0, 30.0))
+    return models
+
+
+def write_models(root: Path, spec: TlessSpec) -> dict[int, Part]:
+    """Write ``models_cad/``, ``models_eval/`` and ``camera_primesense.json`` once; return the models."""
+    models = tless_models(spec)
+    root = Path(root)
+    if not (root / "models_cad" / "models_info.json").is_file():
+        write_model_folders(root, {i: p for i, p in models.items() if i != TABLE_ID}, "tless")
+    if not (root / "camera_primesense.json").is_file():
+        cam = {"cx": spec.width / 2, "cy": spec.height / 2, "depth_scale": DEPTH_SCALE, "fx": FX, "fy": FY}
+        save_json(root / "camera_primesense.json", {**cam, "height": spec.height, "width": spec.width})
+    return models
+
+
+def scene_jobs(spec: TlessSpec) -> list[tuple[str, int]]:
+    """Independent units of work: ``("test", scene_id)`` and ``("pbr", scene_id)``."""
+    return [("test", s + 1) for s in range(spec.n_scenes)] + [("pbr", s) for s in range(spec.pbr_scenes)]
+
+
+def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[int, Part], meshes: MeshCache) -> int:
+    """Write one test or PBR scene folder (skipped if it exists). Returns folders written."""
+    kind, s = job
+    split = "test_primesense" if kind == "test" else "train_pbr"
+    rng = np.random.default_rng([spec.seed, 1 if kind == "test" else 2, s])
+    object_ids = [i for i in models if i != TABLE_ID]
+    with scene_folder(Path(root) / split / f"{s:06d}") as tmp:
+        if tmp is None:
+            return 0
+        n_images = spec.n_views if kind == "test" else spec.pbr_images
+        cameras = tless_cameras(n_images, rng, width=spec.width, height=spec.height)
+        records: dict[str, dict] = {"scene_camera": {}, "scene_gt": {}, "scene_gt_info": {}}
+        sheet = []
+        step = n_images if kind == "test" else spec.drop_every
+        for start in range(0, n_images, step):
+            lo, hi = spec.objects_per_scene
+            n = int(rng.integers(lo, hi + 1))
+            pile = make_pile(models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False)
+            ids = range(start, min(start + step, n_images))
+            sheet += _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
+        for name, content in records.items():
+            save_json(tmp / f"{name}.json", content)
+        if spec.contact_sheets:
+            write_contact_sheet(Path(root) / "contact_sheets" / f"{split}_{s:06d}.png", sheet)
+    return 1
+
+
+def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec, rng, meshes, records) -> list:
+    domain = "tless" if kind == "test" else "pbr"
+    mesh_list = meshes(pile.obj_ids)
+    centre = pile.T_world_model[:, :3, 3].mean(axis=0)
+    style = make_style(rng, domain, len(pile.obj_ids), centre, carrier_index=0)
+    views = render_views(mesh_list, pile.T_world_model, cameras, spec.height, spec.width, style, rng)
+    ext = "png" if kind == "test" else "jpg"
+    for im_id, (K, T_cw), view in zip(im_ids, cameras, views, strict=True):
+        T_cm = np.einsum("ij,mjk->mik", T_cw, pile.T_world_model)
+        vis = object_visibility(mesh_list, T_cm, K, view.instance, view.depth, pile.gt_indices)
+        write_image(tmp / "rgb" / f"{im_id:06d}.{ext}", view.rgb)
+        save_depth(tmp / "depth" / f"{im_id:06d}.png", view.depth, DEPTH_SCALE)
+        for gt_id, v in enumerate(vis):
+            write_image(tmp / "mask" / f"{im_id:06d}_{gt_id:06d}.png", v.mask.astype(np.uint8) * 255)
+            write_image(tmp / "mask_visib" / f"{im_id:06d}_{gt_id:06d}.png", v.mask_visib.astype(np.uint8) * 255)
+        eye = -T_cw[:3, :3].T @ T_cw[:3, 3]
+        elev = int(round(np.degrees(np.arcsin((eye - centre)[2] / np.linalg.norm(eye - centre)))))
+        records["scene_camera"][im_id] = camera_entry(
+            K, T_cw, with_c2w=False, depth_scale=DEPTH_SCALE, **({"elev": elev, "mode": 0} if kind == "test" else {})
+        )
+        records["scene_gt"][im_id] = [gt_entry(pile.obj_ids[i], T_cm[i]) for i in pile.gt_indices]
+        records["scene_gt_info"][im_id] = [v.info for v in vis]
+    return views
+
+
+def write_targets(root: Path) -> int:
+    """Write ``test_targets_bop19.json`` from the test scenes on disk (visib_fract >= 0.1 rule).
+
+    Reads back ``scene_gt.json`` / ``scene_gt_info.json`` so that a resumed run gives the same file.
+    Returns the number of targets.
+    """
+    targets = []
+    test_dir = Path(root) / "test_primesense"
+    for scene_dir in sorted(p for p in test_dir.iterdir() if p.is_dir() and p.name.isdigit()):
+        gt = load_json(scene_dir / "scene_gt.json", keys_to_int=True)
+        info = load_json(scene_dir / "scene_gt_info.json", keys_to_int=True)
+        for im_id in sorted(gt):
+            counts: dict[int, int] = {}
+            for g, i in zip(gt[im_id], info[im_id], strict=True):
+                if i["visib_fract"] >= MIN_VISIB_FRACT:
+                    counts[g["obj_id"]] = counts.get(g["obj_id"], 0) + 1
+            targets += [
+                {"im_id": im_id, "inst_count": c, "obj_id": o, "scene_id": int(scene_dir.name)}
+                for o, c in sorted(counts.items())
+            ]
+    save_json(Path(root) / "test_targets_bop19.json", targets)
+    return len(targets)

@@ -1,0 +1,128 @@
+"""A tiny DIMO-layout dataset generated and loaded back, with the invariants of datasets.md 6.1."""
+
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from bop_cender.data.dimo import DimoSelection, open_dimo
+from bop_cender.geometry.poses import invert_pose, pose_from_bop
+from bop_cender.synth.generate import generate
+from bop_cender.synth.write_dimo import CARRIER_BASE_ID, DimoSpec
+
+SPEC = DimoSpec(n_scenes=2, n_viewpoints=4, variants=(0, 3, 17), carriers=(2, 1), compositions=(1, 3), seed=5)
+
+
+@pytest.fixture(scope="module")
+def dimo_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("dimo")
+    report = generate("dimo", root, SPEC, workers=1, progress=False)
+    assert report.written == 2 * 4 and report.skipped == 0
+    return root
+
+
+def digest(folder):
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        if p.is_file():
+            h.update(p.relative_to(folder).as_posix().encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def load(path):
+    return json.loads(path.read_text())
+
+
+def test_only_the_files_real_dimo_has(dimo_root):
+    assert (dimo_root / "models" / "models_info.json").is_file()
+    assert (dimo_root / "models" / "construction").is_dir()
+    folders = sorted(p.name for p in (dimo_root / "sim_jaigo").iterdir())
+    assert folders == ["000000_00", "000000_03", "000000_17", "000001_00", "000001_03", "000001_17"]
+    assert sorted(p.name for p in (dimo_root / "real_jaigo").iterdir()) == ["000000", "000001"]
+    for scene in (dimo_root / "real_jaigo" / "000000", dimo_root / "sim_jaigo" / "000000_17"):
+        names = sorted(p.name for p in scene.iterdir())
+        assert names == ["rgb", "scene_camera.json", "scene_gt.json", "scene_gt_world.json", "scene_info.json"]
+        assert sorted(p.name for p in (scene / "rgb").iterdir()) == [f"{i:06d}.png" for i in range(4)]
+    assert not list(dimo_root.rglob("mask*")) and not list(dimo_root.rglob("scene_gt_info.json"))
+    assert len(list((dimo_root / "contact_sheets").glob("*.png"))) == 8
+
+
+def test_invariants_of_datasets_md_6_1(dimo_root):
+    rigs = {}
+    for scene in sorted((dimo_root / "real_jaigo").iterdir()) + sorted((dimo_root / "sim_jaigo").iterdir()):
+        cam, gt, world, info = (
+            load(scene / f) for f in ("scene_camera.json", "scene_gt.json", "scene_gt_world.json", "scene_info.json")
+        )
+        # 1. identical image-id key sets (strings)
+        assert set(cam) == set(gt) == set(info) == {"0", "1", "2", "3"}
+        for im, entry in cam.items():
+            # 2. same length, order, int obj_id as scene_gt_world
+            assert [o["obj_id"] for o in gt[im]] == [o["obj_id"] for o in world]
+            assert all(type(o["obj_id"]) is int for o in gt[im])
+            # 3. T_m2c == inv(T_c2w) @ T_m2w; c2w and w2c consistent
+            T_c2w = pose_from_bop(entry["cam_R_c2w"], entry["cam_t_c2w"])
+            T_w2c = pose_from_bop(entry["cam_R_w2c"], entry["cam_t_w2c"])
+            np.testing.assert_allclose(T_w2c, invert_pose(T_c2w), atol=1e-9)
+            for o, ow in zip(gt[im], world, strict=True):
+                T_m2c = pose_from_bop(o["cam_R_m2c"], o["cam_t_m2c"])
+                T_m2w = pose_from_bop(ow["cam_R_m2w"], ow["cam_t_m2w"])
+                np.testing.assert_allclose(T_m2c, invert_pose(T_c2w) @ T_m2w, atol=1e-6)
+            # 4. viewpoint k has the same camera pose in every scene
+            vp = info[im]["viewpoint"]
+            assert vp == int(im)
+            rigs.setdefault(vp, T_c2w)
+            np.testing.assert_allclose(rigs[vp], T_c2w, atol=1e-9)
+            assert set(info[im]) == {"light", "carrier", "parts", "viewpoint"}
+        assert any(o["obj_id"] >= CARRIER_BASE_ID for o in world)  # the carrier is in the GT, as an occluder
+
+
+def test_variants_share_or_change_poses(dimo_root):
+    real = load(dimo_root / "real_jaigo" / "000000" / "scene_gt_world.json")
+    assert load(dimo_root / "sim_jaigo" / "000000_00" / "scene_gt_world.json") == real  # twin
+    assert load(dimo_root / "sim_jaigo" / "000000_03" / "scene_gt_world.json") == real  # random light, real poses
+    assert load(dimo_root / "sim_jaigo" / "000000_17" / "scene_gt_world.json") != real  # random poses
+    real_info = load(dimo_root / "real_jaigo" / "000000" / "scene_info.json")["0"]
+    assert load(dimo_root / "sim_jaigo" / "000000_00" / "scene_info.json")["0"]["light"] == real_info["light"]
+    assert load(dimo_root / "sim_jaigo" / "000000_03" / "scene_info.json")["0"]["light"] == 103
+
+
+def test_sim_to_real_gap_in_appearance(dimo_root):
+    from bop_cender.data.bop_io import load_rgb
+
+    real = load_rgb(dimo_root / "real_jaigo" / "000000" / "rgb" / "000000.png").astype(float)
+    sim = load_rgb(dimo_root / "sim_jaigo" / "000000_00" / "rgb" / "000000.png").astype(float)
+    assert real.shape == sim.shape == (256, 320, 3)
+    assert np.abs(real - sim).mean() > 5  # same poses, different light / material / noise model
+    # Not flat-shaded toys: noise and texture everywhere (high-frequency energy in both).
+    for img in (real, sim):
+        assert np.abs(np.diff(img, axis=1)).mean() > 2
+
+
+def test_loaded_by_our_loader_with_the_paper_selection(dimo_root):
+    for split in ("real", "sim", "train"):
+        ds = open_dimo(dimo_root, split)
+        # Scene 0 (carrier 2, composition 1) is kept, scene 1 (carrier 1, mixed) is dropped.
+        assert [s.scene_id for s in ds.scenes()] == {"real": ["000000"], "sim": ["000000_00"], "train": ["000000_17"]}[
+            split
+        ]
+        scene = ds.scene(ds.scene_keys[0])
+        assert [v.im_id for v in scene.views] == [0, 2]  # viewpoints 0, 2 of the 4 written
+        assert ds.residuals["gt_max_mm"] < 1e-6
+    everything = open_dimo(dimo_root, "sim", DimoSelection.everything())
+    assert len(everything) == 6
+
+
+def test_deterministic_and_resumable(dimo_root, tmp_path):
+    spec = DimoSpec(n_scenes=1, n_viewpoints=2, variants=(0,), seed=5, contact_sheets=False)
+    a, b = tmp_path / "a", tmp_path / "b"
+    generate("dimo", a, spec, progress=False)
+    generate("dimo", b, spec, progress=False)
+    assert digest(a) == digest(b)
+    shutil.rmtree(a / "sim_jaigo" / "000000_00")
+    report = generate("dimo", a, spec, progress=False)
+    assert (report.written, report.skipped) == (1, 1)
+    assert digest(a) == digest(b)
+    assert not list(a.rglob("*.partial"))

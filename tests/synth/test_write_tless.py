@@ -1,0 +1,111 @@
+"""A tiny T-LESS-layout dataset generated and loaded back, with the invariants of datasets.md 6.2."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bop_cender.data.bop_io import load_depth, load_mask
+from bop_cender.data.tless import open_tless
+from bop_cender.geometry.poses import invert_pose, pose_from_bop
+from bop_cender.synth.generate import generate
+from bop_cender.synth.write_tless import TlessSpec
+
+SPEC = TlessSpec(n_scenes=1, n_views=4, pbr_scenes=1, pbr_images=2, width=240, height=180, seed=3)
+
+
+@pytest.fixture(scope="module")
+def tless_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tless")
+    report = generate("tless", root, SPEC, workers=1, progress=False)
+    assert report.written == 2 and report.targets > 0
+    return root
+
+
+def load(path):
+    return json.loads(path.read_text())
+
+
+def test_full_bop_file_set(tless_root):
+    for p in (
+        "camera_primesense.json",
+        "test_targets_bop19.json",
+        "models_cad/models_info.json",
+        "models_eval/models_info.json",
+    ):
+        assert (tless_root / p).is_file(), p
+    scene = tless_root / "test_primesense" / "000001"
+    assert sorted(p.name for p in scene.iterdir()) == [
+        "depth",
+        "mask",
+        "mask_visib",
+        "rgb",
+        "scene_camera.json",
+        "scene_gt.json",
+        "scene_gt_info.json",
+    ]
+    assert sorted(p.suffix for p in (scene / "rgb").iterdir()) == [".png"] * 4
+    assert sorted(p.suffix for p in (tless_root / "train_pbr" / "000000" / "rgb").iterdir()) == [".jpg"] * 2
+    cam = load(scene / "scene_camera.json")
+    assert set(cam["0"]) == {"cam_K", "cam_R_w2c", "cam_t_w2c", "depth_scale", "elev", "mode"}
+    assert len({tuple(c["cam_K"]) for c in cam.values()}) > 1  # per-image K
+
+
+def test_gt_info_consistent_with_masks_and_depth(tless_root):
+    scene = tless_root / "test_primesense" / "000001"
+    cam, gt, info = (load(scene / f) for f in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json"))
+    for im in gt:
+        depth = load_depth(scene / "depth" / f"{int(im):06d}.png", cam[im]["depth_scale"])
+        assert len(info[im]) == len(gt[im])
+        for gt_id, entry in enumerate(info[im]):
+            mask = load_mask(scene / "mask" / f"{int(im):06d}_{gt_id:06d}.png")
+            visib = load_mask(scene / "mask_visib" / f"{int(im):06d}_{gt_id:06d}.png")
+            assert visib.sum() == entry["px_count_visib"]
+            assert (visib <= mask).all()
+            assert entry["px_count_all"] >= mask.sum()  # counted on the 3x canvas
+            assert entry["visib_fract"] == pytest.approx(entry["px_count_visib"] / entry["px_count_all"])
+            if visib.any():
+                ys, xs = np.nonzero(visib)
+                assert entry["bbox_visib"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+                assert (depth[visib] > 0).all()
+        # Objects are static in the world: the same world pose from every image.
+        if im != "0":
+            for a, b in zip(gt["0"], gt[im], strict=True):
+                Wa = invert_pose(pose_from_bop(cam["0"]["cam_R_w2c"], cam["0"]["cam_t_w2c"])) @ pose_from_bop(
+                    a["cam_R_m2c"], a["cam_t_m2c"]
+                )
+                Wb = invert_pose(pose_from_bop(cam[im]["cam_R_w2c"], cam[im]["cam_t_w2c"])) @ pose_from_bop(
+                    b["cam_R_m2c"], b["cam_t_m2c"]
+                )
+                np.testing.assert_allclose(Wa, Wb, atol=1e-6)
+
+
+def test_depth_matches_gt_pose(tless_root):
+    """The depth PNG at the projection of an object's centre is close to its camera z."""
+    scene = tless_root / "test_primesense" / "000001"
+    cam, gt, info = (load(scene / f) for f in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json"))
+    depth = load_depth(scene / "depth" / "000000.png", 0.1)
+    assert depth.dtype == np.float32 and depth.shape == (180, 240)
+    assert 500 < np.median(depth[depth > 0]) < 1100
+
+
+def test_targets_follow_the_visib_fract_rule(tless_root):
+    targets = load(tless_root / "test_targets_bop19.json")
+    gt = load(tless_root / "test_primesense" / "000001" / "scene_gt.json")
+    info = load(tless_root / "test_primesense" / "000001" / "scene_gt_info.json")
+    expected = {}
+    for im in gt:
+        for g, i in zip(gt[im], info[im], strict=True):
+            if i["visib_fract"] >= 0.1:
+                key = (1, int(im), g["obj_id"])
+                expected[key] = expected.get(key, 0) + 1
+    assert {(t["scene_id"], t["im_id"], t["obj_id"]): t["inst_count"] for t in targets} == expected
+
+
+def test_loaded_by_our_loader(tless_root):
+    ds = open_tless(tless_root, "test", n_views=2)
+    scenes = list(ds.scenes())
+    assert len(scenes) == 2 and sorted(im for s in scenes for im in s.im_ids) == [0, 1, 2, 3]
+    assert ds.has_depth and ds.residuals["gt_max_mm"] < 1e-6
+    pbr = open_tless(tless_root, "train_pbr")
+    assert len(pbr) == 2 and all(len(s.views) == 1 for s in pbr.scenes())
