@@ -125,7 +125,8 @@ def tless_cameras(
     cameras = []
     for i in range(n_images):
         eye = target + distance[i] * _direction(azimuth[i], elevation[i])
-        K = intrinsics(TLESS_FX, TLESS_FY, principal[i, 0], principal[i, 1])
+        scale = width / TLESS_WIDTH  # smaller test images keep T-LESS's field of view
+        K = intrinsics(TLESS_FX * scale, TLESS_FY * scale, principal[i, 0], principal[i, 1])
         cameras.append((K, look_at(eye, target + offset[i])))
     return cameras
 

@@ -39,6 +39,8 @@ SAME_TYPE = (1, 2, 4)
 N_LIGHT_SETUPS = 4
 #: The rig looks at this world point in every scene (the carriers' top is near z = 20 mm).
 RIG_TARGET = (0.0, 0.0, 20.0)
+#: Focal length (px) of the rig at DIMO small's 320x256.
+RIG_FX = 450.0
 
 
 @dataclass(frozen=True)
@@ -140,7 +142,9 @@ def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: 
     with scene_folder(final) as tmp:
         if tmp is None:
             return 0
-        rig = dimo_rig(spec.n_viewpoints, width=spec.width, height=spec.height, target=RIG_TARGET)
+        # fx scales with the width so that other image sizes keep DIMO small's field of view.
+        fx = RIG_FX * spec.width / 320
+        rig = dimo_rig(spec.n_viewpoints, width=spec.width, height=spec.height, fx=fx, target=RIG_TARGET)
         cams = [(K, T) for _, K, T in rig]
         centre = pile.T_world_model[:, :3, 3].mean(axis=0)
         style = make_style(folder_rng, domain, len(pile.obj_ids), centre, light_id=light_id, carrier_index=0)

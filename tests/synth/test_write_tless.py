@@ -11,7 +11,7 @@ from bop_cender.geometry.poses import invert_pose, pose_from_bop
 from bop_cender.synth.generate import generate
 from bop_cender.synth.write_tless import TlessSpec
 
-SPEC = TlessSpec(n_scenes=1, n_views=4, pbr_scenes=1, pbr_images=2, width=240, height=180, seed=3)
+SPEC = TlessSpec(n_scenes=1, n_views=4, pbr_scenes=1, pbr_images=2, width=160, height=120, seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_depth_matches_gt_pose(tless_root):
     scene = tless_root / "test_primesense" / "000001"
     cam, gt, info = (load(scene / f) for f in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json"))
     depth = load_depth(scene / "depth" / "000000.png", 0.1)
-    assert depth.dtype == np.float32 and depth.shape == (180, 240)
+    assert depth.dtype == np.float32 and depth.shape == (120, 160)
     assert 500 < np.median(depth[depth > 0]) < 1100
 
 
