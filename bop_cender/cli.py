@@ -81,8 +81,16 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
+#: Sub-commands that render a lot and gain from tcmalloc (see bop_cender/launcher.py).
+HEAVY_COMMANDS = {"synth", "score", "compare", "run", "train", "crosscheck"}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bop-cender`` console script."""
+    if argv is None and len(sys.argv) > 1 and (set(sys.argv[1:]) & HEAVY_COMMANDS or sys.argv[1:2] == ["info"]):
+        from bop_cender.launcher import reexec_with_tcmalloc
+
+        reexec_with_tcmalloc(sys.argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.formatwarning = _format_warning
