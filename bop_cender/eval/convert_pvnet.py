@@ -1,0 +1,192 @@
+"""Convert PVNet-style pose outputs (3x4 ``[R | t]``, t in METRES) into a BOP results CSV (t in mm).
+
+clean-pvnet (zju3dv) writes nothing in BOP form: its evaluator keeps, per image, a list of 3x4 camera-frame
+poses from ``cv2.solvePnP`` with t in metres and no score (``shared/reference/datasets.md`` 4.2). Two
+input forms are accepted:
+
+1. A folder of ``.npy`` files, each holding one pose ``(3, 4)`` or several ``(N, 3, 4)`` of one object in
+   one image, named either
+
+   - ``{scene}_{im_id}_{obj_id}.npy`` (flat), e.g. ``000001_000042_000005.npy``, or
+   - ``{scene}/{im_id}_{obj_id}.npy`` (a folder per scene), e.g. ``000001/000042_000005.npy``,
+
+   where ``{scene}`` is the scene folder name (``000001``; DIMO ``000123_17``) and the ids are integers
+   (zero-padded or not). Scores are 1.0 (PVNet has none), time -1 (unknown).
+2. A JSON file mapping an image to its estimates::
+
+       {"000001/000042": [{"obj_id": 5, "pose": [[r11, r12, r13, tx], [.., ty], [.., tz]],
+                           "score": 0.93, "time": 0.21}, ...], ...}
+
+   The key is ``{scene}/{im_id}``, or any path ending in ``{scene}/{folder}/{im_id}.{ext}`` (clean-pvnet's
+   ``rgb_path``, e.g. ``test_primesense/000001/rgb/000042.png``). ``score`` defaults to 1.0 and ``time``
+   (seconds for the whole image; all estimates of an image must agree) to -1.
+
+Scene folder names become BOP int ids through :func:`bop_cender.data.scene_ids.scene_folder_to_int`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Collection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.errors import ResultsError
+from bop_cender.results import BopEstimate, write_bop_results
+
+METRES_TO_MM = 1000.0
+_FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")
+_IN_SCENE = re.compile(r"^(?P<im>\d+)_(?P<obj>\d+)$")
+_IMAGE_FOLDERS = {"rgb", "gray", "depth", "images", "image"}
+
+
+def convert_pvnet(
+    source: str | Path, out_csv: str | Path, known_obj_ids: Collection[int] | None = None
+) -> list[BopEstimate]:
+    """Read PVNet-style outputs from ``source`` (a folder of ``.npy`` or a JSON file) and write a BOP CSV.
+
+    Args:
+        source: see the module docstring.
+        out_csv: output path; must be a BOP result name (``pvnet_tless-test.csv``).
+        known_obj_ids: if given, every obj_id must be one of these.
+
+    Returns:
+        The rows written (in mm).
+
+    Raises:
+        ResultsError: an unreadable or misnamed input, a pose of the wrong shape or not a rotation,
+            an unknown object, or an image whose estimates disagree on its time.
+    """
+    source = Path(source)
+    if source.is_dir():
+        rows = read_pvnet_folder(source)
+    elif source.is_file():
+        rows = read_pvnet_json(source)
+    else:
+        raise ResultsError("PVNet input not found (expected a folder of .npy files or a JSON file)", file=source)
+    if known_obj_ids is not None:
+        known = set(known_obj_ids)
+        bad = sorted({r.obj_id for r in rows} - known)
+        if bad:
+            raise ResultsError(f"unknown object id(s) {bad}; known: {sorted(known)}", file=source, field="obj_id")
+    write_bop_results(out_csv, rows)
+    return rows
+
+
+def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:
+    """Rows from a folder of ``.npy`` poses (flat names or a folder per scene), files in sorted order."""
+    folder = Path(folder)
+    rows: list[BopEstimate] = []
+    files = sorted(p for p in folder.rglob("*.npy") if p.is_file())
+    if not files:
+        raise ResultsError("no .npy files found", file=folder)
+    for path in files:
+        rel = path.relative_to(folder)
+        if len(rel.parts) == 1 and (m := _FLAT.match(path.stem)):
+            scene = m["scene"]
+        elif len(rel.parts) == 2 and (m := _IN_SCENE.match(path.stem)):
+            scene = rel.parts[0]
+        else:
+            raise ResultsError(
+                "expected {scene}_{im_id}_{obj_id}.npy or {scene}/{im_id}_{obj_id}.npy", file=path, field="file name"
+            )
+        scene_int = _scene(scene, path, "file name")
+        try:
+            poses = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise ResultsError(f"cannot read .npy: {e}", file=path) from None
+        for k, pose in enumerate(_poses(poses, path, "array")):
+            rows.append(_row(scene_int, int(m["im"]), int(m["obj"]), 1.0, pose, -1.0, path, f"pose {k}"))
+    return rows
+
+
+def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
+    """Rows from a JSON mapping image keys to lists of ``{obj_id, pose, score?, time?}`` (in file order)."""
+    path = Path(path)
+    try:
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ResultsError(f"not a JSON file: {e}", file=path) from None
+    if not isinstance(content, dict):
+        raise ResultsError(
+            f"expected an object mapping image keys to estimates, got {type(content).__name__}", file=path
+        )
+    rows: list[BopEstimate] = []
+    for key, entries in content.items():
+        scene_int, im_id = _image_key(key, path)
+        if not isinstance(entries, list):
+            raise ResultsError(f"expected a list of estimates, got {type(entries).__name__}", file=path, field=key)
+        for i, entry in enumerate(entries):
+            where = f"{key}[{i}]"
+            if not isinstance(entry, dict) or "obj_id" not in entry or "pose" not in entry:
+                raise ResultsError("expected an object with obj_id and pose (3x4, t in metres)", file=path, field=where)
+            obj_id = _int(entry["obj_id"], path, f"{where}.obj_id")
+            score = _number(entry.get("score", 1.0), path, f"{where}.score")
+            time_s = _number(entry.get("time", -1.0), path, f"{where}.time")
+            poses = _poses(entry["pose"], path, f"{where}.pose")
+            if len(poses) != 1:
+                raise ResultsError(f"expected one 3x4 pose, got {len(poses)}", file=path, field=f"{where}.pose")
+            rows.append(_row(scene_int, im_id, obj_id, score, poses[0], time_s, path, where))
+    return rows
+
+
+def _image_key(key: str, path: Path) -> tuple[int, int]:
+    """``{scene}/{im_id}`` or ``.../{scene}/{folder}/{im_id}.{ext}`` -> (scene int, im_id)."""
+    parts = [p for p in re.split(r"[\\/]", key) if p]
+    if parts:
+        parts[-1] = parts[-1].split(".")[0]
+    if len(parts) >= 3 and parts[-2] in _IMAGE_FOLDERS:
+        parts = [*parts[:-2], parts[-1]]
+    if len(parts) < 2 or not parts[-1].isdigit():
+        raise ResultsError(
+            "expected an image key {scene}/{im_id} or a path .../{scene}/rgb/{im_id}.png", file=path, field=key
+        )
+    return _scene(parts[-2], path, key), int(parts[-1])
+
+
+def _scene(name: str, path: Path, field: str) -> int:
+    try:
+        return scene_folder_to_int(name)
+    except ValueError as e:
+        raise ResultsError(str(e), file=path, field=field) from None
+
+
+def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
+    """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ResultsError("expected numbers in a 3x4 [R | t] pose", file=path, field=field) from None
+    if arr.shape == (3, 4):
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1:] != (3, 4):
+        raise ResultsError(f"expected a 3x4 pose or N x 3 x 4 poses, got shape {arr.shape}", file=path, field=field)
+    if not np.all(np.isfinite(arr)):
+        raise ResultsError("pose has NaN or inf", file=path, field=field)
+    return list(arr)
+
+
+def _row(
+    scene: int, im: int, obj: int, score: float, pose: np.ndarray, time_s: float, path: Path, where: str
+) -> BopEstimate:
+    R = pose[:, :3]
+    if abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
+        raise ResultsError("the 3x3 part of the pose is not a rotation", file=path, field=where)
+    return BopEstimate(scene, im, obj, score, R, pose[:, 3] * METRES_TO_MM, time_s)
+
+
+def _int(value: Any, path: Path, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value) or value < 0:
+        raise ResultsError(f"expected a non-negative integer, got {value!r}", file=path, field=field)
+    return int(value)
+
+
+def _number(value: Any, path: Path, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ResultsError(f"expected a finite number, got {value!r}", file=path, field=field)
+    return float(value)

@@ -1,0 +1,197 @@
+"""The evaluation's seam to the one batched renderer (:mod:`bop_cender.render`): depth and instance maps.
+
+VSD needs the depth of a model in the estimated and in the GT pose; DIMO's targets need which object is
+in front at each pixel of the whole pile. Both come from our renderer (no OpenGL), through the few
+functions here, so that a change of the renderer's API touches only this file.
+
+Renders for VSD are cut right away to the bounding box of their silhouette inside the image
+(:class:`DepthCrops`): VSD only looks at pixels where either render is non-zero, so a crop loses
+nothing, and 1,000 renders of a few thousand pixels each stay small in memory. Poses are rendered
+in chunks sorted by their projected size, so each chunk's square window is no larger than it needs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from bop_cender.data.types import ObjectModel
+from bop_cender.render.mesh import RenderMesh, prepare_mesh
+from bop_cender.render.raster import DEFAULT_NEAR
+from bop_cender.render.rasterizer import render_candidates, render_objects_separately, render_scene
+
+#: Poses rendered per renderer call (bounded memory; measured fastest on 2 cores).
+CHUNK = 48
+
+__all__ = [
+    "CHUNK",
+    "DepthCrops",
+    "MeshCache",
+    "render_depth_crops",
+    "render_depths",
+    "render_pile_instances",
+    "silhouette_areas",
+    "single_threaded_torch",
+]
+
+
+@contextmanager
+def single_threaded_torch() -> Iterator[None]:
+    """One torch intra-op thread inside the block (restored after): callers parallelise over threads themselves."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+@dataclass
+class MeshCache:
+    """Render meshes of a dataset's models, prepared once per object id on first use."""
+
+    models: Mapping[int, ObjectModel]
+    _meshes: dict[int, RenderMesh] = field(default_factory=dict, repr=False)
+
+    def __call__(self, obj_id: int) -> RenderMesh:
+        if obj_id not in self._meshes:
+            self._meshes[obj_id] = prepare_mesh(self.models[obj_id].mesh)
+        return self._meshes[obj_id]
+
+
+@dataclass(frozen=True)
+class DepthCrops:
+    """E depth renders, each cut to its silhouette's bounding box inside the image.
+
+    Attributes:
+        depth: E arrays ``(h_e, w_e)`` float32, z in mm, 0 on background; ``(0, 0)`` for a render
+            with no pixel inside the image.
+        origin: ``(E, 2)`` int64 full-image (row, column) of each crop's first pixel.
+    """
+
+    depth: list[np.ndarray]
+    origin: np.ndarray
+
+    def window(self, e: int) -> tuple[int, int, int, int] | None:
+        """``(y0, x0, y1, x1)`` of crop ``e`` in the full image, None if empty."""
+        h, w = self.depth[e].shape
+        if h == 0:
+            return None
+        y0, x0 = (int(v) for v in self.origin[e])
+        return (y0, x0, y0 + h, x0 + w)
+
+
+def render_depth_crops(
+    mesh: RenderMesh, T_cam_model: np.ndarray, K: np.ndarray, height: int, width: int, chunk: int = CHUNK
+) -> DepthCrops:
+    """Render one mesh in E poses (each with its own intrinsics) and crop each render to its silhouette.
+
+    Args:
+        mesh: the model.
+        T_cam_model: ``(E, 4, 4)`` model-to-camera poses (mm).
+        K: ``(E, 3, 3)`` intrinsics.
+        height, width: image size; pixels outside it are dropped.
+        chunk: poses per renderer call.
+    """
+    T = np.asarray(T_cam_model, dtype=np.float64).reshape(-1, 4, 4)
+    Ks = np.broadcast_to(np.asarray(K, dtype=np.float64), (len(T), 3, 3))
+    E = len(T)
+    crops: list[np.ndarray] = [np.zeros((0, 0), np.float32)] * E
+    origin = np.zeros((E, 2), dtype=np.int64)
+    if E == 0:
+        return DepthCrops(crops, origin)
+    z = T[:, 2, 3]
+    near_hit = z - mesh.radius <= DEFAULT_NEAR  # the window bound needs the sphere in front of the near plane
+    focal = np.maximum(Ks[:, 0, 0], Ks[:, 1, 1])
+    extent = np.where(near_hit, np.inf, mesh.radius * focal / np.maximum(z - mesh.radius, 1e-9))
+    order = np.argsort(extent, kind="stable")
+    windowed = order[~near_hit[order]]
+    for start in range(0, len(windowed), chunk):
+        idx = windowed[start : start + chunk]
+        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=True)
+        depth = r.depth[0].cpu().numpy()  # (c, S, S)
+        offsets = r.offsets[0].cpu().numpy()  # (c, 2)
+        for k, e in enumerate(idx):
+            crops[e], origin[e] = _crop(depth[k], offsets[k], height, width)
+    full = np.flatnonzero(near_hit)
+    for start in range(0, len(full), chunk):
+        idx = full[start : start + chunk]
+        r = render_objects_separately([mesh], T[idx, None], Ks[idx], height, width)
+        depth = r.depth[:, 0].cpu().numpy()
+        for k, e in enumerate(idx):
+            crops[e], origin[e] = _crop(depth[k], np.zeros(2, np.int64), height, width)
+    return DepthCrops(crops, origin)
+
+
+def render_depths(
+    mesh: RenderMesh,
+    T_cam_model: np.ndarray,
+    K: np.ndarray,
+    height: int,
+    width: int,
+    window: tuple[int, int, int, int] | None = None,
+) -> np.ndarray:
+    """Depth renders ``(E, h, w)`` float32 (mm, 0 background) of the full image or of ``window`` ``(y0, x0, y1, x1)``."""
+    y0, x0, y1, x1 = window if window is not None else (0, 0, height, width)
+    crops = render_depth_crops(mesh, T_cam_model, K, height, width)
+    out = np.zeros((len(crops.depth), y1 - y0, x1 - x0), dtype=np.float32)
+    for e, d in enumerate(crops.depth):
+        win = crops.window(e)
+        if win is None:
+            continue
+        a0, b0, a1, b1 = max(win[0], y0), max(win[1], x0), min(win[2], y1), min(win[3], x1)
+        if a0 < a1 and b0 < b1:
+            out[e, a0 - y0 : a1 - y0, b0 - x0 : b1 - x0] = d[a0 - win[0] : a1 - win[0], b0 - win[1] : b1 - win[1]]
+    return out
+
+
+def render_pile_instances(
+    meshes: Sequence[RenderMesh], T_cam_model: np.ndarray, K: np.ndarray, height: int, width: int
+) -> np.ndarray:
+    """Which object is in front at each pixel: ``(V, H, W)`` int64 index into ``meshes``, -1 background.
+
+    Args:
+        meshes: M meshes, one per object instance (repeat a mesh for repeated objects).
+        T_cam_model: ``(V, M, 4, 4)`` poses of every object in every view.
+        K: ``(V, 3, 3)`` intrinsics.
+    """
+    with torch.no_grad():
+        r = render_scene(list(meshes), np.asarray(T_cam_model, np.float64), np.asarray(K, np.float64), height, width)
+    return r.instance.cpu().numpy()
+
+
+def silhouette_areas(mesh: RenderMesh, T_cam_model: np.ndarray, K: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Pixel count ``(E,)`` of the whole silhouette of each pose, parts beyond the image border included.
+
+    The toolkit's ``calc_gt_info.py`` counts ``px_count_all`` on a larger canvas for the same reason:
+    a truncated object's visible fraction is its visible pixels over its whole silhouette.
+    """
+    T = np.asarray(T_cam_model, dtype=np.float64).reshape(-1, 4, 4)
+    Ks = np.broadcast_to(np.asarray(K, dtype=np.float64), (len(T), 3, 3))
+    out = np.zeros(len(T), dtype=np.int64)
+    for start in range(0, len(T), CHUNK):
+        idx = np.arange(start, min(len(T), start + CHUNK))
+        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=False)
+        out[idx] = r.mask[0].reshape(len(idx), -1).sum(dim=1).cpu().numpy()
+    return out
+
+
+def _crop(depth: np.ndarray, offset: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cut one window render ``(S, S)`` at image ``offset (row, col)`` to its silhouette inside the image."""
+    v0, u0 = int(offset[0]), int(offset[1])
+    S0, S1 = depth.shape
+    a0, b0 = max(0, -v0), max(0, -u0)
+    a1, b1 = min(S0, height - v0), min(S1, width - u0)
+    if a0 >= a1 or b0 >= b1:
+        return np.zeros((0, 0), np.float32), np.zeros(2, np.int64)
+    inside = depth[a0:a1, b0:b1]
+    rows = np.flatnonzero(inside.any(axis=1))
+    if rows.size == 0:
+        return np.zeros((0, 0), np.float32), np.zeros(2, np.int64)
+    cols = np.flatnonzero(inside.any(axis=0))
+    crop = np.ascontiguousarray(inside[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1], dtype=np.float32)
+    return crop, np.array([v0 + a0 + rows[0], u0 + b0 + cols[0]], dtype=np.int64)

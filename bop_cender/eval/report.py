@@ -1,0 +1,210 @@
+"""What scoring produces (:class:`ScoreReport`) and how it is written: scores JSON, errors CSV, AR table.
+
+``scores_<stem>.json`` has at its top level the six scores under exactly these names (``null`` where
+not available, e.g. VSD and AR without test depth), then ``recalls`` (per threshold) and
+``metadata`` (dataset, split, MSPD width, VSD delta, targets source, counts, time per image, notes).
+``errors_<stem>.csv`` has one row per evaluated estimate (see :func:`write_errors_csv`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bop_cender.data.bop_io import write_text_atomic
+
+#: The scores, in the order they are printed and written.
+SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
+SCORES_FORMAT = "bop-cender-scores"
+
+
+@dataclass(frozen=True, eq=False)
+class EstimateRecord:
+    """Errors and matches of one evaluated (kept) estimate against the GTs of its object in its image.
+
+    Attributes:
+        scene_id, im_id, obj_id: the estimate's image and object (BOP int scene id).
+        est_id: index within its (scene, image, object) group in file order (the toolkit's est_id).
+        score: confidence. line: line in the results file (None for in-memory rows).
+        gt_ids: ``(G,)`` gt_ids of the GT instances of this object in the image.
+        mssd_mm, mspd_px: ``(G,)`` raw errors (``inf`` = MSSD early-out). mssd, mspd: ``(G,)``
+            normalised (MSSD / diameter, MSPD x 640 / width).
+        vsd: ``(G, taus)`` VSD errors, None without test depth.
+        mssd_match, mspd_match: ``(thresholds,)`` gt_id matched at each threshold, -1 if none.
+        vsd_match: ``(taus, thresholds)`` likewise, None without test depth.
+    """
+
+    scene_id: int
+    im_id: int
+    obj_id: int
+    est_id: int
+    score: float
+    line: int | None
+    gt_ids: np.ndarray
+    mssd_mm: np.ndarray
+    mssd: np.ndarray
+    mspd_px: np.ndarray
+    mspd: np.ndarray
+    vsd: np.ndarray | None
+    mssd_match: np.ndarray
+    mspd_match: np.ndarray
+    vsd_match: np.ndarray | None
+
+    def best_gt(self) -> int:
+        """Index into ``gt_ids`` of the closest GT: lowest MSSD, then MSPD, then gt_id."""
+        return int(np.lexsort((self.gt_ids, self.mspd, self.mssd))[0])
+
+
+@dataclass(frozen=True, eq=False)
+class ScoreReport:
+    """BOP'19 localisation scores of one results file on one dataset split, with everything behind them.
+
+    Attributes:
+        scores: the six scores by :data:`SCORE_KEYS` name; None where not available.
+        mssd_thresholds, mspd_thresholds: ``(K,)``; vsd_taus, vsd_thresholds: ``(T,)``, ``(K,)``.
+        mssd_recalls, mspd_recalls: ``(K,)``; vsd_recalls: ``(T, K)`` or None.
+        metadata: dataset, split, root, MSPD width and its source, VSD delta, targets source and
+            note, GT pose source, counts, time per image (JSON-ready values).
+        notes: human-readable lines on what was done and why.
+        records: one per evaluated estimate.
+        timings: seconds per stage.
+    """
+
+    scores: dict[str, float | None]
+    mssd_thresholds: np.ndarray
+    mspd_thresholds: np.ndarray
+    vsd_taus: np.ndarray
+    vsd_thresholds: np.ndarray
+    mssd_recalls: np.ndarray
+    mspd_recalls: np.ndarray
+    vsd_recalls: np.ndarray | None
+    metadata: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    records: list[EstimateRecord] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The scores JSON content (see the module docstring)."""
+        recalls: dict[str, Any] = {
+            "mssd": {"thresholds": self.mssd_thresholds.tolist(), "recall": self.mssd_recalls.tolist()},
+            "mspd": {"thresholds": self.mspd_thresholds.tolist(), "recall": self.mspd_recalls.tolist()},
+            "vsd": None
+            if self.vsd_recalls is None
+            else {
+                "taus": self.vsd_taus.tolist(),
+                "thresholds": self.vsd_thresholds.tolist(),
+                "recall": self.vsd_recalls.tolist(),
+            },
+        }
+        meta = {"format": SCORES_FORMAT, **self.metadata, "notes": list(self.notes), "timings": dict(self.timings)}
+        return {**{k: self.scores.get(k) for k in SCORE_KEYS}, "recalls": recalls, "metadata": meta}
+
+
+def write_scores_json(path: str | Path, report: ScoreReport) -> None:
+    """Write :meth:`ScoreReport.to_json` atomically (strict JSON: non-finite numbers become null)."""
+    write_text_atomic(path, json.dumps(_finite(report.to_json()), indent=1) + "\n")
+
+
+def read_scores_json(path: str | Path) -> dict[str, Any]:
+    """A scores JSON written by :func:`write_scores_json` (checks the six score keys are there)."""
+    from bop_cender.errors import ResultsError
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ResultsError("scores file not found", file=path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ResultsError(f"not a JSON file: {e}", file=path) from None
+    missing = [k for k in SCORE_KEYS if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise ResultsError(f"not a scores file: missing {', '.join(missing)}", file=path)
+    return data
+
+
+def errors_csv_text(report: ScoreReport) -> str:
+    """One row per evaluated estimate.
+
+    Columns: ``scene_id, im_id, obj_id, est_id, line, score``; ``gt_id``: the GT the estimate is
+    matched to by MSSD at the loosest threshold, -1 if none; ``errors_gt_id``: the GT the error
+    columns refer to (the matched one, else the closest by MSSD); ``mssd_mm, mssd, mspd_px, mspd``
+    (raw and normalised); ``vsd_<tau>`` per tau (empty without depth); ``mssd_hits, mspd_hits,
+    vsd_hits``: at how many thresholds (VSD: tau x threshold pairs) the estimate matches a GT.
+    """
+    taus = [f"vsd_{t:.2f}" for t in report.vsd_taus]
+    header = ["scene_id", "im_id", "obj_id", "est_id", "line", "score", "gt_id", "errors_gt_id"]
+    header += ["mssd_mm", "mssd", "mspd_px", "mspd", *taus, "mssd_hits", "mspd_hits", "vsd_hits"]
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    for r in report.records:
+        matched = int(r.mssd_match[-1])
+        j = int(np.flatnonzero(r.gt_ids == matched)[0]) if matched >= 0 else r.best_gt()
+        vsd = [""] * len(taus) if r.vsd is None else [_num(v) for v in r.vsd[j]]
+        hits = [int(np.count_nonzero(m >= 0)) if m is not None else "" for m in (r.mssd_match, r.mspd_match)]
+        vsd_hits = "" if r.vsd_match is None else int(np.count_nonzero(r.vsd_match >= 0))
+        writer.writerow(
+            [r.scene_id, r.im_id, r.obj_id, r.est_id, "" if r.line is None else r.line, repr(r.score), matched]
+            + [int(r.gt_ids[j]), _num(r.mssd_mm[j]), _num(r.mssd[j]), _num(r.mspd_px[j]), _num(r.mspd[j])]
+            + vsd
+            + [*hits, vsd_hits]
+        )
+    return buf.getvalue()
+
+
+def write_errors_csv(path: str | Path, report: ScoreReport) -> None:
+    """Write :func:`errors_csv_text` atomically."""
+    write_text_atomic(path, errors_csv_text(report))
+
+
+def format_scores(rows: list[tuple[str, dict[str, float | None]]], digits: int = 3) -> str:
+    """A plain-text table, one row per (name, scores), one column per score; ``n/a`` where None."""
+    header = ["method", *SCORE_KEYS]
+    body = [[name] + [_fmt(s.get(k), digits) for k in SCORE_KEYS] for name, s in rows]
+    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))
+             for r in [header, *body]]  # fmt: skip
+    return "\n".join(lines)
+
+
+def summary_lines(report: ScoreReport) -> list[str]:
+    """Metadata lines printed under the AR table."""
+    m = report.metadata
+    lines = [
+        f"dataset {m['dataset']} split {m['split']} ({m['root']})",
+        f"targets: {m['targets_note']}",
+        f"estimates: {m['counts']['rows']} rows, {m['counts']['evaluated']} evaluated (top-n per target),"
+        f" {m['counts']['not_target']} for non-target images/objects ignored, {m['counts']['beyond_top_n']} beyond"
+        " the top-n cut",
+        f"MSPD width {m['mspd_width']} px ({m['mspd_width_source']}); VSD delta "
+        + ("n/a" if m["vsd_delta"] is None else f"{m['vsd_delta']:g} mm ({m['vsd_delta_source']})"),
+        "time per image: "
+        + ("n/a (a row has time < 0)" if m["time_per_image"] is None else f"{m['time_per_image']:.3f} s"),
+    ]
+    return lines + [f"note: {n}" for n in report.notes]
+
+
+def _fmt(value: float | None, digits: int) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _num(value: float) -> str:
+    return "inf" if math.isinf(value) else repr(float(value))
+
+
+def _finite(obj: Any) -> Any:
+    """JSON-safe copy: non-finite floats become None (the toolkit writes ``Infinity``; strict JSON cannot)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj

@@ -1,0 +1,194 @@
+"""Score a results CSV file: find the data it belongs to, score it, write ``scores_<stem>.json`` and ``errors_<stem>.csv``.
+
+Where the data comes from, first found wins for each setting:
+
+1. the options given (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``);
+2. the run sidecar beside the CSV (``<stem>.json``, :func:`bop_cender.result_files.read_run_sidecar`):
+   data root, dataset, split, seed and ``n_views`` from its selection;
+3. the BOP file name ``{method}_{dataset}-{split}[-{split_type}]...csv``: ``dimo`` and ``tless`` map
+   to our loaders, any other name to the generic BOP loader (which then needs a data root);
+4. no data root at all for ``dimo`` / ``tless``: the embedded demo dataset.
+
+A sidecar that names another dataset than the file name is refused, and rows naming scenes, images or
+objects that are not in the data are refused by the scorer (each bad line listed).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bop_cender.data.registry import open_dataset
+from bop_cender.data.types import Dataset
+from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.eval.report import ScoreReport, write_errors_csv, write_scores_json
+from bop_cender.eval.scoring import score_results
+from bop_cender.result_files import ResultName, parse_result_filename, read_run_sidecar
+from bop_cender.results import read_bop_results
+
+#: Our loader for a BOP dataset name; every other name uses the generic BOP loader.
+LOADERS = {"dimo": "dimo", "tless": "tless"}
+
+
+@dataclass(frozen=True)
+class DataChoice:
+    """The dataset a results file is scored on, and where each setting came from.
+
+    Attributes:
+        loader: ``dimo``, ``tless`` or ``bop``. name: the dataset name (BOP's, e.g. ``lmo``).
+        data_root: None = the embedded demo. split, split_type, n_views, seed: loader settings.
+        origin: one line saying where the settings came from.
+    """
+
+    loader: str
+    name: str
+    data_root: Path | None
+    split: str
+    split_type: str | None
+    n_views: int | None
+    seed: int
+    origin: str
+
+
+@dataclass(frozen=True)
+class ScoredFile:
+    """A scored results file: the report and the files written."""
+
+    report: ScoreReport
+    choice: DataChoice
+    scores_path: Path
+    errors_path: Path
+
+
+def choose_data(
+    csv_path: str | Path,
+    *,
+    dataset: str | None = None,
+    data_root: str | Path | None = None,
+    split: str | None = None,
+    n_views: int | None = None,
+    seed: int | None = None,
+) -> DataChoice:
+    """Decide which dataset split ``csv_path`` is scored on (see the module docstring).
+
+    Raises:
+        ConfigError: the dataset cannot be told, a sidecar contradicts the file name, or a BOP
+            dataset other than dimo/tless has no data root.
+        ResultsError: malformed sidecar.
+    """
+    csv_path = Path(csv_path)
+    parsed = _parse_name(csv_path)
+    sidecar = read_run_sidecar(csv_path)
+    origin = []
+    if sidecar is not None and parsed is not None and sidecar["dataset"] not in (parsed.dataset, "bop"):
+        raise ConfigError(
+            f"the run sidecar says dataset {sidecar['dataset']!r} but the file name says {parsed.dataset!r}",
+            field="dataset",
+        )
+    name = dataset or (sidecar or {}).get("dataset") or (parsed.dataset if parsed else None)
+    if name is None:
+        raise ConfigError(
+            f"cannot tell the dataset of {csv_path.name}: name it {{method}}_{{dataset}}-{{split}}.csv or give --dataset",
+            field="--dataset",
+        )
+    if name == "bop" and parsed is not None:
+        name = parsed.dataset
+    loader = LOADERS.get(name, "bop")
+    if sidecar is not None:
+        origin.append(f"run sidecar {csv_path.with_suffix('.json').name}")
+    root = data_root if data_root is not None else (sidecar or {}).get("data_root")
+    split_type = parsed.split_type if parsed is not None else None
+    chosen_split = split or (sidecar or {}).get("split") or (parsed.split if parsed else None)
+    selection: dict[str, Any] = (sidecar or {}).get("selection", {})
+    views = n_views if n_views is not None else selection.get("n_views")
+    seed_value = seed if seed is not None else int((sidecar or {}).get("seed", 0))
+    if root is None and loader == "bop":
+        raise ConfigError(f"dataset {name!r} needs --data-root DIR (a folder in the BOP layout)", field="--data-root")
+    if parsed is not None:
+        origin.append(f"file name ({parsed.dataset}-{parsed.split}{'-' + split_type if split_type else ''})")
+    if dataset or data_root or split:
+        origin.insert(0, "options")
+    return DataChoice(
+        loader=loader,
+        name=name,
+        data_root=None if root is None else Path(root),
+        split=chosen_split or "",
+        split_type=split_type,
+        n_views=None if views is None else int(views),
+        seed=seed_value,
+        origin=", ".join(origin) or "defaults",
+    )
+
+
+def open_choice(choice: DataChoice) -> Dataset:
+    """Open the dataset split a :class:`DataChoice` names."""
+    split = choice.split or None
+    if choice.loader == "tless" and split == "test" and choice.split_type not in (None, "primesense"):
+        split = f"test_{choice.split_type}"
+    if choice.loader == "bop":
+        from bop_cender.data.bop import open_bop
+
+        assert choice.data_root is not None
+        return open_bop(
+            choice.data_root, split or "test", name=choice.name, n_views=choice.n_views, seed=choice.seed,
+            split_type=choice.split_type,
+        )  # fmt: skip
+    return open_dataset(choice.loader, choice.data_root, split, n_views=choice.n_views, seed=choice.seed)
+
+
+def score_file(
+    csv_path: str | Path,
+    *,
+    dataset: str | None = None,
+    data_root: str | Path | None = None,
+    split: str | None = None,
+    n_views: int | None = None,
+    seed: int | None = None,
+    vsd_delta: float | None = None,
+    out_dir: str | Path | None = None,
+    progress: bool = True,
+) -> ScoredFile:
+    """Score one BOP results CSV and write ``scores_<stem>.json`` and ``errors_<stem>.csv`` into ``out_dir``.
+
+    Args:
+        csv_path: the results file.
+        dataset, data_root, split, n_views, seed: override what the sidecar / file name say.
+        vsd_delta: VSD delta (mm); default the toolkit's.
+        out_dir: where to write (default: beside the CSV).
+    """
+    csv_path = Path(csv_path)
+    clock = time.perf_counter()
+    choice = choose_data(csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed)
+    ds = open_choice(choice)
+    opened = time.perf_counter()
+    rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
+    read = time.perf_counter()
+    report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path)
+    report.timings.update(open_dataset=opened - clock, read_results=read - opened)
+    report.metadata["data_origin"] = choice.origin
+    report.metadata["method"] = method_name(csv_path)
+    out = Path(out_dir) if out_dir is not None else csv_path.parent
+    stem = csv_path.name.split(".")[0]
+    scores_path, errors_path = out / f"scores_{stem}.json", out / f"errors_{stem}.csv"
+    write_errors_csv(errors_path, report)
+    report.timings["total"] = time.perf_counter() - clock
+    write_scores_json(scores_path, report)
+    return ScoredFile(report, choice, scores_path, errors_path)
+
+
+def method_name(path: str | Path) -> str:
+    """The method a results or scores file is for: the BOP name's method part, else the file stem."""
+    name = Path(path).name
+    if name.startswith("scores_"):
+        name = name[len("scores_") :]
+    parsed = _parse_name(Path(name))
+    return parsed.method if parsed is not None else name.split(".")[0]
+
+
+def _parse_name(path: Path) -> ResultName | None:
+    try:
+        return parse_result_filename(path.name)
+    except ResultsError:
+        return None

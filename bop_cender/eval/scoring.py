@@ -1,0 +1,352 @@
+"""BOP'19 localisation scoring end to end: results rows + a dataset split -> :class:`ScoreReport`.
+
+The official pipeline (``scripts/eval_bop19_pose.py`` and the scripts it starts, see
+``shared/reference/bop_metrics.md``) in one process:
+
+1. ground truth per image from the Dataset (:mod:`bop_cender.eval.ground_truth`);
+2. every row checked against the split: an unknown object, scene or image is an error naming the
+   line; an image that exists but is not selected/target is ignored, as the toolkit ignores it;
+3. targets (:mod:`bop_cender.eval.targets`): the targets file, else the ``visib_fract >= 0.1`` rule;
+4. top-n per target (``n_top = -1``: ``inst_count``), est_id = index in its (scene, image, object) group;
+5. raw errors of each kept estimate against every GT of its object in the image
+   (:mod:`bop_cender.eval.pair_errors`): MSSD, MSPD and, with test depth, VSD;
+6. normalisation: MSSD / diameter, MSPD x 640 / width (the toolkit's dataset constant, see
+   :mod:`bop_cender.eval.toolkit_constants`);
+7. valid GTs, greedy matching per threshold, recall pooled over the dataset, AR
+   (:mod:`bop_cender.eval.matching`).
+
+Without test depth (DIMO) VSD, AR_VSD and AR are None (not available); MSSD and MSPD stand alone.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from bop_cender.data.types import Dataset
+from bop_cender.errors import ResultsError
+from bop_cender.eval.depth_render import MeshCache
+from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
+from bop_cender.eval.matching import (
+    MSPD_THRESHOLDS,
+    MSSD_THRESHOLDS,
+    VSD_THRESHOLDS,
+    EstimateErrors,
+    GtInstance,
+    Matches,
+    Target,
+    match,
+    normalize_by_image_width,
+    select_top_n,
+    valid_gts,
+)
+from bop_cender.eval.pair_errors import Pairs, pair_errors
+from bop_cender.eval.report import EstimateRecord, ScoreReport
+from bop_cender.eval.targets import TargetSet, resolve_targets
+from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
+from bop_cender.eval.visibility import rendered_visib_fracts
+from bop_cender.eval.vsd import VSD_TAUS
+from bop_cender.results import BopEstimate
+
+
+def score_results(
+    rows: Sequence[BopEstimate],
+    dataset: Dataset,
+    *,
+    vsd_delta: float | None = None,
+    n_top: int = -1,
+    progress: bool = True,
+    source: str | Path | None = None,
+) -> ScoreReport:
+    """Score BOP results rows on a dataset split with the BOP'19 localisation protocol.
+
+    Args:
+        rows: the results (:func:`bop_cender.results.read_bop_results`), any order.
+        dataset: the split the rows were estimated on.
+        vsd_delta: VSD tolerance (mm); default the toolkit's (15, ITODD 5).
+        n_top: estimates kept per target: -1 = ``inst_count`` (BOP'19), 0 = all, n > 0 = n.
+        progress: tqdm bars on stderr.
+        source: the results file, for error messages.
+
+    Raises:
+        ResultsError: rows naming objects, scenes or images that are not in the split (all listed).
+        DatasetError: the dataset's files are missing or inconsistent.
+    """
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+    gt = collect_ground_truth(dataset, progress)
+    timings["ground_truth"] = time.perf_counter() - clock
+    ignored = _check_rows(rows, gt, dataset, source)
+    models = dataset.eval_models or dataset.models
+    meshes = MeshCache(models)
+
+    clock = time.perf_counter()
+    targets = resolve_targets(
+        dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
+    )
+    timings["targets"] = time.perf_counter() - clock
+
+    kept = select_top_n(list(rows), targets.targets, n_top)
+    pairs = _pairs(kept, gt)
+    width = mspd_width(dataset.name, dataset.split, _image_width(gt, dataset))
+    has_depth = bool(gt.images) and all(im.depth_path is not None for im in gt)
+    delta = vsd_delta_for(dataset.name, vsd_delta) if has_depth else None
+
+    clock = time.perf_counter()
+    raw = pair_errors(pairs, models, meshes, None if delta is None else delta.value, VSD_TAUS, progress)
+    timings["errors"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    diameters = np.array([models[int(o)].diameter for o in pairs.obj_id.tolist()], dtype=np.float64)
+    mssd_n = raw.mssd / diameters  # the toolkit's e / diameter, per pair (normalize_by_diameter, vectorised)
+    mspd_n = normalize_by_image_width(raw.mspd, width.value)
+    valid = valid_gts(_gt_instances(gt, targets), targets.targets)
+    per_est = _estimate_errors(kept, pairs, {"mssd": mssd_n, "mspd": mspd_n, "vsd": raw.vsd})
+    m_mssd = match(per_est["mssd"], valid, MSSD_THRESHOLDS)
+    m_mspd = match(per_est["mspd"], valid, MSPD_THRESHOLDS)
+    m_vsd = None if raw.vsd is None else match(per_est["vsd"], valid, VSD_THRESHOLDS)
+    n_targets = _targets_count(valid, n_top)
+    r_mssd = _recall(m_mssd, n_targets)[0]
+    r_mspd = _recall(m_mspd, n_targets)[0]
+    r_vsd = None if m_vsd is None else _recall(m_vsd, n_targets)
+    timings["matching"] = time.perf_counter() - clock
+
+    scores = _scores(r_vsd, r_mssd, r_mspd)
+    not_target = _count_not_target(rows, targets.targets)
+    records = _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd)
+    notes = [f"GT poses: {gt.pose_source}"]
+    if delta is None:
+        notes.append("no test depth: VSD, AR_VSD and AR are not available; MSSD and MSPD stand alone")
+    metadata = {
+        "dataset": dataset.name,
+        "split": dataset.split,
+        "root": str(dataset.root),
+        "results": None if source is None else str(source),
+        "n_top": n_top,
+        "mspd_width": width.value,
+        "mspd_width_source": width.source,
+        "vsd_delta": None if delta is None else delta.value,
+        "vsd_delta_source": None if delta is None else delta.source,
+        "targets_source": targets.source,
+        "targets_note": targets.note,
+        "gt_pose_source": gt.pose_source,
+        "counts": {
+            "rows": len(rows),
+            "not_target": not_target,
+            "unselected_images": ignored,
+            "evaluated": len(kept),
+            "beyond_top_n": len(rows) - len(kept) - not_target,
+            "pairs": len(pairs),
+            "targets": len(targets.targets),
+            "target_instances": n_targets,
+            "target_images": len({(t.scene_id, t.im_id) for t in targets.targets}),
+        },
+        "time_per_image": average_time_per_image(rows),
+    }
+    return ScoreReport(
+        scores=scores,
+        mssd_thresholds=np.asarray(MSSD_THRESHOLDS, np.float64),
+        mspd_thresholds=np.asarray(MSPD_THRESHOLDS, np.float64),
+        vsd_taus=np.asarray(VSD_TAUS, np.float64),
+        vsd_thresholds=np.asarray(VSD_THRESHOLDS, np.float64),
+        mssd_recalls=r_mssd,
+        mspd_recalls=r_mspd,
+        vsd_recalls=r_vsd,
+        metadata=metadata,
+        notes=notes,
+        records=records,
+        timings=timings,
+    )
+
+
+def average_time_per_image(rows: Sequence[BopEstimate]) -> float | None:
+    """``bop19_average_time_per_image``: mean over images of their time; None if any row has time < 0."""
+    times: dict[tuple[int, int], float] = {}
+    for row in rows:
+        if row.time < 0:
+            return None
+        times.setdefault((row.scene_id, row.im_id), row.time)
+    return float(np.mean(list(times.values()))) if times else None
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def _check_rows(rows: Sequence[BopEstimate], gt: GroundTruth, dataset: Dataset, source: str | Path | None) -> int:
+    """Raise one ResultsError listing every row with an unknown object, scene or image; count ignored rows.
+
+    Returns:
+        rows for images that exist in the split but were not selected (ignored, as the toolkit does).
+    """
+    problems: list[str] = []
+    ignored = 0
+    known: dict[tuple[int, int], bool] = {}
+    for k, row in enumerate(rows):
+        where = f"line {row.line}" if row.line is not None else f"row {k}"
+        if row.obj_id not in dataset.models:
+            problems.append(f"{where}: obj_id: unknown object {row.obj_id} (known: {_few(sorted(dataset.models))})")
+            continue
+        key = (row.scene_id, row.im_id)
+        if key in gt.images:
+            continue
+        if key not in known:
+            known[key] = gt.image_on_disk(*key)
+        if known[key]:
+            ignored += 1
+        elif not gt.scene_on_disk(row.scene_id):
+            problems.append(f"{where}: scene_id: no scene {row.scene_id} in {dataset.name} {dataset.split}")
+        else:
+            problems.append(f"{where}: im_id: scene {row.scene_id} has no image {row.im_id}")
+    if problems:
+        raise ResultsError(
+            f"{len(problems)} row(s) name data that is not in {dataset.name} {dataset.split} at {dataset.root}"
+            " (were the results made on other data?)",
+            file=source,
+            problems=problems,
+        )
+    return ignored
+
+
+def _count_not_target(rows: Sequence[BopEstimate], targets: list[Target]) -> int:
+    """Rows whose (image, object) is not a target (ignored without penalty)."""
+    keys = {(t.scene_id, t.im_id, t.obj_id) for t in targets}
+    return sum(1 for r in rows if (r.scene_id, r.im_id, r.obj_id) not in keys)
+
+
+def _pairs(kept: list, gt: GroundTruth) -> Pairs:
+    """Every (kept estimate, GT instance of its object in its image) pair."""
+    images = list(gt.images.values())
+    index = {im.key: i for i, im in enumerate(images)}
+    est, img, gt_id, obj, T_e, T_g = [], [], [], [], [], []
+    for k, sel in enumerate(kept):
+        row = sel.estimate
+        i = index[(row.scene_id, row.im_id)]
+        for g in images[i].instances:
+            if g.obj_id == row.obj_id:
+                est.append(k)
+                img.append(i)
+                gt_id.append(g.gt_id)
+                obj.append(g.obj_id)
+                T_e.append(row.T_cam_model)
+                T_g.append(g.T_cam_model)
+    as_int = lambda v: np.asarray(v, dtype=np.int64)  # noqa: E731
+    poses = lambda v: np.stack(v) if v else np.zeros((0, 4, 4))  # noqa: E731
+    return Pairs(as_int(est), as_int(img), as_int(gt_id), as_int(obj), poses(T_e), poses(T_g), images)
+
+
+def _gt_instances(gt: GroundTruth, targets: TargetSet) -> list[GtInstance]:
+    images = {(t.scene_id, t.im_id) for t in targets.targets}
+    out = []
+    for key in images:
+        image = gt.images[key]
+        fracts = targets.visib.get(key, {})
+        out.extend(
+            GtInstance(key[0], key[1], g.gt_id, g.obj_id, float(fracts.get(g.gt_id, 0.0))) for g in image.instances
+        )
+    return out
+
+
+def _estimate_errors(kept: list, pairs: Pairs, errors: dict[str, np.ndarray | None]) -> dict[str, list[EstimateErrors]]:
+    """Per metric, one EstimateErrors per kept estimate (gt_id -> normalised error; VSD a vector per tau)."""
+    out: dict[str, list[EstimateErrors]] = {}
+    for name, values in errors.items():
+        if values is None:
+            continue
+        ests = [
+            EstimateErrors(s.estimate.scene_id, s.estimate.im_id, s.estimate.obj_id, s.est_id, s.estimate.score)
+            for s in kept
+        ]
+        for p in range(len(pairs)):
+            ests[int(pairs.est[p])].errors[int(pairs.gt_id[p])] = values[p]
+        out[name] = ests
+    return out
+
+
+def _targets_count(valid: list[GtInstance], n_top: int) -> int:
+    """Recall's denominator: valid GTs, at most ``n_top`` per (image, object) when n_top > 0 (score.py)."""
+    if n_top <= 0:
+        return len(valid)
+    counts: dict[tuple, int] = {}
+    for g in valid:
+        key = (g.scene_id, g.im_id, g.obj_id)
+        counts[key] = counts.get(key, 0) + 1
+    return int(sum(min(n_top, c) for c in counts.values()))
+
+
+def _recall(matches: Matches, n_targets: int) -> np.ndarray:
+    """``(V, K)`` true positives / targets, 0 without targets (score.calc_recall)."""
+    if n_targets == 0:
+        return np.zeros(matches.est_ids.shape[:2])
+    return matches.tp_counts / float(n_targets)
+
+
+def _scores(r_vsd: np.ndarray | None, r_mssd: np.ndarray, r_mspd: np.ndarray) -> dict[str, float | None]:
+    ar_mssd, ar_mspd = float(np.mean(r_mssd)), float(np.mean(r_mspd))
+    ar_vsd = None if r_vsd is None else float(np.mean(r_vsd.reshape(-1)))
+    ar = None if ar_vsd is None else float(np.mean([ar_vsd, ar_mssd, ar_mspd]))
+    return {
+        "AR": ar,
+        "AR_VSD": ar_vsd,
+        "AR_MSSD": ar_mssd,
+        "AR_MSPD": ar_mspd,
+        "AR_MSPD<5px": float(r_mspd[0]),
+        "AR_MSSD<5%": float(r_mssd[0]),
+    }
+
+
+def _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd) -> list[EstimateRecord]:
+    """One EstimateRecord per kept estimate, with the gt_id it matched per threshold."""
+    group_of = {(s.estimate.scene_id, s.estimate.im_id, s.estimate.obj_id, s.est_id): k for k, s in enumerate(kept)}
+    matched = {name: _matched_gt(m, group_of, len(kept)) for name, m in (("mssd", m_mssd), ("mspd", m_mspd))}
+    vsd_matched = None if m_vsd is None else _matched_gt(m_vsd, group_of, len(kept))
+    rows_of: list[list[int]] = [[] for _ in kept]
+    for p in range(len(pairs)):
+        rows_of[int(pairs.est[p])].append(p)
+    records = []
+    for k, sel in enumerate(kept):
+        r = np.asarray(rows_of[k], dtype=np.int64)
+        row = sel.estimate
+        records.append(
+            EstimateRecord(
+                scene_id=row.scene_id,
+                im_id=row.im_id,
+                obj_id=row.obj_id,
+                est_id=sel.est_id,
+                score=row.score,
+                line=row.line,
+                gt_ids=pairs.gt_id[r],
+                mssd_mm=raw.mssd[r],
+                mssd=mssd_n[r],
+                mspd_px=raw.mspd[r],
+                mspd=mspd_n[r],
+                vsd=None if raw.vsd is None else raw.vsd[r],
+                mssd_match=matched["mssd"][k, 0],
+                mspd_match=matched["mspd"][k, 0],
+                vsd_match=None if vsd_matched is None else vsd_matched[k],
+            )
+        )
+    return records
+
+
+def _matched_gt(m: Matches, group_of: dict[tuple, int], n: int) -> np.ndarray:
+    """``(n, V, K)`` gt_id each kept estimate is matched to per (variant, threshold), -1 if none."""
+    V, K, _ = m.est_ids.shape
+    out = np.full((n, V, K), -1, dtype=np.int64)
+    v, k, j = np.nonzero(m.est_ids >= 0)
+    for vv, kk, jj in zip(v.tolist(), k.tolist(), j.tolist(), strict=True):
+        g = m.gts[jj]
+        out[group_of[(g.scene_id, g.im_id, g.obj_id, int(m.est_ids[vv, kk, jj]))], vv, kk] = g.gt_id
+    return out
+
+
+def _image_width(gt: GroundTruth, dataset: Dataset) -> int:
+    if dataset.image_size is not None:
+        return int(dataset.image_size[0])
+    return next(iter(gt)).width if len(gt) else 640
+
+
+def _few(ids: list[int], n: int = 8) -> str:
+    return ", ".join(map(str, ids[:n])) + (f", ... ({len(ids)} in all)" if len(ids) > n else "") if ids else "none"

@@ -1,0 +1,211 @@
+"""Comparison tables: one row per method, from results CSVs (scored here), scores JSONs, and the paper.
+
+Inputs, any mix:
+
+- a BOP results CSV (ours, CosyPose's published files such as
+  ``cosypose114533-eccv2020_tless-test-primesense.csv``, PVNet outputs converted by
+  :mod:`bop_cender.eval.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
+  (its scores JSON and errors CSV are written too);
+- a ``scores_*.json`` already written by ``bop-cender score``;
+- ``reference="paper"``: the numbers the CenDerNet paper reports, from ``results/reference/paper_tables.csv``,
+  filtered to the table's dataset and split (one row per method, its tables merged).
+
+Outputs: a markdown table (returned and written), a CSV and a bar chart PNG (matplotlib, Agg) of the scores.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bop_cender.data.bop_io import atomic_path, write_text_atomic
+from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.eval.report import SCORE_KEYS, read_scores_json
+from bop_cender.eval.score_file import method_name, score_file
+
+#: The paper's reported numbers (dataset, split, method, source, metric, value).
+PAPER_TABLES = Path(__file__).resolve().parents[2] / "results" / "reference" / "paper_tables.csv"
+
+
+@dataclass(frozen=True)
+class MethodRow:
+    """One row of a comparison: a method's scores (None where not available) and where they come from."""
+
+    method: str
+    source: str
+    scores: dict[str, float | None]
+    dataset: str | None = None
+    split: str | None = None
+
+
+@dataclass
+class Comparison:
+    """A comparison table and the files it was written to."""
+
+    rows: list[MethodRow]
+    dataset: str | None
+    split: str | None
+    files: dict[str, Path] = field(default_factory=dict)
+
+    def markdown(self, digits: int = 3) -> str:
+        """The table in markdown: method, source, then the six scores (``–`` where not available)."""
+        title = f"BOP'19 scores, {self.dataset or '?'} {self.split or '?'}"
+        head = ["method", "source", *SCORE_KEYS]
+        lines = [f"### {title}", "", "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * 6) + "|"]
+        for r in self.rows:
+            cells = [r.method, r.source] + [
+                "–" if r.scores.get(k) is None else f"{r.scores[k]:.{digits}f}" for k in SCORE_KEYS
+            ]
+            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+        return "\n".join(lines) + "\n"
+
+    def csv_text(self) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["method", "source", "dataset", "split", *SCORE_KEYS])
+        for r in self.rows:
+            w.writerow(
+                [r.method, r.source, r.dataset or "", r.split or ""]
+                + ["" if r.scores.get(k) is None else repr(r.scores[k]) for k in SCORE_KEYS]
+            )
+        return buf.getvalue()
+
+
+def compare(
+    inputs: list[str | Path],
+    *,
+    reference: str | None = None,
+    dataset: str | None = None,
+    data_root: str | Path | None = None,
+    split: str | None = None,
+    out_dir: str | Path = ".",
+    progress: bool = True,
+) -> Comparison:
+    """Build, write and return the comparison of ``inputs`` (see the module docstring).
+
+    Args:
+        inputs: results CSVs and/or scores JSONs, one row each, in this order.
+        reference: ``"paper"`` (or a CSV in the paper tables' format) to add reference rows.
+        dataset, data_root, split: passed to the scoring of CSV inputs (default: their file names / sidecars).
+        out_dir: where the scores of CSV inputs and the comparison files are written.
+
+    Raises:
+        ConfigError: an input is neither ``.csv`` nor ``.json``, or the reference table is missing.
+    """
+    out_dir = Path(out_dir)
+    _check_inputs(inputs)
+    rows: list[MethodRow] = []
+    for item in inputs:
+        path = Path(item)
+        if path.suffix == ".csv":
+            scored = score_file(
+                path, dataset=dataset, data_root=data_root, split=split, out_dir=out_dir, progress=progress
+            )
+            meta = scored.report.metadata
+            rows.append(
+                MethodRow(
+                    method_name(path), f"scored {path.name}", scored.report.scores, meta["dataset"], meta["split"]
+                )
+            )
+        elif path.suffix == ".json":
+            data = read_scores_json(path)
+            meta = data.get("metadata") or {}
+            scores = {k: data[k] for k in SCORE_KEYS}
+            rows.append(
+                MethodRow(
+                    meta.get("method") or method_name(path),
+                    f"scores {path.name}",
+                    scores,
+                    meta.get("dataset"),
+                    meta.get("split"),
+                )
+            )
+        else:
+            raise ConfigError(f"expected a results .csv or a scores .json, got {path.name}", field="inputs")
+    table_dataset = dataset if dataset in ("dimo", "tless") else next((r.dataset for r in rows if r.dataset), dataset)
+    table_split = split or next((r.split for r in rows if r.split), None)
+    if reference is not None:
+        path = PAPER_TABLES if reference == "paper" else Path(reference)
+        rows += reference_rows(path, table_dataset, table_split)
+    comparison = Comparison(rows, table_dataset, table_split)
+    stem = f"comparison_{table_dataset or 'results'}-{table_split or 'all'}"
+    comparison.files = {
+        "markdown": out_dir / f"{stem}.md",
+        "csv": out_dir / f"{stem}.csv",
+        "png": out_dir / f"{stem}.png",
+    }
+    write_text_atomic(comparison.files["markdown"], comparison.markdown())
+    write_text_atomic(comparison.files["csv"], comparison.csv_text())
+    bar_chart(comparison, comparison.files["png"])
+    return comparison
+
+
+def reference_rows(path: Path, dataset: str | None, split: str | None) -> list[MethodRow]:
+    """Rows of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are comments)
+    for ``dataset`` / ``split`` (None: any), one per method, its tables merged.
+
+    Raises:
+        ConfigError: the file is missing or malformed.
+    """
+    if not path.is_file():
+        raise ConfigError("reference table not found (expected results/reference/paper_tables.csv)", field=str(path))
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
+    merged: dict[tuple[str, str, str], dict[str, float]] = {}
+    sources: dict[tuple[str, str, str], list[str]] = {}
+    for n, rec in enumerate(csv.DictReader(lines), start=2):
+        try:
+            value = float(rec["value"])
+            key = (rec["dataset"], rec["split"], rec["method"])
+            metric = rec["metric"]
+        except (KeyError, TypeError, ValueError):
+            raise ConfigError(
+                f"expected dataset,split,method,source,metric,value; bad row {n}", field=str(path)
+            ) from None
+        if metric not in SCORE_KEYS:
+            raise ConfigError(
+                f"unknown metric {metric!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
+            )
+        if (dataset and key[0] != dataset) or (split and key[1] != split):
+            continue
+        merged.setdefault(key, {})[metric] = value
+        if rec["source"] not in sources.setdefault(key, []):
+            sources[key].append(rec["source"])
+    return [
+        MethodRow(f"{key[2]} [reported]", "; ".join(sources[key]), {k: vals.get(k) for k in SCORE_KEYS}, key[0], key[1])
+        for key, vals in merged.items()
+    ]
+
+
+def bar_chart(comparison: Comparison, path: Path) -> None:
+    """Grouped bars: one group per score, one bar per method (no bar where not available); PNG, written atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = comparison.rows
+    n = max(1, len(rows))
+    width = 0.8 / n
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.3 * len(SCORE_KEYS) + 0.3 * n), 4.2))
+    for i, r in enumerate(rows):
+        xs = [k + (i - (n - 1) / 2) * width for k, key in enumerate(SCORE_KEYS) if r.scores.get(key) is not None]
+        ys = [r.scores[key] for key in SCORE_KEYS if r.scores.get(key) is not None]
+        ax.bar(xs, ys, width=width, label=r.method)
+    ax.set_xticks(range(len(SCORE_KEYS)), SCORE_KEYS)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("average recall")
+    ax.set_title(f"BOP'19 scores, {comparison.dataset or '?'} {comparison.split or '?'}")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
+def _check_inputs(inputs: list[str | Path]) -> None:
+    missing = [str(p) for p in inputs if not Path(p).is_file()]
+    if missing:
+        raise ResultsError(f"input file(s) not found: {', '.join(missing)}")

@@ -1,0 +1,153 @@
+"""BOP'19 test targets: which (image, object) pairs are evaluated, and how many instances of each.
+
+Three sources, in this order (:func:`resolve_targets`):
+
+1. ``test_targets_bop19.json`` at the dataset root (BOP datasets, T-LESS): read as it is, cut to the
+   images of the split the scorer loaded.
+2. No file, but every GT instance has a ``visib_fract`` (``scene_gt_info.json``): the rule of the
+   toolkit's ``scripts/enumerate_test_targets.py``: per image and object, ``inst_count`` = number of
+   instances with ``visib_fract >= 0.1``; the pair is a target when that count is positive.
+3. No visibility either (DIMO): the same rule on visible fractions rendered for the whole pile
+   (:mod:`bop_cender.eval.visibility`), carriers included as occluders, target objects only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from bop_cender.data.bop_io import load_json, save_json
+from bop_cender.errors import DatasetError
+from bop_cender.eval.ground_truth import GroundTruth, ImageGt
+from bop_cender.eval.matching import Target
+
+TARGETS_FILE = "test_targets_bop19.json"
+#: The toolkit's ``min_visib_fract`` for BOP'19 targets.
+MIN_VISIB_FRACT = 0.1
+
+SOURCE_FILE = "file"
+SOURCE_GT_INFO = "scene_gt_info"
+SOURCE_RENDERED = "rendered"
+
+#: ``(scene_int, im_id) -> {gt_id: visib_fract}`` for every image of a GroundTruth.
+VisibFracts = dict[tuple[int, int], dict[int, float]]
+
+
+@dataclass(frozen=True)
+class TargetSet:
+    """The evaluation targets and where they came from.
+
+    Attributes:
+        targets: one per (scene, image, object), scene ids as BOP ints.
+        source: :data:`SOURCE_FILE`, :data:`SOURCE_GT_INFO` or :data:`SOURCE_RENDERED`.
+        note: one human-readable line for the report.
+        visib: visible fractions of every instance (``scene_gt_info``, else rendered): the targets' rule
+            uses them, and the valid GTs of an image are its most visible instances.
+    """
+
+    targets: list[Target]
+    source: str
+    note: str
+    visib: VisibFracts
+
+
+def resolve_targets(
+    root: Path,
+    gt: GroundTruth,
+    target_obj_ids: Iterable[int],
+    render_visib: Callable[[], VisibFracts],
+) -> TargetSet:
+    """Targets of the loaded images: from the targets file, else by the visibility rule (see module doc).
+
+    Args:
+        root: dataset root (where ``test_targets_bop19.json`` would be).
+        gt: the loaded images.
+        target_obj_ids: objects that can be targets (DIMO carriers are not).
+        render_visib: computes rendered visible fractions; called only when nothing else is available.
+    """
+    targetable = set(target_obj_ids)
+    stored = stored_visib(gt)
+    path = Path(root) / TARGETS_FILE
+    if path.is_file():
+        targets = [t for t in read_targets(path) if (t.scene_id, t.im_id) in gt.images]
+        visib = stored if stored is not None else render_visib()  # valid GTs are the most visible ones
+        return TargetSet(targets, SOURCE_FILE, f"targets from {TARGETS_FILE}: {_count(targets)}", visib)
+    if stored is not None:
+        targets = targets_from_visibility(gt, stored, targetable)
+        note = f"no {TARGETS_FILE}: targets by the toolkit's rule visib_fract >= {MIN_VISIB_FRACT} on scene_gt_info"
+        return TargetSet(targets, SOURCE_GT_INFO, f"{note}: {_count(targets)}", stored)
+    visib = render_visib()
+    targets = targets_from_visibility(gt, visib, targetable)
+    note = (
+        f"no {TARGETS_FILE} and no scene_gt_info: targets by the rule visib_fract >= {MIN_VISIB_FRACT} on"
+        " visible fractions rendered for the whole pile (carriers as occluders; visible pixels / pixels of"
+        f" the object rendered alone): {_count(targets)}"
+    )
+    return TargetSet(targets, SOURCE_RENDERED, note, visib)
+
+
+def stored_visib(gt: GroundTruth) -> VisibFracts | None:
+    """``visib_fract`` of every instance from ``scene_gt_info.json``; None if any instance lacks one."""
+    out: VisibFracts = {}
+    for image in gt:
+        fracts = {g.gt_id: g.visib_fract for g in image.instances}
+        if any(v is None for v in fracts.values()):
+            return None
+        out[image.key] = fracts  # type: ignore[assignment]
+    return out
+
+
+def targets_from_visibility(
+    images: Iterable[ImageGt], visib: Mapping[tuple[int, int], Mapping[int, float]], target_obj_ids: set[int]
+) -> list[Target]:
+    """The ``enumerate_test_targets.py`` rule: per image, objects with instances of ``visib_fract >= 0.1``.
+
+    Images in the given order; objects in order of their first such instance (gt_id order), as the toolkit
+    writes them.
+    """
+    targets = []
+    for image in images:
+        fracts = visib.get(image.key, {})
+        counts: dict[int, int] = {}
+        for g in image.instances:
+            if g.obj_id in target_obj_ids and fracts.get(g.gt_id, 0.0) >= MIN_VISIB_FRACT:
+                counts[g.obj_id] = counts.get(g.obj_id, 0) + 1
+        targets.extend(Target(image.scene_int, image.im_id, obj_id, n) for obj_id, n in counts.items())
+    return targets
+
+
+def read_targets(path: str | Path) -> list[Target]:
+    """``test_targets_bop19.json`` as Targets (scene ids as ints); every entry needs ``inst_count`` >= 1.
+
+    Raises:
+        DatasetError: not a list of objects with integer scene_id, im_id, obj_id, inst_count.
+    """
+    path = Path(path)
+    entries = load_json(path)
+    if not isinstance(entries, list):
+        raise DatasetError(f"expected a list of targets, got {type(entries).__name__}", file=path)
+    targets = []
+    for i, entry in enumerate(entries):
+        values = []
+        for key in ("scene_id", "im_id", "obj_id", "inst_count"):
+            value = entry.get(key) if isinstance(entry, dict) else None
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "inst_count" else 0):
+                what = "a positive integer" if key == "inst_count" else "a non-negative integer"
+                raise DatasetError(f"expected {what}, got {value!r}", file=path, field=f"[{i}].{key}")
+            values.append(value)
+        targets.append(Target(*values))
+    return targets
+
+
+def write_targets(path: str | Path, targets: Iterable[Target]) -> None:
+    """Write targets as ``test_targets_bop19.json`` (the toolkit's key order and layout), atomically."""
+    save_json(
+        path,
+        [{"im_id": t.im_id, "inst_count": t.inst_count, "obj_id": t.obj_id, "scene_id": t.scene_id} for t in targets],
+    )
+
+
+def _count(targets: list[Target]) -> str:
+    images = len({(t.scene_id, t.im_id) for t in targets})
+    return f"{len(targets)} targets, {sum(t.inst_count for t in targets)} instances in {images} images"

@@ -1,0 +1,56 @@
+"""Visible fractions of GT instances rendered from the GT poses, for datasets without ``scene_gt_info.json``.
+
+DIMO ships no ``scene_gt_info.json`` and no test depth, so BOP's targets (objects with
+``visib_fract >= 0.1``) must come from rendering. For each image the whole pile is rendered at once
+(every GT instance: target parts and the carrier, ids >= 100, which occludes them) and
+
+    visib_fract = (pixels where the instance is in front, inside the image)
+                  / (pixels of the instance rendered alone, its whole silhouette, beyond the border too)
+
+as the toolkit's ``calc_gt_info.py`` divides ``px_count_visib`` by ``px_count_all`` counted on a larger
+canvas. Without test depth there is no sensor depth test: the front-most surface is what is visible.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+from tqdm import tqdm
+
+from bop_cender.eval.depth_render import MeshCache, render_pile_instances, silhouette_areas
+from bop_cender.eval.ground_truth import ImageGt
+from bop_cender.eval.targets import VisibFracts
+
+
+def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress: bool = True) -> VisibFracts:
+    """``(scene_int, im_id) -> {gt_id: visib_fract}`` for every instance of every image.
+
+    Images with the same instance list and size (the views of one DIMO scene) are rendered in one batch.
+    """
+    groups: dict[tuple, list[ImageGt]] = {}
+    for image in images:
+        signature = (image.scene_key, image.width, image.height, tuple((g.gt_id, g.obj_id) for g in image.instances))
+        groups.setdefault(signature, []).append(image)
+    out: VisibFracts = {}
+    bar = tqdm(total=sum(len(g) for g in groups.values()), desc="visibility", unit="image", disable=not progress)
+    for group in groups.values():
+        first = group[0]
+        if not first.instances:
+            out.update({im.key: {} for im in group})
+            bar.update(len(group))
+            continue
+        obj_ids = [g.obj_id for g in first.instances]
+        T = np.stack([np.stack([g.T_cam_model for g in im.instances]) for im in group])  # (V, M, 4, 4)
+        K = np.stack([im.K for im in group])  # (V, 3, 3)
+        instance = render_pile_instances([meshes(o) for o in obj_ids], T, K, first.height, first.width)
+        visible = np.stack([(instance == m).reshape(len(group), -1).sum(axis=1) for m in range(len(obj_ids))], axis=1)
+        total = np.zeros_like(visible)  # (V, M)
+        for m, obj_id in enumerate(obj_ids):
+            total[:, m] = silhouette_areas(meshes(obj_id), T[:, m], K, first.height, first.width)
+        fract = np.where(total > 0, visible / np.maximum(total, 1), 0.0)
+        for v, im in enumerate(group):
+            out[im.key] = {g.gt_id: float(fract[v, m]) for m, g in enumerate(im.instances)}
+        bar.update(len(group))
+    bar.close()
+    return out

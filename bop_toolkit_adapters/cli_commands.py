@@ -1,0 +1,50 @@
+"""``bop-cender crosscheck``: score a results file with bop-cender and with the official BOP toolkit.
+
+Registered by ``bop_cender.cli`` when this package is importable. The toolkit itself is optional:
+without it the command says so and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bop_cender.eval.cli_commands import data_args
+
+CROSSCHECK_EPILOG = """examples:
+  bop-cender crosscheck cendernet_tless-test.csv --data-root ~/bop/tless --toolkit ~/src/bop_toolkit
+  EGL_PLATFORM=surfaceless bop-cender crosscheck cendernet_dimo-sim.csv --data-root ~/dimo --toolkit ~/src/bop_toolkit
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``crosscheck`` to ``bop-cender``'s subparsers."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    p = sub.add_parser("crosscheck", help="score with bop-cender AND the official BOP toolkit, side by side",
+                       epilog=CROSSCHECK_EPILOG, formatter_class=fmt)  # fmt: skip
+    p.add_argument("results", type=Path, help="BOP results CSV")
+    p.add_argument("--toolkit", type=Path, default=None, help="BOP toolkit checkout (bop_toolkit_lib/ + scripts/)")
+    data_args(p)
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: crosscheck_<stem>/ beside the CSV)")
+    p.add_argument("--no-vsd", action="store_true", help="skip VSD on the toolkit side (no renderer needed)")
+    p.add_argument("--verbose", action="store_true", help="show the toolkit's own log")
+    p.set_defaults(func=cmd_crosscheck)
+
+
+def cmd_crosscheck(args: argparse.Namespace) -> int:
+    from bop_toolkit_adapters.crosscheck import ToolkitUnavailable, crosscheck_file, format_crosscheck
+
+    out = args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}"
+    try:
+        check = crosscheck_file(
+            args.results, out, args.toolkit, dataset=args.dataset, data_root=args.data_root, split=args.split,
+            n_views=args.n_views, vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,
+            progress=not args.no_progress,
+        )  # fmt: skip
+    except ToolkitUnavailable as e:
+        print(f"crosscheck not run: {e}", file=sys.stderr)
+        print("(the official toolkit is optional: pass --toolkit DIR, a checkout of thodan/bop_toolkit)")
+        return 0
+    print(format_crosscheck(check))
+    return 0

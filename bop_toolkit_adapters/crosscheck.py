@@ -1,0 +1,187 @@
+"""Score a results file with bop-cender and with the official BOP toolkit, and compare every number.
+
+Where ``bop_toolkit_lib`` is importable (``--toolkit DIR``, a checkout with ``scripts/``, or the
+environment), the results and the data are exported (:mod:`bop_toolkit_adapters.export`) and the
+toolkit's own ``eval_calc_errors.py`` / ``eval_calc_scores.py`` run on them in this process
+(:mod:`bop_toolkit_adapters.runtime`). VSD needs the toolkit's vispy renderer (headless through Mesa
+EGL, ``EGL_PLATFORM=surfaceless``); without it VSD is skipped and said so. Where the toolkit is not
+importable, :func:`crosscheck` raises :class:`ToolkitUnavailable` and the CLI prints why and exits 0:
+the toolkit is never a dependency.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bop_cender.eval.report import SCORE_KEYS, ScoreReport
+from bop_toolkit_adapters.export import ToolkitExport, export_for_toolkit
+from bop_toolkit_adapters.runtime import (
+    ToolkitScores,
+    ToolkitUnavailable,
+    evaluate,
+    import_toolkit,
+    result_summary,
+    vsd_renderer_available,
+)
+
+__all__ = ["Crosscheck", "ToolkitUnavailable", "compare_pair_errors", "crosscheck", "format_crosscheck"]
+
+
+@dataclass
+class Crosscheck:
+    """Both evaluations of one results file, and their differences.
+
+    Attributes:
+        ours: our report. toolkit: the toolkit's scores. export: where the toolkit's input was written.
+        toolkit_scores: the toolkit's scores under our names (None where skipped).
+        score_diffs: per score name, |ours - toolkit| (None where either is missing).
+        pair_diffs: per error type, max |ours - toolkit| over all (estimate, GT) pairs, and the number
+            of pairs compared (``n_<type>``); ``missing_<type>`` counts pairs only one side has.
+        notes: what was skipped and why.
+    """
+
+    ours: ScoreReport
+    toolkit: ToolkitScores
+    export: ToolkitExport
+    toolkit_scores: dict[str, float | None]
+    score_diffs: dict[str, float | None]
+    pair_diffs: dict[str, float]
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def recall_diffs(self) -> dict[str, float]:
+        """Max |ours - toolkit| over the per-threshold recalls of each error type."""
+        ours = {"mssd": self.ours.mssd_recalls, "mspd": self.ours.mspd_recalls, "vsd": self.ours.vsd_recalls}
+        out = {}
+        for err, recalls in self.toolkit.recalls.items():
+            mine = ours[err]
+            if mine is not None:
+                out[err] = float(np.max(np.abs(np.asarray(mine).reshape(-1) - np.asarray(recalls))))
+        return out
+
+
+def crosscheck(
+    results_csv: str | Path,
+    ours: ScoreReport,
+    dataset,
+    out_dir: str | Path,
+    toolkit_dir: str | Path | None = None,
+    with_vsd: bool = True,
+    quiet: bool = True,
+    progress: bool = True,
+) -> Crosscheck:
+    """Run the toolkit on ``results_csv`` and ``dataset`` (already scored by us as ``ours``) and compare.
+
+    Raises:
+        ToolkitUnavailable: ``bop_toolkit_lib`` (or its scripts) cannot be imported.
+    """
+    _, scripts = import_toolkit(toolkit_dir)
+    notes = []
+    vsd_ok = False
+    if with_vsd and ours.vsd_recalls is not None:
+        why = vsd_renderer_available()
+        vsd_ok = why is None
+        if why is not None:
+            notes.append(f"VSD skipped: the toolkit's vispy renderer is not available ({why})")
+    elif ours.vsd_recalls is None:
+        notes.append("VSD skipped: the dataset has no test depth")
+    else:
+        notes.append("VSD skipped on request")
+    vsd_delta = ours.metadata.get("vsd_delta")
+    export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
+    toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet)
+    theirs = result_summary(toolkit)
+    score_diffs = {
+        k: None if ours.scores.get(k) is None or theirs.get(k) is None else abs(ours.scores[k] - theirs[k])
+        for k in SCORE_KEYS
+    }
+    return Crosscheck(ours, toolkit, export, theirs, score_diffs, compare_pair_errors(ours, toolkit), notes)
+
+
+def compare_pair_errors(ours: ScoreReport, toolkit: ToolkitScores) -> dict[str, float]:
+    """Max |ours - toolkit| per error type over the (estimate, GT) pairs both computed (inf == inf counts as 0)."""
+    mine: dict[str, dict[tuple, np.ndarray]] = {"mssd": {}, "mspd": {}, "vsd": {}}
+    for r in ours.records:
+        for j, gt_id in enumerate(r.gt_ids.tolist()):
+            key = (r.scene_id, r.im_id, r.obj_id, r.est_id, gt_id)
+            mine["mssd"][key] = np.array([r.mssd_mm[j]])
+            mine["mspd"][key] = np.array([r.mspd_px[j]])
+            if r.vsd is not None:
+                mine["vsd"][key] = r.vsd[j]
+    out: dict[str, float] = {}
+    for err, values in toolkit.errors.items():
+        diffs = [0.0]
+        for key, theirs in values.items():
+            if key in mine[err]:
+                a, b = mine[err][key], np.asarray(theirs, dtype=np.float64)
+                with np.errstate(invalid="ignore"):  # inf - inf where both took the MSSD early-out
+                    diff = np.where(a == b, 0.0, np.abs(a - b))
+                diffs.append(float(np.max(diff)))
+        out[err] = max(diffs)
+        out[f"n_{err}"] = float(len(set(values) & set(mine[err])))
+        out[f"missing_{err}"] = float(len(set(values) ^ set(mine[err])))
+    return out
+
+
+def format_crosscheck(check: Crosscheck, digits: int = 6) -> str:
+    """Both AR tables side by side, the max differences, and the notes."""
+    lines = [f"{'score':<13}{'bop-cender':>14}{'BOP toolkit':>14}{'|diff|':>12}"]
+    for k in SCORE_KEYS:
+        a, b, d = check.ours.scores.get(k), check.toolkit_scores.get(k), check.score_diffs.get(k)
+        lines.append(f"{k:<13}{_f(a, digits):>14}{_f(b, digits):>14}{_f(d, 2, 'e'):>12}")
+    lines.append("")
+    for err, d in check.recall_diffs.items():
+        lines.append(f"{err.upper():<5} per-threshold recalls: max |diff| {d:.3g}")
+    for err in ("vsd", "mssd", "mspd"):
+        if err in check.pair_diffs:
+            n, missing = int(check.pair_diffs[f"n_{err}"]), int(check.pair_diffs[f"missing_{err}"])
+            lines.append(
+                f"{err.upper():<5} per-pair errors: max |diff| {check.pair_diffs[err]:.3g} over {n} pairs"
+                + (f" ({missing} pairs on one side only)" if missing else "")
+            )
+    lines += [f"note: {n}" for n in check.notes]
+    lines.append(f"toolkit input written to {check.export.out_dir}")
+    return "\n".join(lines)
+
+
+def _f(value: float | None, digits: int, kind: str = "f") -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    return f"{value:.{digits}{kind}}"
+
+
+def crosscheck_file(
+    results_csv: str | Path,
+    out_dir: str | Path,
+    toolkit_dir: str | Path | None = None,
+    *,
+    dataset: str | None = None,
+    data_root: str | Path | None = None,
+    split: str | None = None,
+    n_views: int | None = None,
+    vsd_delta: float | None = None,
+    with_vsd: bool = True,
+    quiet: bool = True,
+    progress: bool = True,
+) -> Crosscheck:
+    """Score ``results_csv`` as ``bop-cender score`` does (files written to ``out_dir``), then :func:`crosscheck` it.
+
+    The toolkit is imported first, so that a missing toolkit costs nothing.
+
+    Raises:
+        ToolkitUnavailable: ``bop_toolkit_lib`` (or its scripts) cannot be imported.
+    """
+    from bop_cender.eval.score_file import open_choice, score_file
+
+    import_toolkit(toolkit_dir)
+    out_dir = Path(out_dir)
+    scored = score_file(
+        results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
+        out_dir=out_dir, progress=progress,
+    )  # fmt: skip
+    ds = open_choice(scored.choice)
+    return crosscheck(results_csv, scored.report, ds, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress)

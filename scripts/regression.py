@@ -1,0 +1,82 @@
+"""Regression check of the BOP scorer against committed tables and the official toolkit's numbers.
+
+Usage:
+    python scripts/regression.py                    # check: exit 1 with a diff table on any drift
+    python scripts/regression.py --update           # rewrite results/regression/{scores,errors,matches}.csv
+    EGL_PLATFORM=surfaceless PYTHONPATH=<vispy, pypng> \\
+    python scripts/regression.py --anchor TOOLKIT   # recompute toolkit_anchor_*.csv with the official toolkit
+
+The fixture, the tables and the tolerances are described in ``bop_cender/eval/regression.py``. The
+anchor is made by the toolkit's own ``eval_calc_errors.py`` / ``eval_calc_scores.py`` (run in-process on
+an export of the fixture, see ``bop_toolkit_adapters``); the toolkit is not part of this repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+from bop_cender.eval.regression import (
+    RESULTS_NAME,
+    TABLES_DIR,
+    anchor_tables,
+    compare_tables,
+    format_problems,
+    run_regression,
+    write_tables,
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--update", action="store_true", help="rewrite our committed tables deliberately")
+    parser.add_argument("--anchor", type=Path, default=None, metavar="TOOLKIT", help="recompute the toolkit anchor")
+    parser.add_argument("--tables", type=Path, default=TABLES_DIR, help="tables folder (default results/regression)")
+    parser.add_argument("--work", type=Path, default=None, help="keep the fixture here (default: a temporary folder)")
+    args = parser.parse_args(argv)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.work or Path(tmp)
+        run = run_regression(work)
+        if args.anchor is not None:
+            return _anchor(run, work, args.anchor, args.tables)
+    if args.update:
+        for path in write_tables(run, args.tables):
+            print(f"wrote {path}")
+        return 0
+    problems = compare_tables(run, args.tables)
+    if problems:
+        print(format_problems(problems))
+        return 1
+    n_pairs = sum(len(r.gt_ids) for r in run.report.records)
+    print(
+        f"regression OK: {len(run.report.records)} estimates, {n_pairs} pairs, every recall and score equal to"
+        f" {args.tables}/ and to the official toolkit's anchor (AR {run.report.scores['AR']:.6f})"
+    )
+    return 0
+
+
+def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
+    from bop_cender.data.bop_io import write_text_atomic
+    from bop_cender.data.registry import open_dataset
+    from bop_toolkit_adapters.export import export_for_toolkit
+    from bop_toolkit_adapters.runtime import evaluate, import_toolkit, vsd_renderer_available
+
+    _, scripts = import_toolkit(toolkit)
+    why = vsd_renderer_available()
+    if why is not None:
+        print(f"the toolkit's VSD renderer is not available ({why}): the anchor needs it", file=sys.stderr)
+        return 2
+    dataset = open_dataset("tless", work / "tless", "test")
+    export = export_for_toolkit(dataset, work / RESULTS_NAME, work / "toolkit", progress=False)
+    scores = evaluate(export, scripts, with_vsd=True)
+    for name, text in anchor_tables(scores.errors, scores.recalls, scores.average_recalls).items():
+        write_text_atomic(tables / name, text)
+        print(f"wrote {tables / name}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

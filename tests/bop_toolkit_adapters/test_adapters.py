@@ -1,0 +1,97 @@
+"""The seam to the official BOP toolkit: exports it can read unchanged, and a cross-check that is optional.
+
+The cross-check against the real toolkit runs only where ``BOP_TOOLKIT_DIR`` names a checkout (with
+vispy/pypng importable and ``EGL_PLATFORM=surfaceless`` for VSD); it is marked slow.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from bop_cender.cli import main
+from bop_cender.data.registry import open_dataset
+from bop_cender.eval.targets import read_targets
+from bop_cender.results import write_bop_results
+from bop_toolkit_adapters.export import export_for_toolkit
+from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
+from tests.eval.scoring_data import gt_rows, row
+
+
+def test_export_tless_in_the_toolkit_layout(small_fixture, small_dataset, tmp_path: Path) -> None:
+    csv = tmp_path / "cendernet_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture))
+    export = export_for_toolkit(small_dataset, csv, tmp_path / "tk", progress=False)
+    assert (export.dataset, export.split, export.split_type, export.split_folder) == (
+        "tless",
+        "test",
+        None,
+        "test_primesense",
+    )
+    assert (
+        export.result_filename == "cendernet_tless-test.csv"
+        and (export.results_path / export.result_filename).is_file()
+    )
+    assert export.known_to_toolkit and export.mspd_width == 720 and export.im_size == (240, 180)
+    base = export.datasets_path / "tless"
+    assert read_targets(base / "test_targets_bop19.json") == read_targets(
+        small_fixture.root / "test_targets_bop19.json"
+    )
+    assert (base / "models_eval" / "models_info.json").is_file()
+    src = small_fixture.root / "test_primesense" / "000001"
+    dst = base / "test_primesense" / "000001"
+    exported = json.loads((dst / "scene_gt.json").read_text())
+    original = json.loads((src / "scene_gt.json").read_text())
+    assert exported and all(exported[k] == original[k] for k in exported)  # entries as stored, bit for bit
+    for im in exported:
+        assert (dst / "depth" / f"{int(im):06d}.png").resolve() == (src / "depth" / f"{int(im):06d}.png").resolve()
+
+
+def test_export_dimo_registers_what_the_toolkit_lacks(small_fixture, dimo_copy, tmp_path: Path) -> None:
+    ds = open_dataset("dimo", dimo_copy, "real")
+    csv = tmp_path / "cendernet_dimo-real.csv"
+    write_bop_results(
+        csv, [row(0, r.im_id, r.obj_id, 1.0, r.T_cam_model) for r in gt_rows(small_fixture) if r.scene_id == 1]
+    )
+    export = export_for_toolkit(ds, csv, tmp_path / "tk", progress=False)
+    assert not export.known_to_toolkit and export.vsd_delta is None and export.mspd_width == 240
+    scene = export.datasets_path / "dimo" / "real" / "000000"
+    info = json.loads((scene / "scene_gt_info.json").read_text())  # DIMO has none: written from rendered visibility
+    assert set(info) == {"0", "1", "2"} and all("visib_fract" in e for e in info["0"])
+    assert read_targets(export.datasets_path / "dimo" / "test_targets_bop19.json")
+    assert 100 in export.obj_ids and 101 in export.obj_ids  # carriers' models are there (as occluders)
+
+
+def test_crosscheck_without_the_toolkit_says_so_and_exits_0(small_fixture, tmp_path: Path, capsys) -> None:
+    if importlib.util.find_spec("bop_toolkit_lib") is not None:
+        pytest.skip("bop_toolkit_lib is installed in this environment")
+    with pytest.raises(ToolkitUnavailable, match="not importable"):
+        import_toolkit(tmp_path / "nowhere")
+    csv = tmp_path / "cendernet_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture)[:3])
+    code = main(
+        ["crosscheck", str(csv), "--toolkit", str(tmp_path / "nowhere"), "--data-root", str(small_fixture.root)]
+    )
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "crosscheck not run: the BOP toolkit (bop_toolkit_lib) is not importable" in captured.err
+    assert "optional" in captured.out
+
+
+@pytest.mark.slow
+def test_crosscheck_with_the_official_toolkit(small_fixture, tmp_path: Path, capsys) -> None:
+    toolkit = os.environ.get("BOP_TOOLKIT_DIR")
+    if not toolkit:
+        pytest.skip("set BOP_TOOLKIT_DIR to a checkout of thodan/bop_toolkit to run the cross-check")
+    from bop_toolkit_adapters.crosscheck import crosscheck_file
+
+    csv = tmp_path / "cendernet_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture, {3: "t_5.5%", 1: "symmetric"}))
+    check = crosscheck_file(csv, tmp_path / "cc", toolkit, data_root=small_fixture.root, progress=False)
+    for key, diff in check.score_diffs.items():
+        assert diff is None or diff == 0.0, key
+    assert check.pair_diffs["mssd"] < 1e-9 and check.pair_diffs["mspd"] < 1e-9

@@ -1,0 +1,87 @@
+"""PVNet-style 3x4 poses (t in metres) -> BOP results CSV (t in mm)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bop_cender.cli import main
+from bop_cender.errors import ResultsError
+from bop_cender.eval.convert_pvnet import convert_pvnet, read_pvnet_folder, read_pvnet_json
+from bop_cender.results import read_bop_results
+
+R = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_matrix()
+
+
+def pose(t_m: list[float]) -> np.ndarray:
+    return np.concatenate([R, np.asarray(t_m, float)[:, None]], axis=1)  # (3, 4), t in metres
+
+
+def test_npy_folder_flat_and_per_scene_metres_to_mm(tmp_path: Path) -> None:
+    src = tmp_path / "pvnet"
+    src.mkdir()
+    np.save(src / "000001_000042_000005.npy", pose([0.1, -0.05, 0.7]))
+    (src / "000002").mkdir()
+    np.save(src / "000002" / "7_3.npy", np.stack([pose([0.0, 0.0, 0.8]), pose([0.01, 0.02, 0.9])]))  # two instances
+    rows = read_pvnet_folder(src)
+    assert [(r.scene_id, r.im_id, r.obj_id) for r in rows] == [(1, 42, 5), (2, 7, 3), (2, 7, 3)]
+    np.testing.assert_allclose(rows[0].t, [100.0, -50.0, 700.0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rows[2].t, [10.0, 20.0, 900.0], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(rows[0].R, R)
+    assert all(r.score == 1.0 and r.time == -1.0 for r in rows)
+
+    out = tmp_path / "pvnet_tless-test.csv"
+    convert_pvnet(src, out)
+    back = read_bop_results(out)
+    assert sorted(tuple(r.t) for r in back) == sorted(tuple(r.t) for r in rows)
+
+
+def test_json_with_image_paths_scores_and_times(tmp_path: Path) -> None:
+    src = tmp_path / "pvnet.json"
+    src.write_text(json.dumps({
+        "test_primesense/000001/rgb/000042.png": [{"obj_id": 5, "pose": pose([0.1, 0.0, 0.7]).tolist(), "score": 0.8,
+                                                    "time": 0.25}],
+        "000123_17/3": [{"obj_id": 2, "pose": pose([0.0, 0.0, 0.5]).tolist()}],
+    }))  # fmt: skip
+    rows = read_pvnet_json(src)
+    assert [(r.scene_id, r.im_id, r.obj_id, r.score, r.time) for r in rows] == [
+        (1, 42, 5, 0.8, 0.25),
+        (12317, 3, 2, 1.0, -1.0),  # DIMO folder 000123_17 -> 12317, default score and unknown time
+    ]
+    assert rows[1].t[2] == pytest.approx(500.0)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("000001_42.npy", pose([0, 0, 1]), "expected {scene}_{im_id}_{obj_id}.npy"),
+        ("000001_000042_000005.npy", np.zeros((3, 3)), "expected a 3x4 pose"),
+        ("000001_000042_000005.npy", np.concatenate([2 * R, np.zeros((3, 1))], 1), "not a rotation"),
+    ],
+)
+def test_bad_inputs_name_the_file(tmp_path: Path, name: str, content: np.ndarray, message: str) -> None:
+    src = tmp_path / "in"
+    src.mkdir()
+    np.save(src / name, content)
+    with pytest.raises(ResultsError, match=message) as info:
+        read_pvnet_folder(src)
+    assert name in info.value.format()
+
+
+def test_unknown_objects_and_the_cli(tmp_path: Path, capsys) -> None:
+    src = tmp_path / "in"
+    src.mkdir()
+    np.save(src / "000001_000000_000009.npy", pose([0, 0, 1]))
+    with pytest.raises(ResultsError, match=r"unknown object id\(s\) \[9\]"):
+        convert_pvnet(src, tmp_path / "pvnet_tless-test.csv", known_obj_ids=[1, 2])
+    root = tmp_path / "ds" / "models_eval"
+    root.mkdir(parents=True)
+    (root / "models_info.json").write_text(json.dumps({"9": {}}))
+    out = tmp_path / "pvnet_tless-test.csv"
+    assert main(["convert-pvnet", str(src), "--out", str(out), "--dataset-root", str(tmp_path / "ds")]) == 0
+    assert "wrote 1 estimates" in capsys.readouterr().out
+    assert read_bop_results(out)[0].t[2] == pytest.approx(1000.0)

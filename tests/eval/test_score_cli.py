@@ -1,0 +1,100 @@
+"""``bop-cender score``: dataset from the file name or the run sidecar, the scores JSON and the errors CSV."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from bop_cender.cli import main
+from bop_cender.errors import ConfigError
+from bop_cender.eval.report import SCORE_KEYS
+from bop_cender.eval.score_file import choose_data
+from bop_cender.result_files import write_run_sidecar
+from bop_cender.results import write_bop_results
+from tests.eval.scoring_data import gt_rows, row
+
+
+def test_score_infers_dataset_and_split_from_the_file_name(small_fixture, results_dir, capsys) -> None:
+    rows = gt_rows(small_fixture)
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, rows)
+    out = results_dir / "out"
+    assert (
+        main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert "cendernet" in printed and "AR_MSSD<5%" in printed
+
+    data = json.loads((out / "scores_cendernet_tless-test.json").read_text())
+    assert list(data)[:6] == list(SCORE_KEYS)
+    assert set(data) == {*SCORE_KEYS, "recalls", "metadata"}
+    assert all(data[k] == 1.0 for k in SCORE_KEYS)
+    meta = data["metadata"]
+    assert (meta["dataset"], meta["split"], meta["method"]) == ("tless", "test", "cendernet")
+    assert meta["mspd_width"] == 720 and meta["vsd_delta"] == 15.0 and meta["targets_source"] == "file"
+    assert meta["counts"]["evaluated"] == len(rows)
+    assert len(data["recalls"]["vsd"]["recall"]) == 10 and len(data["recalls"]["mssd"]["recall"]) == 10
+
+    with (out / "errors_cendernet_tless-test.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == len(rows)
+    assert {"scene_id", "im_id", "obj_id", "est_id", "score", "gt_id", "mssd", "mspd", "vsd_0.05", "vsd_0.50"} <= set(
+        table[0]
+    )
+    assert all(int(r["gt_id"]) >= 0 and float(r["mssd_mm"]) < 1e-9 and r["mssd_hits"] == "10" for r in table)
+
+
+def test_score_reads_the_data_root_from_the_run_sidecar(small_fixture, results_dir, capsys) -> None:
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {"n_views": 3}, seed=4)
+    choice = choose_data(csv_path)
+    assert choice.data_root == small_fixture.root.resolve() and (choice.n_views, choice.seed) == (3, 4)
+    assert "sidecar" in choice.origin
+    assert main(["score", str(csv_path), "--no-progress"]) == 0
+    assert "run sidecar" in capsys.readouterr().out
+    assert (results_dir / "scores_cendernet_tless-test.json").is_file()
+
+
+def test_score_refuses_a_sidecar_for_another_dataset(small_fixture, results_dir, capsys) -> None:
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:1])
+    write_run_sidecar(csv_path, small_fixture.root, "dimo", "real", {}, seed=0)
+    with pytest.raises(ConfigError, match="sidecar says dataset 'dimo'"):
+        choose_data(csv_path)
+    assert main(["score", str(csv_path)]) == 2
+    assert "sidecar says dataset 'dimo'" in capsys.readouterr().err
+
+
+def test_score_refuses_results_made_on_other_data(small_fixture, dimo_copy, results_dir, capsys) -> None:
+    """T-LESS scene 2 results scored against the DIMO copy (scene 0 only): every line is named."""
+    rows = [r for r in gt_rows(small_fixture) if r.scene_id == 2][:2]
+    csv_path = results_dir / "cendernet_dimo-real.csv"
+    write_bop_results(csv_path, rows, sort=False)
+    assert main(["score", str(csv_path), "--data-root", str(dimo_copy), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "2 row(s) name data that is not in dimo real" in err
+    assert "line 2: scene_id: no scene 2" in err and "line 3: scene_id: no scene 2" in err
+
+
+def test_score_dimo_writes_null_for_vsd_and_ar(small_fixture, dimo_copy, results_dir) -> None:
+    rows = [row(0, r.im_id, r.obj_id, r.score, r.T_cam_model, -1) for r in gt_rows(small_fixture) if r.scene_id == 1]
+    csv_path = results_dir / "cendernet_dimo-real.csv"
+    write_bop_results(csv_path, rows)
+    assert main(["score", str(csv_path), "--data-root", str(dimo_copy), "--no-progress"]) == 0
+    data = json.loads((results_dir / "scores_cendernet_dimo-real.json").read_text())
+    assert data["AR"] is None and data["AR_VSD"] is None and data["recalls"]["vsd"] is None
+    assert data["AR_MSSD"] is not None and data["metadata"]["targets_source"] == "rendered"
+
+
+def test_other_bop_datasets_need_a_data_root(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="needs --data-root"):
+        choose_data(tmp_path / "method_lmo-test.csv")
+    with pytest.raises(ConfigError, match="cannot tell the dataset"):
+        choose_data(tmp_path / "results.csv")
+    choice = choose_data(tmp_path / "method_lmo-test.csv", data_root=tmp_path)
+    assert (choice.loader, choice.name, choice.split) == ("bop", "lmo", "test")
+    assert choose_data(tmp_path / "cosypose1-eccv2020_tless-test-primesense.csv").split_type == "primesense"

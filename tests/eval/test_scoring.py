@@ -1,0 +1,171 @@
+"""End-to-end BOP'19 scoring on a small rendered T-LESS-layout fixture: predictable recalls, toolkit rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bop_cender.data.registry import open_dataset
+from bop_cender.errors import ResultsError
+from bop_cender.eval.depth_render import MeshCache
+from bop_cender.eval.ground_truth import collect_ground_truth
+from bop_cender.eval.regression_fixture import BuiltFixture
+from bop_cender.eval.scoring import average_time_per_image, score_results
+from bop_cender.eval.targets import MIN_VISIB_FRACT, SOURCE_FILE, SOURCE_RENDERED, resolve_targets
+from bop_cender.eval.visibility import rendered_visib_fracts
+from bop_cender.results import write_bop_results
+from tests.eval.scoring_data import gt_rows, row, target_instances
+
+WEDGE, CYLINDER, BOX = 3, 1, 2
+
+
+def _all_recalls(report) -> np.ndarray:
+    return np.concatenate([report.mssd_recalls, report.mspd_recalls, report.vsd_recalls.reshape(-1)])
+
+
+def test_gt_poses_give_every_recall_one(small_fixture: BuiltFixture, small_dataset) -> None:
+    rows = gt_rows(small_fixture)
+    report = score_results(rows, small_dataset, progress=False)
+    assert np.all(_all_recalls(report) == 1.0)
+    assert report.scores == {k: 1.0 for k in report.scores}
+    counts = report.metadata["counts"]
+    assert counts["evaluated"] == len(rows) == counts["target_instances"]
+    assert counts["not_target"] == counts["beyond_top_n"] == 0
+    assert report.metadata["targets_source"] == SOURCE_FILE
+    assert report.metadata["mspd_width"] == 720  # the toolkit's T-LESS constant, not the 240 px of the images
+    assert report.metadata["time_per_image"] == 0.5
+    for r in report.records:  # each estimate matched its own GT at every threshold, with zero error
+        assert np.all(r.mssd_match == r.mssd_match[0]) and r.mssd_match[0] >= 0
+        j = int(np.flatnonzero(r.gt_ids == r.mssd_match[0])[0])
+        assert r.mssd_mm[j] < 1e-9 and r.mspd_px[j] < 1e-9 and np.all(r.vsd[j] == 0.0)
+
+
+@pytest.mark.parametrize(("kind", "expected_at_5pct"), [("t_4.5%", "all"), ("t_5.5%", "all_but_wedges")])
+def test_translations_straddling_the_mssd_threshold(small_fixture, small_dataset, kind, expected_at_5pct) -> None:
+    """The wedge has no symmetry: a translation by d gives MSSD = |d| exactly, 4.5 % in, 5.5 % out at 5 %."""
+    rows = gt_rows(small_fixture, {WEDGE: kind})
+    report = score_results(rows, small_dataset, progress=False)
+    n = len(rows)
+    n_wedges = sum(1 for r in rows if r.obj_id == WEDGE)
+    assert 0 < n_wedges < n
+    expected = n if expected_at_5pct == "all" else n - n_wedges
+    assert report.mssd_recalls[0] == pytest.approx(expected / n, abs=0)
+    assert np.all(report.mssd_recalls[1:] == 1.0)
+    fraction = float(kind[2:-1]) / 100
+    for r in report.records:
+        if r.obj_id == WEDGE:
+            assert r.mssd.min() == pytest.approx(fraction, abs=1e-12)
+
+
+def test_symmetric_estimates_score_as_gt(small_fixture, small_dataset) -> None:
+    """Cylinders rotated about their axis (continuous symmetry), boxes turned by a discrete symmetry."""
+    rows = gt_rows(small_fixture, {CYLINDER: "symmetric", BOX: "symmetric"}, seed=3)
+    report = score_results(rows, small_dataset, progress=False)
+    assert np.all(report.mssd_recalls == 1.0) and np.all(report.mspd_recalls == 1.0)
+    assert report.vsd_recalls[:, -1].min() == 1.0  # at the loosest VSD threshold, every tau
+    for r in report.records:
+        best = r.mssd.min()
+        # 315 samples of the continuous symmetry: at most ~1 % of the radius off (r = 30 mm, diameter ~ 89 mm)
+        assert best < (0.01 * 30 / 80 if r.obj_id == CYLINDER else 1e-9)
+
+
+def test_duplicates_and_non_target_estimates_are_ignored(small_fixture, small_dataset) -> None:
+    base = gt_rows(small_fixture)
+    reference = score_results(base, small_dataset, progress=False).scores
+    extra = []
+    for s, i, _g, o, T in target_instances(small_fixture)[:4]:
+        extra.append(row(s, i, o, 0.5, T @ _shift(40.0), 0.5))  # a worse duplicate with a lower score: cut
+    non_target_images = sorted(set(small_fixture.gt) - {(t["scene_id"], t["im_id"]) for t in small_fixture.targets})
+    assert non_target_images
+    for s, i in non_target_images:
+        extra.append(row(s, i, small_fixture.gt[(s, i)][0][1], 0.9, small_fixture.gt[(s, i)][0][2], 0.5))
+    s, i, _g, _o, T = target_instances(small_fixture)[0]
+    extra.append(row(s, i, 4, 0.99, T, 0.5))  # object 4 has a model but no instance: never a target
+    report = score_results(base + extra, small_dataset, progress=False)
+    assert report.scores == reference
+    counts = report.metadata["counts"]
+    assert counts["beyond_top_n"] == 4
+    assert counts["not_target"] == len(non_target_images) + 1
+    assert counts["unselected_images"] == len(non_target_images)
+
+
+def test_a_better_ranked_duplicate_replaces_the_estimate(small_fixture, small_dataset) -> None:
+    """Top-n keeps the highest scores: a far-off estimate ranked first takes the only slot of a single instance."""
+    base = gt_rows(small_fixture)
+    singles = [t for t in target_instances(small_fixture) if sum(u[:2] == t[:2] and u[3] == t[3]
+                                                                   for u in target_instances(small_fixture)) == 1]  # fmt: skip
+    s, i, _g, o, T = singles[0]
+    report = score_results([*base, row(s, i, o, 2.0, T @ _shift(200.0), 0.5)], small_dataset, progress=False)
+    assert report.mssd_recalls[-1] == pytest.approx((len(base) - 1) / len(base), abs=0)
+    assert report.metadata["counts"]["beyond_top_n"] == 1
+
+
+def test_unknown_scene_image_or_object_is_an_error_naming_the_line(small_fixture, results_dir) -> None:
+    from bop_cender.eval.score_file import score_file
+
+    rows = gt_rows(small_fixture)[:2]
+    T = np.eye(4)
+    T[2, 3] = 700.0
+    bad = [row(1, 99, 1, 1.0, T, 0.5), row(42, 0, 1, 1.0, T, 0.5)]
+    csv = results_dir / "m_tless-test.csv"
+    write_bop_results(csv, rows + bad, sort=False)
+    with pytest.raises(ResultsError) as info:
+        score_file(csv, data_root=small_fixture.root, progress=False)
+    text = info.value.format()
+    assert "line 4: im_id: scene 1 has no image 99" in text
+    assert "line 5: scene_id: no scene 42" in text
+    assert "line 2" not in text and "line 3" not in text
+
+
+def test_n_top_zero_evaluates_every_estimate(small_fixture, small_dataset) -> None:
+    base = gt_rows(small_fixture)
+    s, i, _g, o, T = target_instances(small_fixture)[0]
+    report = score_results([*base, row(s, i, o, 0.1, T @ _shift(300.0), 0.5)], small_dataset, n_top=0, progress=False)
+    assert report.metadata["counts"]["evaluated"] == len(base) + 1
+    assert np.all(report.mssd_recalls == 1.0)  # the extra estimate matches nothing and costs nothing
+
+
+def test_average_time_per_image() -> None:
+    T = np.eye(4)
+    rows = [row(1, 0, 1, 1.0, T, 0.2), row(1, 0, 2, 1.0, T, 0.2), row(1, 1, 1, 1.0, T, 0.6)]
+    assert average_time_per_image(rows) == pytest.approx(0.4)
+    assert average_time_per_image([*rows, row(1, 2, 1, 1.0, T, -1.0)]) is None
+
+
+def test_dimo_layout_without_depth_has_no_vsd_and_computes_targets(small_fixture, dimo_copy) -> None:
+    """The same scene in DIMO layout: targets from rendered visibility equal the fixture's 0.1 rule; no VSD, no AR."""
+    ds = open_dataset("dimo", dimo_copy, "real")
+    gt = collect_ground_truth(ds, progress=False)
+    targets = resolve_targets(
+        ds.root, gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
+    )
+    assert targets.source == SOURCE_RENDERED
+    expected = set()
+    for im in range(small_fixture.spec.n_images):
+        fracts = small_fixture.visib[(1, im)]
+        for (g, _o, _T), f in zip(small_fixture.gt[(1, im)], fracts, strict=True):
+            assert targets.visib[(0, im)][g] == pytest.approx(f, abs=1e-12)
+        for o in {o for g, o, _T in small_fixture.gt[(1, im)] if fracts[g] >= MIN_VISIB_FRACT}:
+            n = sum(1 for g, oo, _T in small_fixture.gt[(1, im)] if oo == o and fracts[g] >= MIN_VISIB_FRACT)
+            expected.add((0, im, o, n))
+    assert {(t.scene_id, t.im_id, t.obj_id, t.inst_count) for t in targets.targets} == expected
+    assert all(t.obj_id < 100 for t in targets.targets)  # carriers occlude but are never targets
+
+    rows = [
+        row(0, im, o, 1.0, T, -1.0)
+        for im in range(small_fixture.spec.n_images)
+        for g, o, T in small_fixture.gt[(1, im)]
+        if small_fixture.visib[(1, im)][g] >= MIN_VISIB_FRACT
+    ]
+    report = score_results(rows, ds, progress=False)
+    assert report.scores["AR"] is None and report.scores["AR_VSD"] is None and report.vsd_recalls is None
+    assert report.scores["AR_MSSD"] == 1.0 and report.scores["AR_MSPD"] == 1.0
+    assert report.metadata["vsd_delta"] is None and report.metadata["time_per_image"] is None
+    assert report.metadata["mspd_width"] == 240  # DIMO is unknown to the toolkit: the images' width
+    assert any("no test depth" in n for n in report.notes)
+
+
+def _shift(mm: float) -> np.ndarray:
+    T = np.eye(4)
+    T[0, 3] = mm
+    return T

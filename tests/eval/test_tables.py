@@ -1,0 +1,99 @@
+"""``bop-cender compare``: CosyPose-style and converted PVNet results, a scores JSON and the paper, in one table."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bop_cender.cli import main
+from bop_cender.errors import ConfigError
+from bop_cender.eval.convert_pvnet import convert_pvnet
+from bop_cender.eval.regression_fixture import perturb
+from bop_cender.eval.report import SCORE_KEYS
+from bop_cender.eval.score_file import score_file
+from bop_cender.eval.tables import PAPER_TABLES, compare, reference_rows
+from bop_cender.results import write_bop_results
+from tests.eval.scoring_data import gt_rows, row, target_instances
+
+COSYPOSE = "cosypose114533-eccv2020_tless-test-primesense.csv"
+
+
+def cosypose_style(built, path: Path) -> None:
+    """CosyPose's published multi-view format: per object and image a multi-view row (score 1 + s) beside
+    single-view candidates (score <= 1), several rows per object per image, time -1 everywhere."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for s, i, _g, o, T in target_instances(built):
+        for _ in range(2):  # single-view candidates: worse poses, scores <= 1, listed first
+            rows.append(row(s, i, o, round(float(rng.uniform(0.5, 1.0)), 4), perturb("t_29%", T, built.models[o], rng)))
+        rows.append(row(s, i, o, 1.0 + round(float(rng.uniform(0, 1)), 4), perturb("t_4.5%", T, built.models[o], rng)))
+    write_bop_results(path, rows, sort=False)
+
+
+def pvnet_style(built, folder: Path) -> None:
+    """One ``{scene}_{im}_{obj}.npy`` per target object and image, 3x4 poses with t in metres."""
+    folder.mkdir()
+    by_key: dict[tuple, list[np.ndarray]] = {}
+    for s, i, _g, o, T in target_instances(built):
+        by_key.setdefault((s, i, o), []).append(np.concatenate([T[:3, :3], T[:3, 3:] / 1000.0], axis=1))
+    for (s, i, o), poses in by_key.items():
+        np.save(folder / f"{s:06d}_{i:06d}_{o:06d}.npy", np.stack(poses))
+
+
+def test_compare_cosypose_pvnet_scores_json_and_paper(small_fixture, results_dir, capsys) -> None:
+    cosy = results_dir / COSYPOSE
+    cosypose_style(small_fixture, cosy)
+    pvnet_npy = results_dir / "pvnet_npy"
+    pvnet_style(small_fixture, pvnet_npy)
+    pvnet = results_dir / "pvnet_tless-test.csv"
+    convert_pvnet(pvnet_npy, pvnet)
+    ours = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(ours, gt_rows(small_fixture, {3: "t_5.5%"}))
+    scored = score_file(ours, data_root=small_fixture.root, out_dir=results_dir / "scores", progress=False)
+
+    out = results_dir / "tables"
+    code = main(["compare", str(cosy), str(pvnet), str(scored.scores_path), "--reference", "paper",
+                 "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    table = list(csv.DictReader(io.StringIO((out / "comparison_tless-test.csv").read_text())))
+    methods = [r["method"] for r in table]
+    assert methods[:3] == ["cosypose114533-eccv2020", "pvnet", "cendernet"]
+    assert set(methods[3:]) == {
+        "CosyPose (ECCV 2020) [reported]",
+        "CenDerNet [reported]",
+        "CosyPose (BOP leaderboard) [reported]",
+    }
+    by = {r["method"]: r for r in table}
+    # top-n per target takes the multi-view rows (score > 1) first: 4.5 % translations, all correct
+    assert float(by["cosypose114533-eccv2020"]["AR_MSSD<5%"]) == 1.0
+    assert float(by["pvnet"]["AR_MSSD"]) == 1.0  # the GT poses, converted from metres
+    assert float(by["cendernet"]["AR_MSSD<5%"]) < 1.0  # its wedges are 5.5 % off
+    assert by["CenDerNet [reported]"]["AR"] == "0.713" and by["CenDerNet [reported]"]["AR_MSSD<5%"] == "0.544"
+    assert by["CosyPose (BOP leaderboard) [reported]"]["AR_MSPD<5px"] == ""
+    md = (out / "comparison_tless-test.md").read_text()
+    assert md in printed and "| cosypose114533-eccv2020 | scored " in md and md.count("\n|") == 2 + len(table)
+    png = (out / "comparison_tless-test.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    assert (out / f"scores_{COSYPOSE.split('.')[0]}.json").is_file()  # CSV inputs are scored and kept
+
+
+def test_reference_rows_are_filtered_and_merged() -> None:
+    rows = reference_rows(PAPER_TABLES, "dimo", "sim")
+    assert {r.method for r in rows} == {"PVNet [reported]", "CenDerNet [reported]"}
+    cender = next(r for r in rows if r.method == "CenDerNet [reported]")
+    assert cender.scores["AR_MSPD<5px"] == 0.721 and cender.scores["AR"] is None
+    tless = {r.method: r for r in reference_rows(PAPER_TABLES, "tless", "test")}
+    cosy = tless["CosyPose (ECCV 2020) [reported]"]
+    assert "Table 3" in cosy.source and "Table 4" in cosy.source  # two tables, one row
+    assert all(cosy.scores[k] is not None for k in SCORE_KEYS)
+
+
+def test_compare_rejects_other_inputs(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(ConfigError, match="expected a results .csv or a scores .json"):
+        compare([tmp_path / "notes.txt"], out_dir=tmp_path)

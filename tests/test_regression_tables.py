@@ -1,0 +1,28 @@
+"""The regression check of scripts/regression.py as a test: every number equals the committed tables and the
+official toolkit's anchor (results/regression/README.md)."""
+
+from __future__ import annotations
+
+from bop_cender.eval.regression import compare_tables, format_problems, run_regression
+
+
+def test_scores_equal_the_committed_tables_and_the_toolkit_anchor() -> None:
+    run = run_regression()
+    problems = compare_tables(run)
+    assert not problems, format_problems(problems)
+    assert run.report.metadata["counts"]["evaluated"] > 20 and run.report.vsd_recalls is not None
+
+
+def test_a_drift_is_reported_as_a_diff(tmp_path) -> None:
+    """The check is not vacuous: change one recall in a copy of the tables and it is named."""
+    from bop_cender.eval.regression import ANCHOR, OURS, TABLES_DIR
+
+    for name in OURS + ANCHOR:
+        (tmp_path / name).write_text((TABLES_DIR / name).read_text())
+    lines = (tmp_path / "scores.csv").read_text().splitlines()
+    metric, tau, th, value = lines[1].split(",")
+    lines[1] = ",".join([metric, tau, th, f"{float(value) + 0.01:.9f}"])
+    (tmp_path / "scores.csv").write_text("\n".join(lines) + "\n")
+    run = run_regression()
+    problems = compare_tables(run, tmp_path)
+    assert problems == [f"scores.csv: {metric}//{th}: value: expected {float(value) + 0.01:.9f}, got {value}"]
