@@ -1,1 +1,39 @@
-"""render package."""
+"""The one batched renderer (depth, normals, instance ids) for CPU and CUDA, and curvature maps.
+
+Public API:
+
+- :func:`prepare_mesh` / :class:`RenderMesh`, :func:`pack_meshes` / :class:`PackedMeshes`;
+- :func:`render_scene` (several objects, full frame), :func:`render_objects_separately` (each object
+  alone), :func:`render_candidates` (pose candidates of one mesh in square windows);
+- :func:`curvature` (the paper's curvature map of rendered normals).
+
+The cost function's tight-window path is :mod:`bop_cender.render.candidate_curvature`, used by
+:func:`bop_cender.pose.cost.candidate_costs`.
+"""
+
+from bop_cender.render.curvature import curvature
+from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes, prepare_mesh
+from bop_cender.render.raster import DEFAULT_NEAR
+from bop_cender.render.rasterizer import (
+    CandidateRender,
+    ObjectsRender,
+    SceneRender,
+    render_candidates,
+    render_objects_separately,
+    render_scene,
+)
+
+__all__ = [
+    "DEFAULT_NEAR",
+    "CandidateRender",
+    "ObjectsRender",
+    "PackedMeshes",
+    "RenderMesh",
+    "SceneRender",
+    "curvature",
+    "pack_meshes",
+    "prepare_mesh",
+    "render_candidates",
+    "render_objects_separately",
+    "render_scene",
+]

@@ -1,0 +1,1 @@
+"""Stage 3: render-and-compare pose estimation (cost function, optimisation)."""
