@@ -112,7 +112,7 @@ def render_depth_crops(
     windowed = order[~near_hit[order]]
     for start in range(0, len(windowed), chunk):
         idx = windowed[start : start + chunk]
-        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=True)
+        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=True, normals=False)
         depth = r.depth[0].cpu().numpy()  # (c, S, S)
         offsets = r.offsets[0].cpu().numpy()  # (c, 2)
         for k, e in enumerate(idx):

@@ -69,7 +69,7 @@ class CandidateRender:
     """B pose candidates of one mesh in V views, each rendered in an ``S x S`` window.
 
     Attributes:
-        normals: ``(B, V, S, S, 3)`` float32 camera-space unit normals, 0 on background.
+        normals: ``(B, V, S, S, 3)`` float32 camera-space unit normals, 0 on background (None when not asked for).
         mask: ``(B, V, S, S)`` bool.
         depth: ``(B, V, S, S)`` float32 z in mm, 0 on background (None when not asked for).
         offsets: ``(B, V, 2)`` int64 image pixel of each window's first pixel: (row v0, column u0).
@@ -77,7 +77,7 @@ class CandidateRender:
             rendered too (as if the image went on).
     """
 
-    normals: torch.Tensor
+    normals: torch.Tensor | None
     mask: torch.Tensor
     depth: torch.Tensor | None
     offsets: torch.Tensor
@@ -160,6 +160,7 @@ def render_candidates(
     window: int | None = None,
     near: float = DEFAULT_NEAR,
     depth: bool = True,
+    normals: bool = True,
 ) -> CandidateRender:
     """Render B pose candidates of one mesh in V views, each in a square window around its origin.
 
@@ -172,9 +173,10 @@ def render_candidates(
             every candidate and view (:func:`bop_cender.render.window.window_size`).
         near: near plane (mm).
         depth: also return depth (the cost function needs only normals).
+        normals: also return normals (VSD needs only depth: skipping them saves 10-20 %).
 
     Returns:
-        Normals, mask, depth in the windows ``(B, V, S, S, ...)`` and the windows' offsets ``(B, V, 2)``.
+        Normals (None when not asked for), mask, depth in the windows ``(B, V, S, S, ...)`` and the windows' offsets ``(B, V, 2)``.
     """
     device = _device(T_cam_model, mesh.device)
     mesh = mesh.to(device)
@@ -184,10 +186,18 @@ def render_candidates(
     S = int(window) if window is not None else window_size(mesh.radius, T, Ks, height, width, near)
     offsets = window_offsets(T, Ks, S)
     maps = _render_windows(
-        mesh, T.reshape(B * V, 4, 4), Ks.repeat(B, 1, 1), offsets.reshape(B * V, 2), (S, S), near, depth, faces=False
+        mesh,
+        T.reshape(B * V, 4, 4),
+        Ks.repeat(B, 1, 1),
+        offsets.reshape(B * V, 2),
+        (S, S),
+        near,
+        depth,
+        normals=normals,
+        faces=False,
     )
     return CandidateRender(
-        normals=maps.normals.view(B, V, S, S, 3),
+        normals=None if maps.normals is None else maps.normals.view(B, V, S, S, 3),
         mask=maps.mask.view(B, V, S, S),
         depth=None if maps.depth is None else maps.depth.view(B, V, S, S),
         offsets=offsets,
