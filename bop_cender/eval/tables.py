@@ -193,7 +193,7 @@ def bar_chart(comparison: Comparison, path: Path) -> None:
         xs = [k + (i - (n - 1) / 2) * width for k, key in enumerate(SCORE_KEYS) if r.scores.get(key) is not None]
         ys = [r.scores[key] for key in SCORE_KEYS if r.scores.get(key) is not None]
         ax.bar(xs, ys, width=width, label=r.method)
-    ax.set_xticks(range(len(SCORE_KEYS)), SCORE_KEYS)
+    ax.set_xticks(range(len(SCORE_KEYS)), SCORE_KEYS, rotation=20, ha="right")
     ax.set_ylim(0, 1)
     ax.set_ylabel("average recall")
     ax.set_title(f"BOP'19 scores, {comparison.dataset or '?'} {comparison.split or '?'}")
