@@ -6,8 +6,10 @@ functions here, so that a change of the renderer's API touches only this file.
 
 Renders for VSD are cut right away to the bounding box of their silhouette inside the image
 (:class:`DepthCrops`): VSD only looks at pixels where either render is non-zero, so a crop loses
-nothing, and 1,000 renders of a few thousand pixels each stay small in memory. Poses are rendered
-in chunks sorted by their projected size, so each chunk's square window is no larger than it needs.
+nothing, and 1,000 renders of a few thousand pixels each stay small in memory. Poses are rendered in
+tight windows from their projected vertices (:mod:`bop_cender.render.depth_crops`), bit-identical to
+the square windows of :func:`~bop_cender.render.rasterizer.render_candidates` at every image pixel;
+poses whose bounding sphere reaches the near plane are rendered full-frame.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 import torch
 
 from bop_cender.data.types import ObjectModel
+from bop_cender.render.depth_crops import tight_depth_crops
 from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.render.raster import DEFAULT_NEAR
 from bop_cender.render.rasterizer import render_candidates, render_objects_separately, render_scene
@@ -95,7 +98,7 @@ def render_depth_crops(
         T_cam_model: ``(E, 4, 4)`` model-to-camera poses (mm).
         K: ``(E, 3, 3)`` intrinsics.
         height, width: image size; pixels outside it are dropped.
-        chunk: poses per renderer call.
+        chunk: poses per full-frame renderer call (poses whose bounding sphere reaches the near plane).
     """
     T = np.asarray(T_cam_model, dtype=np.float64).reshape(-1, 4, 4)
     Ks = np.broadcast_to(np.asarray(K, dtype=np.float64), (len(T), 3, 3))
@@ -104,19 +107,13 @@ def render_depth_crops(
     origin = np.zeros((E, 2), dtype=np.int64)
     if E == 0:
         return DepthCrops(crops, origin)
-    z = T[:, 2, 3]
-    near_hit = z - mesh.radius <= DEFAULT_NEAR  # the window bound needs the sphere in front of the near plane
-    focal = np.maximum(Ks[:, 0, 0], Ks[:, 1, 1])
-    extent = np.where(near_hit, np.inf, mesh.radius * focal / np.maximum(z - mesh.radius, 1e-9))
-    order = np.argsort(extent, kind="stable")
-    windowed = order[~near_hit[order]]
-    for start in range(0, len(windowed), chunk):
-        idx = windowed[start : start + chunk]
-        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=True, normals=False)
-        depth = r.depth[0].cpu().numpy()  # (c, S, S)
-        offsets = r.offsets[0].cpu().numpy()  # (c, 2)
-        for k, e in enumerate(idx):
-            crops[e], origin[e] = _crop(depth[k], offsets[k], height, width)
+    near_hit = T[:, 2, 3] - mesh.radius <= DEFAULT_NEAR  # the projected vertices bound the silhouette otherwise
+    windowed = np.flatnonzero(~near_hit)
+    if windowed.size:
+        tight, tight_origin = tight_depth_crops(mesh, T[windowed], Ks[windowed], height, width)
+        for k, e in enumerate(windowed.tolist()):
+            crops[e] = tight[k]
+        origin[windowed] = tight_origin
     full = np.flatnonzero(near_hit)
     for start in range(0, len(full), chunk):
         idx = full[start : start + chunk]
