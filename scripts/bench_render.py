@@ -172,11 +172,18 @@ def bench_pyrender(name: str, mesh: trimesh.Trimesh, args: argparse.Namespace) -
     renderer = pyrender.OffscreenRenderer(WIDTH, HEIGHT)
     scene = pyrender.Scene()
     node = scene.add(pyrender.Mesh.from_trimesh(mesh, smooth=False))
-    camera = pyrender.IntrinsicsCamera(K[0, 0, 0], K[0, 1, 1], K[0, 0, 2], K[0, 1, 2])
+    # Explicit near/far: pyrender's default zfar (100) would clip the whole object at ~500 mm.
+    camera = pyrender.IntrinsicsCamera(K[0, 0, 0], K[0, 1, 1], K[0, 0, 2], K[0, 1, 2], znear=1.0, zfar=5000.0)
     cam_node = scene.add(camera)
     flip = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera axes to OpenGL's
     rng = np.random.default_rng(args.seed)
     rows = []
+    check = make_candidates(1, rng, T_cw)
+    scene.set_pose(node, check[0, 0])
+    scene.set_pose(cam_node, flip)
+    covered = int((renderer.render(scene, flags=pyrender.RenderFlags.DEPTH_ONLY) > 0).sum())
+    if covered < 100:  # a timing of empty renders would be meaningless
+        raise RuntimeError(f"pyrender drew only {covered} pixels of the object: camera set-up is wrong")
     for batch in args.batches:
         poses = make_candidates(batch, rng, T_cw)
 
