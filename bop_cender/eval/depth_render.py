@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from bop_cender.data.types import ObjectModel
+from bop_cender.eval.model_points import ascii_mesh
 from bop_cender.render.depth_crops import tight_depth_crops
 from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.render.raster import DEFAULT_NEAR
@@ -62,7 +63,9 @@ class MeshCache:
 
     def __call__(self, obj_id: int) -> RenderMesh:
         if obj_id not in self._meshes:
-            self._meshes[obj_id] = prepare_mesh(self.models[obj_id].mesh)
+            model = self.models[obj_id]
+            # An ASCII PLY is read without trimesh (faster cold start); identical vertices and faces.
+            self._meshes[obj_id] = prepare_mesh(ascii_mesh(model.path) or model.mesh)
         return self._meshes[obj_id]
 
 
