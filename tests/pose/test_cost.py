@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 import torch
 from scipy import ndimage
 
@@ -25,14 +24,7 @@ except ImportError:  # pytest's default import mode puts each test folder on sys
 
 H, W = 96, 128
 
-DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
-
-
-@pytest.fixture(params=DEVICES)
-def device(request) -> torch.device:
-    if request.param == "cuda" and not torch.cuda.is_available():
-        pytest.skip("no CUDA device")
-    return torch.device(request.param)
+# The `device` fixture (CPU, and CUDA where present) is in tests/conftest.py.
 
 
 def rig() -> tuple[np.ndarray, np.ndarray]:

@@ -20,14 +20,7 @@ except ImportError:  # pytest's default import mode puts tests/render itself on 
 H, W = 96, 128
 K = K_matrix(300.0, 300.0, 63.7, 48.2)
 
-DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
-
-
-@pytest.fixture(params=DEVICES)
-def device(request) -> torch.device:
-    if request.param == "cuda" and not torch.cuda.is_available():
-        pytest.skip("no CUDA device")
-    return torch.device(request.param)
+# The `device` fixture (CPU, and CUDA where present) is in tests/conftest.py.
 
 
 def scipy_curvature(normals: np.ndarray) -> np.ndarray:

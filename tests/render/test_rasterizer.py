@@ -27,14 +27,7 @@ except ImportError:  # pytest's default import mode puts tests/render itself on 
 H, W = 128, 160
 K = K_matrix(310.0, 305.0, 80.3, 63.6)
 
-DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
-
-
-@pytest.fixture(params=DEVICES)
-def device(request) -> torch.device:
-    if request.param == "cuda" and not torch.cuda.is_available():
-        pytest.skip("no CUDA device")
-    return torch.device(request.param)
+# The `device` fixture (CPU, and CUDA where present) is in tests/conftest.py.
 
 
 def interpolated_normals(
