@@ -81,13 +81,15 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
-#: Sub-commands that render a lot and gain from tcmalloc (see bop_cender/launcher.py).
-HEAVY_COMMANDS = {"synth", "score", "compare", "run", "train", "crosscheck"}
+#: Sub-commands that render a lot and gain from tcmalloc (see bop_cender/launcher.py); ``info`` may
+#: generate the embedded demo.
+HEAVY_COMMANDS = {"info", "synth", "score", "compare", "run", "train", "crosscheck"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bop-cender`` console script."""
-    if argv is None and len(sys.argv) > 1 and (set(sys.argv[1:]) & HEAVY_COMMANDS or sys.argv[1:2] == ["info"]):
+    command = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
+    if argv is None and command in HEAVY_COMMANDS:
         from bop_cender.launcher import reexec_with_tcmalloc
 
         reexec_with_tcmalloc(sys.argv[1:])

@@ -36,6 +36,7 @@ from bop_cender.pose.cost import candidate_costs, distance_maps
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.render.rasterizer import render_scene
+from bop_cender.synth.reference_meshes import reference_bracket
 
 HEIGHT, WIDTH = 256, 320
 BATCHES = (1, 4, 16, 64, 256)
@@ -50,26 +51,6 @@ class Row:
     poses_per_s: float  # median over the rounds
     best_poses_per_s: float
     ms_per_call: float  # median
-
-
-def make_bracket() -> trimesh.Trimesh:
-    """L-bracket 80 x 50 x 56 mm, 6 mm plates, 4 holes of 10 mm (684 faces), centred at its centroid."""
-    base = trimesh.creation.box((80, 50, 6))
-    base.apply_translation((0, 0, 3))
-    upright = trimesh.creation.box((80, 6, 56))
-    upright.apply_translation((0, 22, 28))
-    body = trimesh.boolean.union([base, upright], engine="manifold")
-    holes = []
-    for x in (-25, 25):
-        down = trimesh.creation.cylinder(radius=5, height=20, sections=40)
-        down.apply_translation((x, -8, 3))
-        side = trimesh.creation.cylinder(radius=5, height=20, sections=40)
-        side.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
-        side.apply_translation((x, 22, 35))
-        holes += [down, side]
-    mesh = trimesh.boolean.difference([body, *holes], engine="manifold")
-    mesh.apply_translation(-mesh.centroid)
-    return mesh
 
 
 def make_flange() -> trimesh.Trimesh:
@@ -281,7 +262,7 @@ def main() -> None:
     args = parser.parse_args()
     configs = [tuple(int(x) for x in c.split("x")) for c in args.cpu]
     load_before = tuple(round(x, 2) for x in os.getloadavg())
-    parts = {"bracket": make_bracket, "flange": make_flange}
+    parts = {"bracket": reference_bracket, "flange": make_flange}
     rows: list[Row] = []
     notes: list[str] = []
     for name in args.parts:

@@ -22,7 +22,6 @@ for a 684-face bracket in six 320x256 views, against about 6.6 ms through square
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -90,30 +89,6 @@ class CandidateBatch:
     near: float
 
 
-def candidate_curvature(
-    mesh: RenderMesh,
-    T_cam_model: torch.Tensor,
-    K: torch.Tensor,
-    height: int,
-    width: int,
-    near: float = DEFAULT_NEAR,
-    chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
-) -> Iterator[CurvatureAtlas]:
-    """Yield the curvature of B candidates in V views, chunk by chunk, in tight stacked windows.
-
-    Args:
-        mesh: the object (on the device of ``T_cam_model``).
-        T_cam_model: ``(B, V, 4, 4)`` float32 model-to-camera transforms.
-        K: ``(V, 3, 3)`` float32 intrinsics.
-        height, width: image size.
-        near: near plane (mm).
-        chunk_pixels: window pixels per chunk (at least one canvas per chunk).
-    """
-    batch = prepare_candidates(mesh, T_cam_model, K, height, width, near, chunk_pixels)
-    for chunk in batch.chunks:
-        yield chunk_curvature(batch, chunk)
-
-
 def prepare_candidates(
     mesh: RenderMesh,
     T_cam_model: torch.Tensor,
@@ -123,7 +98,16 @@ def prepare_candidates(
     near: float = DEFAULT_NEAR,
     chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
 ) -> CandidateBatch:
-    """Windows and chunk plan of a batch (arguments as :func:`candidate_curvature`)."""
+    """Windows and chunk plan of a batch; :func:`chunk_curvature` then renders each chunk.
+
+    Args:
+        mesh: the object (on the device of ``T_cam_model``).
+        T_cam_model: ``(B, V, 4, 4)`` float32 model-to-camera transforms.
+        K: ``(V, 3, 3)`` float32 intrinsics.
+        height, width: image size.
+        near: near plane (mm).
+        chunk_pixels: window pixels per chunk (at least one canvas per chunk).
+    """
     B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
     T = T_cam_model.reshape(B * V, 4, 4)
     R, t = T[:, :3, :3], T[:, :3, 3]

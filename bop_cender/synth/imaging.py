@@ -78,14 +78,13 @@ def render_views(
     curv = curvature(scene.normals)
     alone = render_objects_separately(list(meshes), T_cm, Ks, height, width).mask if full_masks else None
     out = []
-    shading_inputs = _shading_inputs(meshes, T_world_model, style, rng, height, width) if style else None
+    shading_inputs = _shading_inputs(style, rng, height, width) if style else None
     maps = shadow_maps(meshes, T_world_model, style) if style is not None and shadows else None
     gen = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
     for v in range(len(cameras)):
         rgb = None
         if style is not None:
             env, texture, background = shading_inputs
-            bg = torch.as_tensor(random_background(rng, height, width)) if background is None else background
             shadow = _shadow_visibility(maps, scene.depth[v], Ks[v], T_cw[v]) if maps is not None else None
             linear = shade_view(
                 scene.depth[v],
@@ -97,7 +96,7 @@ def render_views(
                 style.lights,
                 env,
                 shadow,
-                bg,
+                background,
                 texture=texture,
                 texture_mm_per_px=0.8,
                 exposure=style.exposure,
@@ -115,7 +114,8 @@ def render_views(
     return out
 
 
-def _shading_inputs(meshes, T_world_model, style: Style, rng, height, width):
+def _shading_inputs(style: Style, rng: np.random.Generator, height: int, width: int):
+    """Environment map, carrier texture and background of one scene (shared by all its views)."""
     env = make_environment(rng, style.env_style)
     texture = torch.as_tensor(procedural_texture(rng, 256, style.carrier_texture))
     background = torch.as_tensor(random_background(rng, height, width))  # one per scene: a static backdrop

@@ -36,7 +36,6 @@ ROUND_SEGMENTS = 64
 #: Small holes (bolt holes, bracket holes): segments per full circle.
 HOLE_SEGMENTS = 32
 #: DIMO convention: model ids >= 100 are carriers (occluders, never pose targets).
-CARRIER_FIRST_ID = 100
 #: Rotation by pi about the model x axis: the "flip" of parts symmetric about their mid-plane.
 FLIP_X = np.diag([1.0, -1.0, -1.0])
 Z_AXIS = ContinuousSymmetry(axis=(0.0, 0.0, 1.0), offset=(0.0, 0.0, 0.0))

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.bop_io import save_json, write_image
+from bop_cender.data.dimo import CARRIER_MIN_ID
 from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
 from bop_cender.synth.imaging import render_views
@@ -31,7 +32,6 @@ from bop_cender.synth.parts import Part, make_carrier, make_part_set
 from bop_cender.synth.rigs import dimo_rig
 from bop_cender.synth.styles import make_style
 
-CARRIER_BASE_ID = 100
 N_CARRIERS = 3
 #: (min, max) number of parts per composition id; compositions in SAME_TYPE use one part type.
 COMPOSITION_SIZES = {0: (4, 6), 1: (3, 4), 2: (5, 6), 3: (5, 7), 4: (7, 9)}
@@ -85,7 +85,7 @@ def dimo_models(seed: int) -> dict[int, Part]:
     rng = np.random.default_rng([seed, 7])
     models = {i + 1: p for i, p in enumerate(make_part_set(rng, 6))}
     for c in range(N_CARRIERS):
-        models[CARRIER_BASE_ID + c] = make_carrier(rng)
+        models[CARRIER_MIN_ID + c] = make_carrier(rng)
     return models
 
 
@@ -108,14 +108,14 @@ def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], mes
     composition = spec.compositions[s % len(spec.compositions)]
     carrier = spec.carriers[s % len(spec.carriers)]
     light_id = int(rng.integers(0, N_LIGHT_SETUPS))
-    part_ids = [i for i in models if i < CARRIER_BASE_ID]
+    part_ids = [i for i in models if i < CARRIER_MIN_ID]
     type_index = int(rng.integers(0, len(part_ids)))
     lo, hi = COMPOSITION_SIZES[composition]
 
     def new_pile(pile_rng: np.random.Generator) -> Pile:
         comp = [type_index] if composition in SAME_TYPE else "mixed"
         n = int(pile_rng.integers(lo, hi + 1))
-        cid = CARRIER_BASE_ID + carrier
+        cid = CARRIER_MIN_ID + carrier
         return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True)
 
     real_pile = new_pile(np.random.default_rng([spec.seed, s, 1000]))

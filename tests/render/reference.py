@@ -13,6 +13,8 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from bop_cender.synth.reference_meshes import reference_bracket
+
 try:
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 except ImportError:  # embreex missing: trimesh's pure-Python intersector (slower, same answers)
@@ -98,23 +100,8 @@ def mask_agreement(mine: np.ndarray, ref: np.ndarray) -> tuple[float, bool, floa
 
 
 def bracket(sections: int = 24) -> trimesh.Trimesh:
-    """L-bracket 80 x 50 x 56 mm with 6 mm plates and 4 holes (manifold3d booleans), centred."""
-    base = trimesh.creation.box((80, 50, 6))
-    base.apply_translation((0, 0, 3))
-    upright = trimesh.creation.box((80, 6, 56))
-    upright.apply_translation((0, 22, 28))
-    body = trimesh.boolean.union([base, upright], engine="manifold")
-    holes = []
-    for x in (-25, 25):
-        down = trimesh.creation.cylinder(radius=5, height=20, sections=sections)
-        down.apply_translation((x, -8, 3))
-        side = trimesh.creation.cylinder(radius=5, height=20, sections=sections)
-        side.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
-        side.apply_translation((x, 22, 35))
-        holes += [down, side]
-    mesh = trimesh.boolean.difference([body, *holes], engine="manifold")
-    mesh.apply_translation(-mesh.centroid)
-    return mesh
+    """The reference L-bracket with fewer hole segments (fast tests)."""
+    return reference_bracket(sections)
 
 
 def holed_plate(thickness: float = 4.0, sections: int = 24) -> trimesh.Trimesh:

@@ -7,10 +7,10 @@ import shutil
 import numpy as np
 import pytest
 
-from bop_cender.data.dimo import DimoSelection, open_dimo
+from bop_cender.data.dimo import CARRIER_MIN_ID, DimoSelection, open_dimo
 from bop_cender.geometry.poses import invert_pose, pose_from_bop
 from bop_cender.synth.generate import generate
-from bop_cender.synth.write_dimo import CARRIER_BASE_ID, DimoSpec
+from bop_cender.synth.write_dimo import DimoSpec
 
 # Small images keep this fast; the layout does not depend on the size (the demo uses DIMO small, 320x256).
 SPEC = DimoSpec(
@@ -79,7 +79,7 @@ def test_invariants_of_datasets_md_6_1(dimo_root):
             rigs.setdefault(vp, T_c2w)
             np.testing.assert_allclose(rigs[vp], T_c2w, atol=1e-9)
             assert set(info[im]) == {"light", "carrier", "parts", "viewpoint"}
-        assert any(o["obj_id"] >= CARRIER_BASE_ID for o in world)  # the carrier is in the GT, as an occluder
+        assert any(o["obj_id"] >= CARRIER_MIN_ID for o in world)  # the carrier is in the GT, as an occluder
 
 
 def test_variants_share_or_change_poses(dimo_root):
