@@ -1,3 +1,4 @@
+
 """models_info entries and model folders: exact diameter and bbox, BOP files that load back unchanged."""
 
 import json
@@ -8,6 +9,7 @@ import trimesh
 from scipy.spatial.distance import pdist
 
 from bop_cender.data.bop_io import load_ply
+from bop_cender.data.dimo import CARRIER_MIN_ID
 from bop_cender.data.models import load_models
 from bop_cender.geometry.symmetry import symmetry_transforms
 from bop_cender.synth.models_info import (
@@ -17,7 +19,7 @@ from bop_cender.synth.models_info import (
     write_model_folders,
     write_models,
 )
-from bop_cender.synth.parts import CARRIER_FIRST_ID, make_carrier, make_part_set, make_tube
+from bop_cender.synth.parts import make_carrier, make_part_set, make_tube
 
 INFO_KEYS = {"diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"}
 
@@ -26,7 +28,7 @@ INFO_KEYS = {"diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z"
 def parts():
     rng = np.random.default_rng(11)
     objs = {i + 1: p for i, p in enumerate(make_part_set(rng, 6))}
-    return objs | {CARRIER_FIRST_ID: make_carrier(rng)}
+    return objs | {CARRIER_MIN_ID: make_carrier(rng)}
 
 
 def test_diameter_equals_brute_force_on_small_meshes():
@@ -65,11 +67,11 @@ def test_written_folder_loads_back_with_the_same_symmetries(tmp_path, parts):
     assert set(info) == set(parts)
     on_disk = json.loads((tmp_path / "models" / "models_info.json").read_text())
     assert set(on_disk) == {str(i) for i in parts}
-    models = load_models(tmp_path / "models", is_target=lambda i: i < CARRIER_FIRST_ID)
+    models = load_models(tmp_path / "models", is_target=lambda i: i < CARRIER_MIN_ID)
     assert set(models) == set(parts)
     for obj_id, part in parts.items():
         model = models[obj_id]
-        assert model.is_target == (obj_id < CARRIER_FIRST_ID)
+        assert model.is_target == (obj_id < CARRIER_MIN_ID)
         assert set(on_disk[str(obj_id)]) >= INFO_KEYS
         R_file, t_file = model.symmetry_transforms()
         R_part, t_part = symmetry_transforms(part.symmetries_discrete, part.symmetries_continuous)
