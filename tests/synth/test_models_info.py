@@ -1,4 +1,3 @@
-
 """models_info entries and model folders: exact diameter and bbox, BOP files that load back unchanged."""
 
 import json
