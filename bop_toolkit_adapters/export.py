@@ -29,8 +29,8 @@ from pathlib import Path
 from bop_cender.data.bop_io import load_json, save_json
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
-from bop_cender.eval.depth_render import MeshCache
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
+from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import TARGETS_FILE, resolve_targets, write_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts

@@ -88,7 +88,8 @@ def _stage_times(path: Path) -> str:
 
     meta = json.loads(path.read_text())["metadata"]
     timings = meta.get("timings", {})
-    return ", ".join(f"{k} {v:.2f} s" for k, v in timings.items())
+    text = ", ".join(f"{k} {v:.2f} s" for k, v in timings.items())
+    return f"{text}; VSD depth rendered by {meta.get('vsd_renders')}"
 
 
 def _report(args, times, cpu, median: float, output: str, stages: str, n: int, load_before) -> str:

@@ -56,13 +56,21 @@ def data_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from bop_cender.eval.report import format_scores, summary_lines
-    from bop_cender.eval.score_file import method_name, score_file
+    from contextlib import nullcontext
 
-    scored = score_file(
-        args.results, dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views,
-        vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
-    )  # fmt: skip
+    from bop_cender.eval.render_process import RenderProcess, render_process_useful
+
+    # The VSD render process is forked before anything heavy is imported here: its torch import (and
+    # NumPy's) runs while this process imports the scorer and reads the data.
+    with RenderProcess.start() if render_process_useful() else nullcontext() as renderer:
+        from bop_cender.eval.report import format_scores, summary_lines
+        from bop_cender.eval.score_file import method_name, score_file
+
+        scored = score_file(
+            args.results, dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views,
+            vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
+            render_process=renderer or False,
+        )  # fmt: skip
     print(format_scores([(method_name(args.results), scored.report.scores)]))
     print()
     print("\n".join(summary_lines(scored.report)))

@@ -5,7 +5,7 @@ in front at each pixel of the whole pile. Both come from our renderer (no OpenGL
 functions here, so that a change of the renderer's API touches only this file.
 
 Renders for VSD are cut right away to the bounding box of their silhouette inside the image
-(:class:`DepthCrops`): VSD only looks at pixels where either render is non-zero, so a crop loses
+(:class:`~bop_cender.eval.render_crops.DepthCrops`): VSD only looks at pixels where either render is non-zero, so a crop loses
 nothing, and 1,000 renders of a few thousand pixels each stay small in memory. Poses are rendered in
 tight windows from their projected vertices (:mod:`bop_cender.render.depth_crops`), bit-identical to
 the square windows of :func:`~bop_cender.render.rasterizer.render_candidates` at every image pixel;
@@ -14,17 +14,15 @@ poses whose bounding sphere reaches the near plane are rendered full-frame.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from bop_cender.data.types import ObjectModel
-from bop_cender.eval.model_points import ascii_mesh
+from bop_cender.eval.render_crops import DepthCrops
 from bop_cender.render.depth_crops import tight_depth_crops
-from bop_cender.render.mesh import RenderMesh, prepare_mesh
+from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR
 from bop_cender.render.rasterizer import render_candidates, render_objects_separately, render_scene
 
@@ -33,8 +31,6 @@ CHUNK = 48
 
 __all__ = [
     "CHUNK",
-    "DepthCrops",
-    "MeshCache",
     "render_depth_crops",
     "render_depths",
     "render_pile_instances",
@@ -52,43 +48,6 @@ def single_threaded_torch() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
-
-
-@dataclass
-class MeshCache:
-    """Render meshes of a dataset's models, prepared once per object id on first use."""
-
-    models: Mapping[int, ObjectModel]
-    _meshes: dict[int, RenderMesh] = field(default_factory=dict, repr=False)
-
-    def __call__(self, obj_id: int) -> RenderMesh:
-        if obj_id not in self._meshes:
-            model = self.models[obj_id]
-            # An ASCII PLY is read without trimesh (faster cold start); identical vertices and faces.
-            self._meshes[obj_id] = prepare_mesh(ascii_mesh(model.path) or model.mesh)
-        return self._meshes[obj_id]
-
-
-@dataclass(frozen=True)
-class DepthCrops:
-    """E depth renders, each cut to its silhouette's bounding box inside the image.
-
-    Attributes:
-        depth: E arrays ``(h_e, w_e)`` float32, z in mm, 0 on background; ``(0, 0)`` for a render
-            with no pixel inside the image.
-        origin: ``(E, 2)`` int64 full-image (row, column) of each crop's first pixel.
-    """
-
-    depth: list[np.ndarray]
-    origin: np.ndarray
-
-    def window(self, e: int) -> tuple[int, int, int, int] | None:
-        """``(y0, x0, y1, x1)`` of crop ``e`` in the full image, None if empty."""
-        h, w = self.depth[e].shape
-        if h == 0:
-            return None
-        y0, x0 = (int(v) for v in self.origin[e])
-        return (y0, x0, y0 + h, x0 + w)
 
 
 def render_depth_crops(

@@ -191,7 +191,7 @@ def mspd(
     def kernel_hot(e: np.ndarray, s: np.ndarray, hot: np.ndarray) -> np.ndarray:
         """Max over each pair's own ``hot (C, k)`` vertices: a lower bound of the full maximum."""
         h = np.einsum("cik,kcm->cim", gt_projection(e, s), xh_all[:, hot])  # (C, 3, k)
-        d = h[:, :2] / h[:, 2:3] - np.take_along_axis(proj_all[e], hot[:, None, :], axis=2)
+        d = h[:, :2] / h[:, 2:3] - proj_all[e[:, None], :, hot].transpose(0, 2, 1)  # only the (C, 2, k) needed
         return (d[:, 0] ** 2 + d[:, 1] ** 2).max(axis=1)
 
     probe = _probe_points(pts)

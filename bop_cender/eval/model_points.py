@@ -1,4 +1,5 @@
-"""Model vertices for MSSD / MSPD exactly as the BOP toolkit reads them from ``models_eval`` PLY files.
+"""Model geometry for evaluation: vertices for MSSD / MSPD exactly as the BOP toolkit reads them from
+``models_eval`` PLY files, and triangle meshes for the VSD renders (:class:`MeshCache`).
 
 The toolkit's ``inout.load_ply`` turns the text of an ASCII PLY into float64 with Python's
 ``float()``; trimesh (our mesh loader) reads an ASCII ``property float`` as float32 first. The two
@@ -9,14 +10,19 @@ does; binary PLYs hold float32/float64 values that both loaders read alike.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
+
+if TYPE_CHECKING:
+    from bop_cender.render.mesh import RenderMesh
 
 
 def eval_vertices(model: ObjectModel) -> np.ndarray:
@@ -44,6 +50,38 @@ def ascii_mesh(path: str | Path) -> MeshArrays | None:
     if parsed is None or parsed[1] is None:
         return None
     return MeshArrays(parsed[0], parsed[1])
+
+
+@dataclass
+class MeshCache:
+    """Meshes of a dataset's models, read once per object id on first use.
+
+    Reading needs no torch (:meth:`arrays`), so a scorer that renders in another process
+    (:mod:`bop_cender.eval.render_process`) never imports it; :meth:`__call__` prepares the renderer's
+    mesh (torch) on first use.
+    """
+
+    models: Mapping[int, ObjectModel]
+    _arrays: dict[int, MeshArrays] = field(default_factory=dict, repr=False)
+    _meshes: dict[int, RenderMesh] = field(default_factory=dict, repr=False)
+
+    def arrays(self, obj_id: int) -> MeshArrays:
+        """Vertices and triangles of object ``obj_id``: an ASCII PLY without trimesh (faster cold start), else trimesh."""
+        if obj_id not in self._arrays:
+            model = self.models[obj_id]
+            mesh = ascii_mesh(model.path)
+            if mesh is None:
+                mesh = MeshArrays(np.asarray(model.mesh.vertices, np.float64), np.asarray(model.mesh.faces, np.int64))
+            self._arrays[obj_id] = mesh
+        return self._arrays[obj_id]
+
+    def __call__(self, obj_id: int) -> RenderMesh:
+        """The renderer's mesh of object ``obj_id`` (CPU), prepared once."""
+        if obj_id not in self._meshes:
+            from bop_cender.render.mesh import prepare_mesh
+
+            self._meshes[obj_id] = prepare_mesh(self.arrays(obj_id))
+        return self._meshes[obj_id]
 
 
 def _ascii_vertices(path: str) -> np.ndarray | None:

@@ -16,6 +16,7 @@ objects that are not in the data are refused by the scorer (each bad line listed
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from typing import Any
 from bop_cender.data.registry import open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.eval.render_process import RenderProcess, render_process_useful
 from bop_cender.eval.report import ScoreReport, write_errors_csv, write_scores_json
 from bop_cender.eval.scoring import score_results
 from bop_cender.result_files import ResultName, parse_result_filename, read_run_sidecar
@@ -149,6 +151,7 @@ def score_file(
     vsd_delta: float | None = None,
     out_dir: str | Path | None = None,
     progress: bool = True,
+    render_process: RenderProcess | bool | None = None,
 ) -> ScoredFile:
     """Score one BOP results CSV and write ``scores_<stem>.json`` and ``errors_<stem>.csv`` into ``out_dir``.
 
@@ -157,15 +160,26 @@ def score_file(
         dataset, data_root, split, n_views, seed: override what the sidecar / file name say.
         vsd_delta: VSD delta (mm); default the toolkit's.
         out_dir: where to write (default: beside the CSV).
+        render_process: render VSD depth in a forked process (:mod:`bop_cender.eval.render_process`):
+            one already started (left open), True to start one, False for threads of this process;
+            None = start one where it helps: ``fork`` exists and torch is not imported yet (a cold start).
     """
     csv_path = Path(csv_path)
     clock = time.perf_counter()
-    choice = choose_data(csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed)
-    ds = open_choice(choice)
-    opened = time.perf_counter()
-    rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
-    read = time.perf_counter()
-    report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path)
+    if isinstance(render_process, RenderProcess):
+        process = nullcontext(render_process)
+    elif render_process or (render_process is None and render_process_useful()):
+        # Started first, so that the child's torch import runs while this process reads the data.
+        process = RenderProcess.start()
+    else:
+        process = nullcontext()
+    with process as renderer:
+        choice = choose_data(csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed)
+        ds = open_choice(choice)
+        opened = time.perf_counter()
+        rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
+        read = time.perf_counter()
+        report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path, renderer=renderer)
     report.timings.update(open_dataset=opened - clock, read_results=read - opened)
     report.metadata["data_origin"] = choice.origin
     report.metadata["method"] = method_name(csv_path)

@@ -28,7 +28,6 @@ import numpy as np
 
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
-from bop_cender.eval.depth_render import MeshCache
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
     MSPD_THRESHOLDS,
@@ -43,7 +42,9 @@ from bop_cender.eval.matching import (
     select_top_n,
     valid_gts,
 )
+from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_errors import Pairs, pair_errors
+from bop_cender.eval.render_process import DepthRenderer
 from bop_cender.eval.report import EstimateRecord, ScoreReport
 from bop_cender.eval.targets import TargetSet, resolve_targets
 from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
@@ -60,6 +61,7 @@ def score_results(
     n_top: int = -1,
     progress: bool = True,
     source: str | Path | None = None,
+    renderer: DepthRenderer | None = None,
 ) -> ScoreReport:
     """Score BOP results rows on a dataset split with the BOP'19 localisation protocol.
 
@@ -70,6 +72,8 @@ def score_results(
         n_top: estimates kept per target: -1 = ``inst_count`` (BOP'19), 0 = all, n > 0 = n.
         progress: tqdm bars on stderr.
         source: the results file, for error messages.
+        renderer: who renders for VSD (e.g. a :class:`~bop_cender.eval.render_process.RenderProcess`);
+            None = worker threads of this process.
 
     Raises:
         ResultsError: rows naming objects, scenes or images that are not in the split (all listed).
@@ -96,7 +100,7 @@ def score_results(
     delta = vsd_delta_for(dataset.name, vsd_delta) if has_depth else None
 
     clock = time.perf_counter()
-    raw = pair_errors(pairs, models, meshes, None if delta is None else delta.value, VSD_TAUS, progress)
+    raw = pair_errors(pairs, models, meshes, None if delta is None else delta.value, VSD_TAUS, progress, renderer)
     timings["errors"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -130,6 +134,7 @@ def score_results(
         "mspd_width_source": width.source,
         "vsd_delta": None if delta is None else delta.value,
         "vsd_delta_source": None if delta is None else delta.source,
+        "vsd_renders": raw.vsd_renders,
         "targets_source": targets.source,
         "targets_note": targets.note,
         "gt_pose_source": gt.pose_source,

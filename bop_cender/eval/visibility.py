@@ -18,8 +18,8 @@ from collections.abc import Iterable
 import numpy as np
 from tqdm import tqdm
 
-from bop_cender.eval.depth_render import MeshCache, render_pile_instances, silhouette_areas
 from bop_cender.eval.ground_truth import ImageGt
+from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import VisibFracts
 
 
@@ -28,6 +28,10 @@ def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress
 
     Images with the same instance list and size (the views of one DIMO scene) are rendered in one batch.
     """
+    # The renderer (torch) is imported here, not at the top: scoring a dataset with a targets file never
+    # needs it in this process (its VSD renders may run in another, see bop_cender.eval.render_process).
+    from bop_cender.eval.depth_render import render_pile_instances, silhouette_areas
+
     groups: dict[tuple, list[ImageGt]] = {}
     for image in images:
         signature = (image.scene_key, image.width, image.height, tuple((g.gt_id, g.obj_id) for g in image.instances))

@@ -81,7 +81,9 @@ def tight_depth_crops(
         # Rotation and translation as strided views of (c, 4, 4) poses, as render_candidates passes them:
         # the vertex transform's matmul rounds differently for contiguous (c, 3, 3) rotations.
         Tc = T.index_select(0, sel)
-        raster = rasterize(mesh, Tc[:, None, :3, :3], Tc[:, None, :3, 3], Ks.index_select(0, sel), windows, near)
+        raster = rasterize(
+            mesh, Tc[:, None, :3, :3], Tc[:, None, :3, 3], Ks.index_select(0, sel), windows, near, normals=False
+        )
         depth = shade(raster, depth=True, normals=False, faces=False).depth
         atlas = depth.view(-1, w).numpy()  # (sum of rows, w)
         ends = np.cumsum(rows)

@@ -84,6 +84,7 @@ def rasterize(
     windows: Windows,
     near: float = DEFAULT_NEAR,
     verts: torch.Tensor | None = None,
+    normals: bool = True,
 ) -> Raster:
     """Rasterise a mesh (or packed meshes) into one window per canvas.
 
@@ -96,6 +97,7 @@ def rasterize(
         windows: the canvases' windows.
         near: near plane (mm, > 0).
         verts: ``(3, C, N)`` camera-space vertices if already computed (:func:`camera_vertices`).
+        normals: fill the table's normal rows; False leaves them 0 (depth and face ids only, ~10 % faster).
 
     Returns:
         The z-buffer, its covered pixels and the table to shade them with
@@ -150,10 +152,13 @@ def rasterize(
     coords = [verts[a].reshape(-1) for a in range(3)]
     corners = [[coords[a].index_select(0, f) for a in range(3)] for f in flat]
     inst = face_canvas if face_instance is None else face_canvas * R.shape[1] + face_instance[face_index]
-    rot = _rows(R.reshape(-1, 9), inst)  # row-major R
-    normals_model = _rows(mesh.corner_normals.reshape(-1, 9), face_index)  # 3 i + a: corner i, axis a
     K_inv = _rows(torch.linalg.inv(K.double()).to(dtype).reshape(-1, 9), face_canvas)
-    table = _face_table(corners, normals_model, rot, K_inv)
+    if normals:
+        rot = _rows(R.reshape(-1, 9), inst)  # row-major R
+        normals_model = _rows(mesh.corner_normals.reshape(-1, 9), face_index)  # 3 i + a: corner i, axis a
+        table = _face_table(corners, K_inv, normals_model, rot)
+    else:
+        table = _face_table(corners, K_inv)
 
     # 4. Screen triangles, corner-major (3, S): regular faces, plus the pieces of faces cut by the near plane.
     tri_x = torch.stack([px.reshape(-1).index_select(0, f) for f in flat])
@@ -233,9 +238,9 @@ def _project(points: torch.Tensor, K: torch.Tensor, near: float) -> tuple[torch.
 
 def _face_table(
     corners: list[list[torch.Tensor]],
-    normals_model: list[torch.Tensor],
-    rot: list[torch.Tensor],
     K_inv: list[torch.Tensor],
+    normals_model: list[torch.Tensor] | None = None,
+    rot: list[torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Shading table ``(12, T + 1)``: one column per face (last column zeros), structure of arrays.
 
@@ -246,13 +251,13 @@ def _face_table(
 
     Args:
         corners: 3 corners, each 3 camera-space coordinates ``(T,)``.
-        normals_model: 9 ``(T,)``: model-frame corner normals, ``3 i + a`` = corner i, axis a.
-        rot: 9 ``(T,)``: model-to-camera rotation, row-major.
         K_inv: 9 ``(T,)``: inverse intrinsics, row-major (upper triangular).
+        normals_model: 9 ``(T,)``: model-frame corner normals, ``3 i + a`` = corner i, axis a; None
+            leaves rows 0-8 zero (only depth wanted).
+        rot: 9 ``(T,)``: model-to-camera rotation, row-major (with ``normals_model``).
     """
     x0, x1, x2 = corners
     e1, e2 = _sub(x1, x0), _sub(x2, x0)
-    bary = [_cross(x1, _sub(x2, x1)), _cross(e2, x2), _cross(x0, e1)]  # c_i = X_j x X_k
     normal = _cross(e1, e2)
     inv_det = (x0[0] * normal[0]).addcmul_(x0[1], normal[1]).addcmul_(x0[2], normal[2]).reciprocal_()
     # Row vector c times the upper-triangular K^-1, over det: (c_x s00, c_x s01 + c_y s11, c_x s02 + c_y s12 + c_z s22).
@@ -261,21 +266,23 @@ def _face_table(
     def plane(c: list[torch.Tensor]) -> list[torch.Tensor]:
         return [c[0] * s00, (c[0] * s01).addcmul_(c[1], s11), (c[0] * s02).addcmul_(c[1], s12).addcmul_(c[2], inv_det)]
 
-    planes = [plane(c) for c in bary]
-    ncam = [
-        [
-            (rot[3 * a] * normals_model[3 * i])
-            .addcmul_(rot[3 * a + 1], normals_model[3 * i + 1])
-            .addcmul_(rot[3 * a + 2], normals_model[3 * i + 2])
-            for a in range(3)
-        ]
-        for i in range(3)
-    ]  # corner i, axis a
     table = torch.zeros((12, x0[0].shape[0] + 1), dtype=x0[0].dtype, device=x0[0].device)
-    for a in range(3):
-        for k in range(3):
-            torch.mul(ncam[0][a], planes[0][k], out=table[3 * a + k, :-1])
-            table[3 * a + k, :-1].addcmul_(ncam[1][a], planes[1][k]).addcmul_(ncam[2][a], planes[2][k])
+    if normals_model is not None and rot is not None:
+        bary = [_cross(x1, _sub(x2, x1)), _cross(e2, x2), _cross(x0, e1)]  # c_i = X_j x X_k
+        planes = [plane(c) for c in bary]
+        ncam = [
+            [
+                (rot[3 * a] * normals_model[3 * i])
+                .addcmul_(rot[3 * a + 1], normals_model[3 * i + 1])
+                .addcmul_(rot[3 * a + 2], normals_model[3 * i + 2])
+                for a in range(3)
+            ]
+            for i in range(3)
+        ]  # corner i, axis a
+        for a in range(3):
+            for k in range(3):
+                torch.mul(ncam[0][a], planes[0][k], out=table[3 * a + k, :-1])
+                table[3 * a + k, :-1].addcmul_(ncam[1][a], planes[1][k]).addcmul_(ncam[2][a], planes[2][k])
     for k, value in enumerate(plane(normal)):
         table[9 + k, :-1] = value
     return table

@@ -222,7 +222,7 @@ def _render_windows(
     out = _empty_maps(C, size[0], size[1], T.device, depth, normals, faces)
     for rows in _chunks(C, max(1, DEFAULT_CHUNK_PIXELS // (size[0] * size[1]))):
         windows = Windows.uniform(offsets[rows], size[0], size[1])
-        raster = rasterize(mesh, T[rows, None, :3, :3], T[rows, None, :3, 3], K[rows], windows, near)
+        raster = rasterize(mesh, T[rows, None, :3, :3], T[rows, None, :3, 3], K[rows], windows, near, normals=normals)
         _copy_maps(out, rows, resolve(raster, depth=depth, normals=normals, faces=faces))
     return out
 

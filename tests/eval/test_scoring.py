@@ -7,8 +7,8 @@ import pytest
 
 from bop_cender.data.registry import open_dataset
 from bop_cender.errors import ResultsError
-from bop_cender.eval.depth_render import MeshCache
 from bop_cender.eval.ground_truth import collect_ground_truth
+from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.regression_fixture import BuiltFixture
 from bop_cender.eval.scoring import average_time_per_image, score_results
 from bop_cender.eval.targets import MIN_VISIB_FRACT, SOURCE_FILE, SOURCE_RENDERED, resolve_targets

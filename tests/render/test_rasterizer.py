@@ -236,6 +236,24 @@ def test_windows_equal_the_full_frame(device) -> None:
             assert cand.mask[b, v][win].sum() == full.mask[0].sum()
 
 
+def test_depth_only_rasterising_skips_the_normals_and_keeps_depth_bit_identical(device) -> None:
+    mesh = prepare_mesh(bracket(), device=device)
+    rng = np.random.default_rng(8)
+    T = np.stack([[pose(tuple(rng.uniform(-180, 180, 3)), (x, -20, 240))] for x in (-40, 0, 50)])  # (B=3, V=1)
+    both = render_candidates(mesh, torch.as_tensor(T, device=device), K[None], H, W)
+    depth_only = render_candidates(mesh, torch.as_tensor(T, device=device), K[None], H, W, normals=False)
+    assert depth_only.normals is None
+    assert torch.equal(depth_only.depth, both.depth) and torch.equal(depth_only.mask, both.mask)
+    assert both.mask.sum() > 1000
+    Tt = torch.as_tensor(T[:, 0], dtype=torch.float32, device=device)
+    windows = Windows.uniform(torch.zeros((3, 2), dtype=torch.int64, device=device), H, W)
+    Kt = torch.as_tensor(np.stack([K] * 3), dtype=torch.float32, device=device)
+    full = rasterize(mesh, Tt[:, None, :3, :3], Tt[:, None, :3, 3], Kt, windows)
+    lean = rasterize(mesh, Tt[:, None, :3, :3], Tt[:, None, :3, 3], Kt, windows, normals=False)
+    assert torch.equal(lean.table[9:], full.table[9:]) and torch.equal(lean.keys, full.keys)
+    assert not lean.table[:9].any() and full.table[:9].any()
+
+
 def test_a_batch_equals_one_candidate_at_a_time() -> None:
     mesh = prepare_mesh(bracket())
     rng = np.random.default_rng(4)
