@@ -106,6 +106,10 @@ def _report(args, times, cpu, median: float, output: str, stages: str, n: int, l
         "",
         f"Stages inside the last run: {stages}.",
         "",
+        "How: `score` forks a render process before importing torch (bop_cender/eval/render_process.py); the"
+        " child's torch import (~1 s) and the VSD depth renders run on one core while the scorer reads the data,"
+        " computes MSSD/MSPD and scores VSD image by image as the renders arrive (bop_cender/eval/pair_vsd.py).",
+        "",
         "Command: `python scripts/bench_score.py"
         + (f" --estimates {args.estimates}" if args.estimates != 1000 else "")
         + (f" --threads {args.threads}" if args.threads != 2 else "")
