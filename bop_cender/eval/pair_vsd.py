@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -28,6 +29,9 @@ from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.render_crops import DepthCrops, paste, union_window
 from bop_cender.eval.render_process import DepthRenderer, RenderJob
 from bop_cender.eval.vsd import overlapping_sphere_projections, vsd
+
+if TYPE_CHECKING:
+    from bop_cender.eval.pair_errors import Pairs
 
 #: Poses per chunk of images (about 50 per object and job with T-LESS's mix: enough to fill the rasteriser).
 CHUNK_POSES = 320
@@ -54,7 +58,7 @@ class RenderPlan:
 
 
 def pair_vsd(
-    pairs,
+    pairs: Pairs,
     models: Mapping[int, ObjectModel],
     meshes: MeshCache,
     delta: float,
@@ -62,7 +66,7 @@ def pair_vsd(
     renderer: DepthRenderer,
     progress: bool = True,
 ) -> np.ndarray:
-    """VSD ``(P, len(taus))`` of every pair of a :class:`~bop_cender.eval.pair_errors.Pairs`.
+    """VSD ``(P, len(taus))`` of every pair.
 
     Args:
         pairs: the pairs (poses, images, objects).
@@ -110,7 +114,7 @@ def pair_vsd(
     return out
 
 
-def plan_renders(pairs, rows: np.ndarray, chunk_poses: int = CHUNK_POSES) -> RenderPlan:
+def plan_renders(pairs: Pairs, rows: np.ndarray, chunk_poses: int = CHUNK_POSES) -> RenderPlan:
     """Render jobs for the pairs ``rows``: images in order, cut into chunks of about ``chunk_poses`` distinct poses."""
     by_image: dict[int, list[int]] = {}
     for p in rows.tolist():
@@ -135,7 +139,7 @@ def plan_renders(pairs, rows: np.ndarray, chunk_poses: int = CHUNK_POSES) -> Ren
 
 
 def _add_chunk(
-    pairs,
+    pairs: Pairs,
     chunk: dict[int, list[int]],
     c: int,
     jobs: list[RenderJob],

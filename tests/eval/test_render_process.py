@@ -29,7 +29,7 @@ from bop_cender.eval.scoring import _pairs
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.vsd import VSD_TAUS, vsd
 from bop_cender.results import write_bop_results
-from tests.eval.scoring_data import gt_rows
+from tests.eval.scoring_data import gt_rows, row
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -186,3 +186,18 @@ def test_a_cold_start_score_renders_in_a_process_with_the_same_numbers(small_fix
         assert forked[key] == threaded[key]
     assert 0 < forked["AR_VSD"] < 1
     assert (cold / "errors_cold_tless-test.csv").read_text() == (warm / "errors_cold_tless-test.csv").read_text()
+
+
+def test_a_cold_start_score_that_fails_stops_its_render_process_and_says_why_in_one_line(
+    small_fixture, results_dir
+) -> None:
+    csv_path = results_dir / "bad_tless-test.csv"
+    rows = gt_rows(small_fixture)[:2]
+    write_bop_results(csv_path, [row(999, r.im_id, r.obj_id, r.score, r.T_cam_model) for r in rows])
+    cmd = [sys.executable, "-m", "bop_cender.cli", "score", str(csv_path), "--data-root", str(small_fixture.root),
+           "--no-progress"]  # fmt: skip
+    env = {**os.environ, "BOP_CENDER_ALLOCATOR": "system"}
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=120)
+    assert done.returncode == 2
+    assert "scene_id: no scene 999" in done.stderr and "Traceback" not in done.stderr
+    assert not list(results_dir.glob("scores_*")) and not list(results_dir.glob("errors_*"))
