@@ -25,7 +25,7 @@ import threading
 import traceback
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, Future, as_completed
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
@@ -36,7 +36,10 @@ if TYPE_CHECKING:  # only the standard library at import: the CLI forks the chil
     from bop_cender.eval.render_crops import DepthCrops
     from bop_cender.render.mesh import RenderMesh
 
-__all__ = ["RenderJob", "DepthRenderer", "ThreadRenderer", "RenderProcess", "render_process_useful"]
+__all__ = ["AHEAD", "RenderJob", "DepthRenderer", "ThreadRenderer", "RenderProcess", "render_process_useful"]
+
+#: Jobs rendered ahead of the caller at most (bounded memory when the caller is slower than the renders).
+AHEAD = 16
 
 
 @dataclass(frozen=True)
@@ -90,15 +93,22 @@ class ThreadRenderer:
         from bop_cender.eval.depth_render import render_depth_crops
 
         prepared = {o: meshes(o) for o in sorted({j.obj_id for j in jobs})}  # here: the cache is not thread-safe
-        futures: dict[Future, int] = {
-            self.pool.submit(render_depth_crops, prepared[j.obj_id], j.T_cam_model, j.K, j.height, j.width): i
-            for i, j in enumerate(jobs)
-        }
+        pending: dict[Future, int] = {}
+        submitted = 0
         try:
-            for future in as_completed(futures):
-                yield futures[future], future.result()
+            while pending or submitted < len(jobs):
+                # At most AHEAD jobs rendered but not yet taken: memory stays bounded if VSD falls behind.
+                while submitted < len(jobs) and len(pending) < AHEAD:
+                    job = jobs[submitted]
+                    mesh = prepared[job.obj_id]
+                    future = self.pool.submit(render_depth_crops, mesh, job.T_cam_model, job.K, job.height, job.width)
+                    pending[future] = submitted
+                    submitted += 1
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    yield pending.pop(future), future.result()
         finally:  # an abandoned iteration (an error downstream) leaves no renders queued behind it
-            for future in futures:
+            for future in pending:
                 future.cancel()
 
 
@@ -120,6 +130,7 @@ class RenderProcess:
         self._conn = conn
         self._closed = False
         self._stopped: str | None = None  # why the child stopped early, and how much was rendered here
+        self._courier: threading.Thread | None = None
 
     @classmethod
     def start(cls) -> RenderProcess:
@@ -163,11 +174,13 @@ class RenderProcess:
         self._closed = True
         with contextlib.suppress(OSError, ValueError):
             self._conn.send(None)
-        self._conn.close()
         self._process.join(timeout=0.05)
         if self._process.is_alive():
             self._process.terminate()
             self._process.join()
+        if self._courier is not None:  # the child is gone, so its pipe is at EOF and the courier returns
+            self._courier.join()
+        self._conn.close()
 
     def render(self, jobs: Sequence[RenderJob], meshes: MeshCache) -> Iterator[tuple[int, DepthCrops]]:
         if not jobs:
@@ -177,24 +190,30 @@ class RenderProcess:
         # Plain arrays, not MeshArrays: unpickling that class would import its module's dependencies (SciPy)
         # in the child, on its critical path.
         arrays = {o: _Mesh(meshes.arrays(o).vertices, meshes.arrays(o).faces) for o in sorted({j.obj_id for j in jobs})}
-        inbox: queue.Queue = queue.Queue()
+        inbox: queue.Queue = queue.Queue(maxsize=AHEAD)  # full: the courier stops reading, the child waits
+        stop = threading.Event()
         # Sending may wait for the child to finish importing torch, and the child's replies must be read
         # while this thread computes: one helper thread does both, so this one never blocks on the pipe.
         courier = threading.Thread(
-            target=self._exchange, args=(arrays, list(jobs), inbox), name="bop-cender-render-io", daemon=True
+            target=self._exchange, args=(arrays, list(jobs), inbox, stop), name="bop-cender-render-io", daemon=True
         )
         courier.start()
+        self._courier = courier
         done: set[int] = set()
         failure = None
-        while len(done) < len(jobs):
-            kind, payload = inbox.get()
-            if kind == "crops":
+        try:
+            while len(done) < len(jobs):
+                kind, payload = inbox.get()
+                if kind != "crops":
+                    failure = payload
+                    break
                 index, crops = payload
                 done.add(index)
                 yield index, crops
-            else:
-                failure = payload
-                break
+        finally:
+            if len(done) < len(jobs) and failure is None:  # abandoned (an error downstream): replies would go stale
+                stop.set()
+                self.close()
         courier.join()
         if failure is None:
             return
@@ -209,20 +228,36 @@ class RenderProcess:
         for i in missing:
             yield i, render_job(jobs[i], meshes)
 
-    def _exchange(self, arrays: dict[int, _Mesh], jobs: list[RenderJob], inbox: queue.Queue) -> None:
-        """Courier thread: send the work, then pass every reply to ``inbox`` until all jobs are back or the child fails."""
+    def _exchange(
+        self, arrays: dict[int, _Mesh], jobs: list[RenderJob], inbox: queue.Queue, stop: threading.Event
+    ) -> None:
+        """Courier thread: send the work, then pass every reply to ``inbox`` until all jobs are back, the child
+        fails, or ``stop`` is set (the caller gave up)."""
+
+        def deliver(item: tuple) -> bool:
+            while not stop.is_set():
+                try:
+                    inbox.put(item, timeout=0.1)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
         try:
             self._conn.send(("work", arrays, jobs))
             for _ in jobs:
                 reply = self._conn.recv()
                 if reply[0] != "crops":
-                    inbox.put(("failed", f"it raised:\n{reply[1]}"))
+                    deliver(("failed", f"it raised:\n{reply[1]}"))
                     return
-                inbox.put(("crops", (reply[1], reply[2])))
+                if not deliver(("crops", (reply[1], reply[2]))):
+                    return
         except (EOFError, OSError) as exc:
+            if stop.is_set():
+                return
             self._process.join(timeout=1.0)  # reap a dead child, for its exit code
             code = self._process.exitcode
-            inbox.put(("failed", f"{type(exc).__name__}, exit code {code}" if code is not None else repr(exc)))
+            deliver(("failed", f"{type(exc).__name__}, exit code {code}" if code is not None else repr(exc)))
 
 
 def _child_main(conn, parent_end) -> None:

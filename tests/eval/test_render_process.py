@@ -65,7 +65,9 @@ def _assert_same_crops(got: dict, expected: dict) -> None:
             np.testing.assert_array_equal(a, b)
 
 
-def test_threads_and_the_render_process_give_the_crops_of_render_job(scene_pairs) -> None:
+@pytest.mark.parametrize("ahead", [16, 1])
+def test_threads_and_the_render_process_give_the_crops_of_render_job(scene_pairs, monkeypatch, ahead) -> None:
+    monkeypatch.setattr(render_process, "AHEAD", ahead)  # 1: every reply waits for the caller (back-pressure)
     pairs, _, meshes = scene_pairs
     jobs = _jobs(pairs)
     expected = {j: render_job(job, meshes) for j, job in enumerate(jobs)}
@@ -110,6 +112,40 @@ def test_a_stopped_render_process_is_replaced_by_this_process(scene_pairs, monke
             got = dict(process.render(jobs, meshes))
         assert "jobs rendered here" in process.describe()
     _assert_same_crops(got, expected)
+
+
+class _CountingPool(ThreadPoolExecutor):
+    """Counts jobs submitted, so that a test can see how far renders run ahead of their caller."""
+
+    submitted = 0
+
+    def submit(self, *args, **kwargs):
+        self.submitted += 1
+        return super().submit(*args, **kwargs)
+
+
+def test_threads_render_at_most_ahead_jobs_before_the_caller_takes_them(scene_pairs, monkeypatch) -> None:
+    monkeypatch.setattr(render_process, "AHEAD", 2)
+    pairs, _, meshes = scene_pairs
+    jobs = [_jobs(pairs)[0]] * 9
+    taken = []
+    with _CountingPool(2) as pool:
+        for index, _crops in ThreadRenderer(pool).render(jobs, meshes):
+            assert pool.submitted - len(taken) <= 2
+            taken.append(index)
+    assert sorted(taken) == list(range(9))
+
+
+def test_a_render_process_left_mid_way_is_closed_not_reused(scene_pairs) -> None:
+    pairs, _, meshes = scene_pairs
+    jobs = _jobs(pairs) * 3
+    process = RenderProcess.start()
+    results = process.render(jobs, meshes)
+    next(results)
+    results.close()  # the caller gave up (an error downstream): the child's other replies must not leak out
+    assert process._process.exitcode is not None
+    with pytest.raises(RuntimeError, match="closed"):
+        next(process.render(jobs, meshes))
 
 
 def test_closing_an_unused_render_process_stops_it_at_once() -> None:
