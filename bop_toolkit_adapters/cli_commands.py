@@ -33,7 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_crosscheck(args: argparse.Namespace) -> int:
-    from bop_toolkit_adapters.crosscheck import ToolkitUnavailable, crosscheck_file, format_crosscheck
+    from bop_toolkit_adapters.crosscheck import (
+        ToolkitUnavailable,
+        crosscheck_file,
+        format_crosscheck,
+        write_pair_differences,
+    )
 
     out = args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}"
     try:
@@ -47,4 +52,8 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         print("(the official toolkit is optional: pass --toolkit DIR, a checkout of thodan/bop_toolkit)")
         return 0
     print(format_crosscheck(check))
+    if check.differences:
+        listed = out / "pair_differences.csv"
+        write_pair_differences(listed, check.differences)
+        print(f"pairs that differ, largest first: {listed}")
     return 0

@@ -95,3 +95,53 @@ def test_crosscheck_with_the_official_toolkit(small_fixture, tmp_path: Path, cap
     for key, diff in check.score_diffs.items():
         assert diff is None or diff == 0.0, key
     assert check.pair_diffs["mssd"] < 1e-9 and check.pair_diffs["mspd"] < 1e-9
+
+
+def test_pairs_that_differ_from_the_toolkit_are_listed_largest_first(small_fixture, small_dataset, tmp_path) -> None:
+    from bop_cender.eval.scoring import score_results
+    from bop_toolkit_adapters.crosscheck import (
+        LIST_TOLERANCE,
+        Crosscheck,
+        compare_pair_errors,
+        format_crosscheck,
+        pair_differences,
+        write_pair_differences,
+    )
+    from bop_toolkit_adapters.export import ToolkitExport
+    from bop_toolkit_adapters.runtime import ToolkitScores
+
+    report = score_results(gt_rows(small_fixture, {3: "t_5.5%", 1: "far"}), small_dataset, progress=False)
+    toolkit = ToolkitScores(errors={"mssd": {}, "mspd": {}, "vsd": {}})
+    for r in report.records:  # the toolkit's numbers: ours, then a few changed below
+        for j, gt_id in enumerate(r.gt_ids.tolist()):
+            key = (r.scene_id, r.im_id, r.obj_id, r.est_id, gt_id)
+            toolkit.errors["mssd"][key] = [float(r.mssd_mm[j])]
+            toolkit.errors["mspd"][key] = [float(r.mspd_px[j])]
+            toolkit.errors["vsd"][key] = [float(v) for v in r.vsd[j]]
+    keys = sorted(k for k, v in toolkit.errors["mssd"].items() if v[0] < float("inf"))
+    assert any(v == [float("inf")] for v in toolkit.errors["mssd"].values())  # early-outs: inf == inf is no difference
+    toolkit.errors["vsd"][keys[0]][4] += 0.002  # one pixel's vote at one tau
+    toolkit.errors["mssd"][keys[1]][0] += 1e-9  # float noise: below the listing tolerance
+    toolkit.errors["mspd"][keys[2]][0] += 0.5
+    del toolkit.errors["mspd"][keys[3]]  # a pair only we computed: counted as missing, not listed
+
+    differences = pair_differences(report, toolkit)
+    assert [(d.error, d.max_diff) for d in differences] == [("mspd", pytest.approx(0.5)), ("vsd", pytest.approx(0.002))]
+    assert (differences[1].scene_id, differences[1].im_id, differences[1].obj_id) == keys[0][:3]
+    assert differences[1].toolkit[4] - differences[1].ours[4] == pytest.approx(0.002)
+    diffs = compare_pair_errors(report, toolkit)
+    assert diffs["mssd"] == pytest.approx(1e-9, rel=1e-3) and diffs["missing_mspd"] == 1
+    assert LIST_TOLERANCE["mssd"] > diffs["mssd"]
+
+    path = tmp_path / "pair_differences.csv"
+    write_pair_differences(path, differences)
+    lines = path.read_text().splitlines()
+    assert lines[0] == "error,scene_id,im_id,obj_id,est_id,gt_id,max_abs_diff,ours,toolkit"
+    assert lines[1].startswith("mspd,") and lines[2].startswith("vsd,") and len(lines) == 3
+    assert len(lines[2].split(",")[7].split()) == 10  # VSD: one value per tau
+
+    export = ToolkitExport.__new__(ToolkitExport)  # format_crosscheck only names its folder
+    object.__setattr__(export, "out_dir", tmp_path)
+    check = Crosscheck(report, toolkit, export, {}, {}, diffs, [], differences)
+    text = format_crosscheck(check)
+    assert "VSD   pairs differing by more than 0: 1" in text and "MSSD  pairs differing by more than 1e-06: 0" in text
