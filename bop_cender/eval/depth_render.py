@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from bop_cender.eval.render_crops import DepthCrops
-from bop_cender.render.depth_crops import tight_depth_crops
+from bop_cender.render.depth_crops import crop_to_silhouette, tight_depth_crops
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR
 from bop_cender.render.rasterizer import render_candidates, render_objects_separately, render_scene
@@ -32,7 +32,6 @@ CHUNK = 48
 __all__ = [
     "CHUNK",
     "render_depth_crops",
-    "render_depths",
     "render_pile_instances",
     "silhouette_areas",
     "single_threaded_torch",
@@ -82,30 +81,8 @@ def render_depth_crops(
         r = render_objects_separately([mesh], T[idx, None], Ks[idx], height, width)
         depth = r.depth[:, 0].cpu().numpy()
         for k, e in enumerate(idx):
-            crops[e], origin[e] = _crop(depth[k], np.zeros(2, np.int64), height, width)
+            crops[e], origin[e] = crop_to_silhouette(depth[k], np.zeros(2, np.int64))
     return DepthCrops(crops, origin)
-
-
-def render_depths(
-    mesh: RenderMesh,
-    T_cam_model: np.ndarray,
-    K: np.ndarray,
-    height: int,
-    width: int,
-    window: tuple[int, int, int, int] | None = None,
-) -> np.ndarray:
-    """Depth renders ``(E, h, w)`` float32 (mm, 0 background) of the full image or of ``window`` ``(y0, x0, y1, x1)``."""
-    y0, x0, y1, x1 = window if window is not None else (0, 0, height, width)
-    crops = render_depth_crops(mesh, T_cam_model, K, height, width)
-    out = np.zeros((len(crops.depth), y1 - y0, x1 - x0), dtype=np.float32)
-    for e, d in enumerate(crops.depth):
-        win = crops.window(e)
-        if win is None:
-            continue
-        a0, b0, a1, b1 = max(win[0], y0), max(win[1], x0), min(win[2], y1), min(win[3], x1)
-        if a0 < a1 and b0 < b1:
-            out[e, a0 - y0 : a1 - y0, b0 - x0 : b1 - x0] = d[a0 - win[0] : a1 - win[0], b0 - win[1] : b1 - win[1]]
-    return out
 
 
 def render_pile_instances(
@@ -137,20 +114,3 @@ def silhouette_areas(mesh: RenderMesh, T_cam_model: np.ndarray, K: np.ndarray, h
         r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=False)
         out[idx] = r.mask[0].reshape(len(idx), -1).sum(dim=1).cpu().numpy()
     return out
-
-
-def _crop(depth: np.ndarray, offset: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cut one window render ``(S, S)`` at image ``offset (row, col)`` to its silhouette inside the image."""
-    v0, u0 = int(offset[0]), int(offset[1])
-    S0, S1 = depth.shape
-    a0, b0 = max(0, -v0), max(0, -u0)
-    a1, b1 = min(S0, height - v0), min(S1, width - u0)
-    if a0 >= a1 or b0 >= b1:
-        return np.zeros((0, 0), np.float32), np.zeros(2, np.int64)
-    inside = depth[a0:a1, b0:b1]
-    rows = np.flatnonzero(inside.any(axis=1))
-    if rows.size == 0:
-        return np.zeros((0, 0), np.float32), np.zeros(2, np.int64)
-    cols = np.flatnonzero(inside.any(axis=0))
-    crop = np.ascontiguousarray(inside[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1], dtype=np.float32)
-    return crop, np.array([v0 + a0 + rows[0], u0 + b0 + cols[0]], dtype=np.int64)

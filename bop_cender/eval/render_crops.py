@@ -11,8 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: ``(y0, x0, y1, x1)``: rows y0..y1-1 and columns x0..x1-1 of the full image.
-Window = tuple[int, int, int, int]
+from bop_cender.eval.vsd import Window
 
 
 @dataclass(frozen=True)

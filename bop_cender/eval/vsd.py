@@ -125,27 +125,6 @@ def depth_to_distance(depth: np.ndarray, K: np.ndarray, origin: tuple[int, int] 
     )
 
 
-def silhouette_window(*depths: np.ndarray, margin: int = 0) -> Window | None:
-    """Smallest window ``(y0, x0, y1, x1)`` holding every non-zero pixel of the given ``(H, W)`` renders.
-
-    ``margin`` pixels are added on each side (clipped to the image). None if all renders are empty.
-    """
-    mask = np.zeros(np.shape(depths[0]), dtype=bool)
-    for d in depths:
-        mask |= np.asarray(d) > 0
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(mask.any(axis=0))
-    h, w = mask.shape
-    return (
-        max(0, int(rows[0]) - margin),
-        max(0, int(cols[0]) - margin),
-        min(h, int(rows[-1]) + 1 + margin),
-        min(w, int(cols[-1]) + 1 + margin),
-    )
-
-
 def overlapping_sphere_projections(radius: float, t_est: np.ndarray, t_gt: np.ndarray) -> np.ndarray:
     """The toolkit's VSD early-out test (``misc.overlapping_sphere_projections``), vectorised.
 

@@ -34,7 +34,7 @@ DEFAULT_CHUNK_PIXELS = 1 << 18
 #: Window pixels kept beyond the first and last pixel centre the projected vertices can cover.
 _MARGIN = 1
 
-__all__ = ["DEFAULT_CHUNK_PIXELS", "tight_depth_crops"]
+__all__ = ["DEFAULT_CHUNK_PIXELS", "crop_to_silhouette", "tight_depth_crops"]
 
 
 def tight_depth_crops(
@@ -89,7 +89,7 @@ def tight_depth_crops(
         ends = np.cumsum(rows)
         for k, e in enumerate(idx.tolist()):
             window = atlas[ends[k] - rows[k] : ends[k], : extent[e, 1]]
-            crops[e], origin[e] = _crop(window, lo[e])
+            crops[e], origin[e] = crop_to_silhouette(window, lo[e])
     return crops, origin
 
 
@@ -134,7 +134,7 @@ def _plan(extent: np.ndarray, chunk_pixels: int) -> list[slice]:
     return plan
 
 
-def _crop(window: np.ndarray, lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def crop_to_silhouette(window: np.ndarray, lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cut one window's depth ``(h, w)`` (first pixel at image ``lo (2,)``) to its silhouette's bounding box."""
     rows = np.flatnonzero(window.any(axis=1))
     if rows.size == 0:

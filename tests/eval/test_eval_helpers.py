@@ -12,12 +12,13 @@ from scipy.spatial.transform import Rotation
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
-from bop_cender.eval.depth_render import render_depth_crops, render_depths
+from bop_cender.eval.depth_render import render_depth_crops
 from bop_cender.eval.matching import Target
 from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.targets import read_targets, write_targets
 from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
 from bop_cender.render.mesh import prepare_mesh
+from bop_cender.render.rasterizer import render_objects_separately
 
 
 def test_targets_round_trip_and_errors(tmp_path: Path) -> None:
@@ -68,7 +69,7 @@ def test_depth_crops_hold_the_whole_silhouette_inside_the_image() -> None:
     T[:, 2, 3] = 500.0
     T[1, 0, 3] = 130.0  # partly beyond the right border
     T[2, 0, 3] = 2000.0  # wholly outside the image
-    full = render_depths(mesh, T, np.stack([K] * 3), 120, 160)
+    full = render_objects_separately([mesh], T[:, None], np.stack([K] * 3), 120, 160).depth[:, 0].numpy()
     crops = render_depth_crops(mesh, T, np.stack([K] * 3), 120, 160)
     for e in range(2):
         y0, x0, y1, x1 = crops.window(e)

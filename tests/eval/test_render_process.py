@@ -18,7 +18,6 @@ import pytest
 
 from bop_cender.data.bop_io import load_depth
 from bop_cender.eval import render_process
-from bop_cender.eval.depth_render import render_depths
 from bop_cender.eval.ground_truth import collect_ground_truth
 from bop_cender.eval.matching import select_top_n
 from bop_cender.eval.model_points import MeshCache
@@ -28,6 +27,7 @@ from bop_cender.eval.score_file import score_file
 from bop_cender.eval.scoring import _pairs
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.vsd import VSD_TAUS, vsd
+from bop_cender.render.rasterizer import render_objects_separately
 from bop_cender.results import write_bop_results
 from tests.eval.scoring_data import gt_rows, row
 
@@ -192,7 +192,10 @@ def test_pair_vsd_equals_full_frame_vsd_whoever_renders(scene_pairs, monkeypatch
     for p in range(len(pairs)):
         image = pairs.images[int(pairs.image[p])]
         mesh = meshes(int(pairs.obj_id[p]))
-        d_est, d_gt = render_depths(mesh, np.stack([pairs.T_est[p], pairs.T_gt[p]]), image.K, image.height, image.width)
+        T = np.stack([pairs.T_est[p], pairs.T_gt[p]])[:, None]
+        d_est, d_gt = (
+            render_objects_separately([mesh], T, np.stack([image.K] * 2), image.height, image.width).depth[:, 0].numpy()
+        )
         test = load_depth(image.depth_path, image.depth_scale)
         expected[p] = vsd(test, d_est, d_gt, image.K, 15.0, VSD_TAUS, models[int(pairs.obj_id[p])].diameter)
     assert 0 < expected.mean() < 1
