@@ -7,13 +7,12 @@ would misread. The sidecar records where a run's data came from so ``bop-cender 
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.bop_io import save_json
+from bop_cender.data.bop_io import load_json, save_json
 from bop_cender.errors import ConfigError, ResultsError
 
 SIDECAR_FORMAT = "bop-cender-run"
@@ -135,12 +134,9 @@ def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
         ResultsError: the sidecar is not JSON, not ours, or a key is missing or of the wrong type.
     """
     path = sidecar_path(csv_path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
+    if not path.exists():
         return None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ResultsError(f"malformed run sidecar: {e}", file=path) from None
+    data = load_json(path, error=ResultsError)
     if not isinstance(data, dict) or data.get("format") != SIDECAR_FORMAT:
         raise ResultsError(f"not a run sidecar (expected an object with format {SIDECAR_FORMAT!r})", file=path)
     problems = [

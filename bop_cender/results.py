@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import atomic_path
+from bop_cender.data.bop_io import atomic_path, read_text
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import ROTATION_TOLERANCE, Scene
 from bop_cender.errors import ResultsError, ResultsWarning
@@ -189,14 +189,7 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
         ResultsError: missing/unreadable file, or any bad row (``problems`` lists them all).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ResultsError("results file not found", file=path) from None
-    except UnicodeDecodeError as e:
-        raise ResultsError(f"not UTF-8 text (byte {e.start})", file=path) from None
-    except OSError as e:
-        raise ResultsError(f"cannot read: {e.strerror}", file=path) from None
+    text = read_text(path, ResultsError, "results file")
     lines = text.split("\n")  # read_text already turned CRLF (and lone CR) into LF, as the toolkit's open()
     end = len(lines)
     while end and not lines[end - 1].strip():

@@ -352,7 +352,10 @@ def test_sidecar_round_trip_and_validation(tmp_path: Path) -> None:
         read_run_sidecar(csv)
     assert info.value.problems == ["selection: expected dict, got list", "seed: expected int, got str"]
     path.write_text("{not json")
-    with pytest.raises(ResultsError, match="malformed run sidecar"):
+    with pytest.raises(ResultsError, match="malformed JSON: .* line 1, column 2"):
+        read_run_sidecar(csv)
+    path.write_bytes(b'{"format": "\xff"}')
+    with pytest.raises(ResultsError, match="not UTF-8"):
         read_run_sidecar(csv)
     path.write_text("[]")
     with pytest.raises(ResultsError, match="not a run sidecar"):

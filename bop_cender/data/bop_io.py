@@ -18,31 +18,49 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.errors import DatasetError
+from bop_cender.errors import BopCenderError, DatasetError
 
 
-def load_json(path: str | Path, keys_to_int: bool = False) -> Any:
+def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what: str = "file") -> str:
+    """A UTF-8 text file's content, or one ``error`` naming the file: missing, unreadable (a folder, no
+    permission) or not UTF-8."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{what} not found", file=path) from None
+    except UnicodeDecodeError as e:
+        raise error(f"not UTF-8 text (byte {e.start})", file=path) from None
+    except OSError as e:
+        raise error(f"cannot read: {e.strerror}", file=path) from None
+
+
+def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCenderError] = DatasetError) -> Any:
     """Load a JSON file; with ``keys_to_int`` turn digit keys of dicts into ints, as BOP does.
 
     Raises:
-        DatasetError: the file is missing or is not valid JSON (with line and column).
+        DatasetError (or ``error``): the file is missing, unreadable or not valid JSON (with line and column).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DatasetError("file not found", file=path) from None
-    except OSError as e:
-        raise DatasetError(f"cannot read: {e.strerror}", file=path) from None
+    text = read_text(path, error)
     try:
         hook = _int_keys if keys_to_int else None
         return json.loads(text, object_pairs_hook=hook)
     except json.JSONDecodeError as e:
-        raise DatasetError(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=path) from None
+        raise error(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=Path(path)) from None
 
 
 def _int_keys(pairs: list[tuple[str, Any]]) -> dict:
     return {(int(k) if isinstance(k, str) and k.lstrip("-").isdigit() else k): v for k, v in pairs}
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+#: The process's umask (read once: os.umask can only be read by setting it).
+_UMASK = _current_umask()
 
 
 @contextmanager
@@ -53,6 +71,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
+    os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
     try:
         yield tmp_path
         os.replace(tmp_path, path)
@@ -158,8 +177,10 @@ def load_depth(path: str | Path, depth_scale: float) -> np.ndarray:
 def save_depth(path: str | Path, depth_mm: np.ndarray, depth_scale: float) -> None:
     """Write depth in mm as a uint16 PNG with ``png = round(depth / depth_scale)``, atomically."""
     units = np.round(np.asarray(depth_mm, dtype=np.float64) / depth_scale)
-    if units.max(initial=0) > 65535:
-        raise ValueError(f"depth {depth_mm.max()} mm does not fit uint16 at depth_scale {depth_scale}")
+    if not np.isfinite(units).all() or units.min(initial=0) < 0 or units.max(initial=0) > 65535:
+        raise ValueError(
+            f"depth must be finite and within [0, {65535 * depth_scale:g}] mm at depth_scale {depth_scale} (uint16)"
+        )
     write_image(path, units.astype(np.uint16))
 
 
@@ -204,6 +225,21 @@ def require_keys(entry: Mapping, keys: tuple[str, ...], file: Path, where: str) 
     for k in keys:
         if k not in entry:
             raise DatasetError(f"missing key '{k}'", file=file, field=where)
+
+
+def as_int(value: Any, file: Path, where: str, strings: bool = False) -> int:
+    """An int from a JSON value: an int or an integral float (with ``strings``, also a numeric string);
+    never a bool, NaN or infinity; else a DatasetError naming the file and field."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, float) and value.is_integer():  # False for NaN and infinities
+        return int(value)
+    if strings and isinstance(value, str):
+        try:
+            return int(value.strip())
+        except ValueError:
+            pass
+    raise DatasetError(f"expected an integer, got {value!r}", file=file, field=where)
 
 
 def as_number(value: Any, file: Path, where: str) -> float:

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from bop_cender.data.bop_io import as_number, load_json, require_keys
+from bop_cender.data.bop_io import as_int, as_number, load_json, require_keys
 from bop_cender.data.consistency import FAIL_MM, ResidualTracker
 from bop_cender.data.types import CameraView, GtObject, Scene, check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
@@ -97,13 +97,6 @@ class ScenePlan:
     key_suffix: str
     im_ids: tuple[int, ...]
     multi_view: bool
-
-
-def as_int(value: Any, file: Path, where: str) -> int:
-    """An int from a JSON value (int or integral float; not bool), else a DatasetError."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value):
-        raise DatasetError(f"expected an integer, got {value!r}", file=file, field=where)
-    return int(value)
 
 
 def load_image_dict(path: Path) -> dict[int, Any]:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import load_json, require_keys
+from bop_cender.data.bop_io import as_int, load_json, require_keys
 from bop_cender.data.consistency import ResidualTracker
 from bop_cender.data.types import check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
@@ -92,7 +92,7 @@ def _normalise_info(entry: Any, path: Path, im_id: int) -> dict[str, Any]:
     spelled = {name for pair in INFO_KEYS for name in pair}
     out: dict[str, Any] = {k: v for k, v in entry.items() if k not in spelled}
     for new, old in INFO_KEYS:
-        values = [(key, _as_int(entry[key], path, f"{im_id}.{key}")) for key in (new, old) if key in entry]
+        values = [(key, as_int(entry[key], path, f"{im_id}.{key}", strings=True)) for key in (new, old) if key in entry]
         if not values:
             if new in REQUIRED_INFO:
                 raise DatasetError(f"missing key '{new}' (or older '{old}')", file=path, field=f"{im_id}.{new}")
@@ -103,22 +103,6 @@ def _normalise_info(entry: Any, path: Path, im_id: int) -> dict[str, Any]:
             )
         out[new] = values[0][1]
     return out
-
-
-def _as_int(value: Any, path: Path, where: str) -> int:
-    """An int from an int, an integral float or a numeric string; else a DatasetError."""
-    if isinstance(value, bool):
-        raise DatasetError(f"expected an integer, got {value!r}", file=path, field=where)
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float) and value.is_integer():
-        return int(value)
-    if isinstance(value, str):
-        try:
-            return int(value.strip())
-        except ValueError:
-            pass
-    raise DatasetError(f"expected an integer (or a numeric string), got {value!r}", file=path, field=where)
 
 
 def read_cameras(path: Path, tracker: ResidualTracker) -> dict[int, DimoCamera]:

@@ -7,6 +7,7 @@ finiteness and rotations, so a bad value fails where it enters, naming its sourc
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -275,10 +276,15 @@ class Dataset:
     def scene(self, key: str) -> Scene:
         """Load (once) and return the scene with this key."""
         if key not in self._cache:
-            if key not in self.scene_keys:
+            if key not in self._known_keys:
                 raise DatasetError(f"unknown scene {key!r}; known: {', '.join(self.scene_keys[:10])}", file=self.root)
             self._cache[key] = self.loader(key)
         return self._cache[key]
+
+    @functools.cached_property
+    def _known_keys(self) -> frozenset[str]:
+        """The scene keys as a set (a list lookup per scene made loading N scenes O(N^2))."""
+        return frozenset(self.scene_keys)
 
     def scenes(self) -> Iterator[Scene]:
         """All scenes of the split in order, loaded lazily."""

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from bop_cender.data.bop_io import (
+    as_int,
     atomic_path,
     dumps_bop_json,
     image_size,
@@ -100,3 +101,33 @@ def test_ply_errors(tmp_path):
     (tmp_path / "bad.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
     with pytest.raises(DatasetError, match="bad.ply"):
         load_ply(tmp_path / "bad.ply")
+
+
+def test_json_that_is_not_utf8_or_not_a_file_is_one_error(tmp_path):
+    (tmp_path / "latin.json").write_bytes(b'{"name": "caf\xe9"}')
+    with pytest.raises(DatasetError, match="not UTF-8 text"):
+        load_json(tmp_path / "latin.json")
+    (tmp_path / "folder.json").mkdir()
+    with pytest.raises(DatasetError, match="cannot read"):
+        load_json(tmp_path / "folder.json")
+
+
+def test_as_int_refuses_nan_infinity_bool_and_fractions():
+    assert as_int(3, "f.json", "k") == 3 and as_int(3.0, "f.json", "k") == 3
+    assert as_int(" 7 ", "f.json", "k", strings=True) == 7
+    for bad in (float("nan"), float("inf"), True, 2.5, "7", None):
+        with pytest.raises(DatasetError, match="k: expected an integer"):
+            as_int(bad, "f.json", "k")
+
+
+def test_atomic_writes_get_the_permissions_of_a_plain_write(tmp_path):
+    save_json(tmp_path / "a.json", {"x": 1})
+    (tmp_path / "plain.json").write_text("{}")
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == (tmp_path / "plain.json").stat().st_mode & 0o777
+
+
+def test_save_depth_refuses_what_uint16_cannot_hold(tmp_path):
+    for bad in ([[-1.0, 0.0]], [[np.nan, 0.0]], [[7000.0, 0.0]]):
+        with pytest.raises(ValueError, match="depth must be finite and within"):
+            save_depth(tmp_path / "d.png", np.asarray(bad), 0.1)
+    assert not (tmp_path / "d.png").exists()
