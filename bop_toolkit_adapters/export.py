@@ -30,6 +30,7 @@ from bop_cender.data.bop_io import load_json, save_json
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
+from bop_cender.eval.ground_truth import split_folder as data_split_folder
 from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import TARGETS_FILE, resolve_targets, write_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
@@ -102,7 +103,7 @@ def export_for_toolkit(
     targets = resolve_targets(
         dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
-    split_folder = _split_folder(gt, dataset)
+    split_folder = data_split_folder(gt, dataset)
     split, split_type = _toolkit_split(dataset.name, split_folder)
     method = method or _method(results_csv)
     name = result_filename(method, dataset.name, split, split_type)
@@ -134,7 +135,7 @@ def export_for_toolkit(
         obj_ids=tuple(sorted(load_json(models_dir / "models_info.json", keys_to_int=True))),
         scene_ids=tuple(scene_ids),
         im_size=(first.width, first.height),
-        mspd_width=int(mspd_width(dataset.name, dataset.split, first.width).value),
+        mspd_width=int(mspd_width(dataset.name, split_folder, first.width).value),
         vsd_delta=vsd_delta_for(dataset.name, vsd_delta).value if has_depth else None,
         known_to_toolkit=dataset.name in TOOLKIT_TEST_WIDTHS,
         targets_note=targets.note,
@@ -170,14 +171,6 @@ def _export_scenes(gt: GroundTruth, split_dir: Path, visib: dict) -> list[int]:
             if image.depth_path is not None:
                 _link(Path(image.depth_path).resolve(), dst / "depth" / f"{image.im_id:06d}.png")
     return sorted(by_scene)
-
-
-def _split_folder(gt: GroundTruth, dataset: Dataset) -> str:
-    """The split folder name the toolkit will look in: the source's for BOP layouts, the split name otherwise."""
-    first = next(iter(gt), None)
-    if dataset.name != "dimo" and first is not None and first.scene_dir is not None:
-        return first.scene_dir.parent.name
-    return dataset.split
 
 
 def _toolkit_split(name: str, folder: str) -> tuple[str, str | None]:

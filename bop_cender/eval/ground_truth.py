@@ -229,3 +229,12 @@ def _stored_pose(stored: dict[int, list[dict]], im: int, gt_id: int, obj_id: int
             f"obj_id {entry.get('obj_id')!r} where the loaded scene has obj {obj_id}", file=path, field=f"{im}[{gt_id}]"
         )
     return pose_from_bop(entry["cam_R_m2c"], entry["cam_t_m2c"])
+
+
+def split_folder(gt: GroundTruth, dataset: Dataset) -> str:
+    """The split folder the images come from (``test_primesense``, ``test_kinect``), which names the split type
+    the toolkit's constants depend on; the split name where there is no BOP folder (DIMO)."""
+    first = next(iter(gt), None)
+    if dataset.name != "dimo" and first is not None and first.scene_dir is not None:
+        return first.scene_dir.parent.name
+    return dataset.split

@@ -48,8 +48,10 @@ class Choice:
     source: str
 
 
-def mspd_width(dataset: str, split: str, actual_width: int, split_type: str | None = None) -> Choice:
+def mspd_width(dataset: str, split: str, actual_width: int) -> Choice:
     """The width MSPD is normalised with: the toolkit's constant for a test split it knows, else ``actual_width``.
+
+    ``split`` is the split folder (``test_kinect``): its suffix is the split type the constants depend on.
 
     T-LESS training splits are handled by the T-LESS loader's own table (also the toolkit's values).
     """
@@ -62,7 +64,7 @@ def mspd_width(dataset: str, split: str, actual_width: int, split_type: str | No
             pass
     widths = TOOLKIT_TEST_WIDTHS.get(dataset)
     if widths is not None and split.startswith("test"):
-        kind = split_type or (split.split("_", 1)[1] if "_" in split else None)
+        kind = split.split("_", 1)[1] if "_" in split else None
         if kind in widths:
             return Choice(widths[kind], f"the toolkit's constant for {dataset} {split}")
     return Choice(actual_width, "the split's image width (dataset unknown to the toolkit)")

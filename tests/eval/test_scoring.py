@@ -169,3 +169,16 @@ def _shift(mm: float) -> np.ndarray:
     T = np.eye(4)
     T[0, 3] = mm
     return T
+
+
+def test_mspd_width_follows_the_split_type_of_the_folder(small_fixture, tmp_path) -> None:
+    import shutil
+
+    from bop_cender.data.bop import open_bop
+
+    root = tmp_path / "hb"
+    shutil.copytree(small_fixture.root, root, symlinks=True)
+    (root / "test_primesense").rename(root / "test_kinect")  # HB's Kinect split: the toolkit's width is 1920
+    ds = open_bop(root, "test", name="hb", split_type="kinect", model_type="cad")
+    report = score_results(gt_rows(small_fixture), ds, progress=False)
+    assert report.metadata["mspd_width"] == 1920, report.metadata["mspd_width_source"]
