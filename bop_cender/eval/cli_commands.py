@@ -84,7 +84,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     comparison = compare(
         args.inputs, reference=args.reference, dataset=args.dataset, data_root=args.data_root, split=args.split,
-        out_dir=args.out, progress=not args.no_progress,
+        n_views=args.n_views, vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
     )  # fmt: skip
     print(comparison.markdown())
     print("wrote " + ", ".join(str(p) for p in comparison.files.values()))
@@ -104,11 +104,11 @@ def cmd_convert_pvnet(args: argparse.Namespace) -> int:
 
 def _model_ids(root: Path) -> list[int]:
     """Object ids of a dataset's evaluation models (``models_eval/``, else ``models/`` or ``models_cad/``)."""
-    from bop_cender.data.bop_io import load_json
+    from bop_cender.data.bop_io import as_int, load_json
     from bop_cender.errors import DatasetError
 
     for name in ("models_eval", "models", "models_cad"):
         path = root / name / "models_info.json"
         if path.is_file():
-            return sorted(int(k) for k in load_json(path))
+            return sorted(as_int(k, path, repr(k), strings=True) for k in load_json(path))
     raise DatasetError("no models_eval/, models/ or models_cad/ with a models_info.json", file=root)

@@ -26,7 +26,6 @@ Scene folder names become BOP int ids through :func:`bop_cender.data.scene_ids.s
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from collections.abc import Collection
@@ -35,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.errors import ResultsError
 from bop_cender.results import BopEstimate, write_bop_results
@@ -108,10 +108,7 @@ def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:
 def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
     """Rows from a JSON mapping image keys to lists of ``{obj_id, pose, score?, time?}`` (in file order)."""
     path = Path(path)
-    try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ResultsError(f"not a JSON file: {e}", file=path) from None
+    content = load_json(path, error=ResultsError)
     if not isinstance(content, dict):
         raise ResultsError(
             f"expected an object mapping image keys to estimates, got {type(content).__name__}", file=path
@@ -181,7 +178,8 @@ def _row(
 
 
 def _int(value: Any, path: Path, field: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value) or value < 0:
+    integral = isinstance(value, int) or (isinstance(value, float) and value.is_integer())  # not NaN / inf
+    if isinstance(value, bool) or not integral or value < 0:
         raise ResultsError(f"expected a non-negative integer, got {value!r}", file=path, field=field)
     return int(value)
 

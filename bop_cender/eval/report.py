@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import write_text_atomic
+from bop_cender.data.bop_io import load_json, write_text_atomic
 
 #: The scores, in the order they are printed and written.
 SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
@@ -113,19 +113,24 @@ def write_scores_json(path: str | Path, report: ScoreReport) -> None:
 
 
 def read_scores_json(path: str | Path) -> dict[str, Any]:
-    """A scores JSON written by :func:`write_scores_json` (checks the six score keys are there)."""
+    """A scores JSON written by :func:`write_scores_json`: the six score keys (numbers or null) and string metadata."""
     from bop_cender.errors import ResultsError
 
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ResultsError("scores file not found", file=path) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ResultsError(f"not a JSON file: {e}", file=path) from None
+    data = load_json(path, error=ResultsError)
     missing = [k for k in SCORE_KEYS if not isinstance(data, dict) or k not in data]
     if missing:
         raise ResultsError(f"not a scores file: missing {', '.join(missing)}", file=path)
+    for key in SCORE_KEYS:
+        value = data[key]
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
+            raise ResultsError(f"expected a number or null, got {value!r}", file=path, field=key)
+    meta = data.get("metadata")
+    if meta is not None and not isinstance(meta, dict):
+        raise ResultsError(f"expected an object, got {type(meta).__name__}", file=path, field="metadata")
+    for key in ("method", "dataset", "split"):
+        if meta and meta.get(key) is not None and not isinstance(meta[key], str):
+            raise ResultsError(f"expected a string, got {meta[key]!r}", file=path, field=f"metadata.{key}")
     return data
 
 

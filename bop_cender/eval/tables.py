@@ -80,6 +80,8 @@ def compare(
     dataset: str | None = None,
     data_root: str | Path | None = None,
     split: str | None = None,
+    n_views: int | None = None,
+    vsd_delta: float | None = None,
     out_dir: str | Path = ".",
     progress: bool = True,
 ) -> Comparison:
@@ -88,7 +90,8 @@ def compare(
     Args:
         inputs: results CSVs and/or scores JSONs, one row each, in this order.
         reference: ``"paper"`` (or a CSV in the paper tables' format) to add reference rows.
-        dataset, data_root, split: passed to the scoring of CSV inputs (default: their file names / sidecars).
+        dataset, data_root, split, n_views, vsd_delta: passed to the scoring of CSV inputs (default: their
+            file names / sidecars, the toolkit's delta).
         out_dir: where the scores of CSV inputs and the comparison files are written.
 
     Raises:
@@ -101,8 +104,9 @@ def compare(
         path = Path(item)
         if path.suffix == ".csv":
             scored = score_file(
-                path, dataset=dataset, data_root=data_root, split=split, out_dir=out_dir, progress=progress
-            )
+                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
+                out_dir=out_dir, progress=progress,
+            )  # fmt: skip
             meta = scored.report.metadata
             rows.append(
                 MethodRow(

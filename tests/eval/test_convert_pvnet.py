@@ -85,3 +85,11 @@ def test_unknown_objects_and_the_cli(tmp_path: Path, capsys) -> None:
     assert main(["convert-pvnet", str(src), "--out", str(out), "--dataset-root", str(tmp_path / "ds")]) == 0
     assert "wrote 1 estimates" in capsys.readouterr().out
     assert read_bop_results(out)[0].t[2] == pytest.approx(1000.0)
+
+
+def test_a_non_finite_object_id_is_one_error(tmp_path: Path) -> None:
+    src = tmp_path / "pvnet.json"
+    entry = json.dumps({"obj_id": float("inf"), "pose": pose([0, 0, 0.5]).tolist()})  # json writes Infinity
+    src.write_text(f'{{"000001/3": [{entry}]}}')
+    with pytest.raises(ResultsError, match=r"obj_id: expected a non-negative integer, got inf"):
+        read_pvnet_json(src)

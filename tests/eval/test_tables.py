@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bop_cender.cli import main
-from bop_cender.errors import ConfigError
+from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.convert_pvnet import convert_pvnet
 from bop_cender.eval.regression_fixture import perturb
 from bop_cender.eval.report import SCORE_KEYS
@@ -57,8 +58,9 @@ def test_compare_cosypose_pvnet_scores_json_and_paper(small_fixture, results_dir
 
     out = results_dir / "tables"
     code = main(["compare", str(cosy), str(pvnet), str(scored.scores_path), "--reference", "paper",
-                 "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"])  # fmt: skip
+                 "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress", "--vsd-delta", "12"])  # fmt: skip
     assert code == 0
+    assert json.loads((out / f"scores_{Path(COSYPOSE).stem}.json").read_text())["metadata"]["vsd_delta"] == 12.0
     printed = capsys.readouterr().out
     table = list(csv.DictReader(io.StringIO((out / "comparison_tless-test.csv").read_text())))
     methods = [r["method"] for r in table]
@@ -97,3 +99,23 @@ def test_compare_rejects_other_inputs(tmp_path: Path) -> None:
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(ConfigError, match="expected a results .csv or a scores .json"):
         compare([tmp_path / "notes.txt"], out_dir=tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ('{"AR": "x"}', "AR: expected a number or null"),
+        ('{"metadata": [1]}', "metadata: expected an object"),
+        ('{"metadata": {"method": 5}}', "metadata.method: expected a string"),
+        ("{not json", "malformed JSON"),
+    ],
+)
+def test_a_malformed_scores_json_is_one_error_naming_the_field(tmp_path: Path, content: str, message: str) -> None:
+    scores = {k: 0.5 for k in ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")}
+    path = tmp_path / "scores_x.json"
+    if content.startswith("{not"):
+        path.write_text(content)
+    else:
+        path.write_text(json.dumps({**scores, **json.loads(content)}))
+    with pytest.raises(ResultsError, match=message):
+        compare([path], out_dir=tmp_path)
