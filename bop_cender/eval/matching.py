@@ -118,32 +118,6 @@ class Matches:
         return np.count_nonzero(self.est_ids >= 0, axis=-1)
 
 
-@dataclass(frozen=True)
-class AverageRecalls:
-    """BOP'19 average recalls and the paper's strict figures (recall at the first threshold)."""
-
-    vsd_recalls: np.ndarray  # (taus, thresholds)
-    mssd_recalls: np.ndarray  # (thresholds,)
-    mspd_recalls: np.ndarray  # (thresholds,)
-    ar_vsd: float
-    ar_mssd: float
-    ar_mspd: float
-    ar: float
-    ar_mspd_5px: float
-    ar_mssd_5pct: float
-
-    def as_dict(self) -> dict[str, float]:
-        """Scalar scores by name (``AR``, ``AR_VSD``, ..., ``AR_MSPD<5px``, ``AR_MSSD<5%``)."""
-        return {
-            "AR": self.ar,
-            "AR_VSD": self.ar_vsd,
-            "AR_MSSD": self.ar_mssd,
-            "AR_MSPD": self.ar_mspd,
-            "AR_MSPD<5px": self.ar_mspd_5px,
-            "AR_MSSD<5%": self.ar_mssd_5pct,
-        }
-
-
 def select_top_n(estimates: Sequence[EstT], targets: Sequence[Target], n_top: int = -1) -> list[SelectedEstimate[EstT]]:
     """The estimates the toolkit evaluates, per target, highest score first.
 
@@ -236,37 +210,40 @@ def match(
     return Matches(tuple(valid), ths, est_ids, errors)
 
 
-def recall(matches: Matches) -> np.ndarray:
-    """``(V, K)`` recall = matched valid GTs / valid GTs, pooled over the dataset (0 when there is none)."""
-    if not matches.gts:
+def recall(matches: Matches, n_targets: int | None = None) -> np.ndarray:
+    """``(V, K)`` recall = matched valid GTs / ``n_targets`` (default: the valid GTs), pooled over the dataset;
+    0 when there is no target (``score.calc_recall``)."""
+    n = len(matches.gts) if n_targets is None else n_targets
+    if n == 0:
         return np.zeros(matches.est_ids.shape[:2])
-    return matches.tp_counts / float(len(matches.gts))
+    return matches.tp_counts / float(n)
 
 
-def average_recalls(vsd_recalls: np.ndarray, mssd_recalls: np.ndarray, mspd_recalls: np.ndarray) -> AverageRecalls:
-    """BOP'19 AR from the recall tables, in the toolkit's order of averaging.
+def bop19_scores(
+    vsd_recalls: np.ndarray | None, mssd_recalls: np.ndarray, mspd_recalls: np.ndarray
+) -> dict[str, float | None]:
+    """BOP'19 AR (and the paper's strict figures) from the recall tables, in the toolkit's order of averaging.
 
     Args:
-        vsd_recalls: ``(taus, thresholds)`` (10 x 10 in BOP'19), averaged tau-major like the toolkit's list.
+        vsd_recalls: ``(taus, thresholds)`` (10 x 10 in BOP'19), averaged tau-major like the toolkit's list;
+            None without test depth (then ``AR_VSD`` and ``AR`` are None).
         mssd_recalls, mspd_recalls: ``(thresholds,)``; a leading variant axis of 1 (from :func:`recall`) is fine.
+
+    Returns:
+        ``AR``, ``AR_VSD``, ``AR_MSSD``, ``AR_MSPD``, ``AR_MSPD<5px`` and ``AR_MSSD<5%`` (recall at the first threshold).
     """
-    vsd_r = np.asarray(vsd_recalls, dtype=np.float64)
     mssd_r = np.asarray(mssd_recalls, dtype=np.float64).reshape(-1)
     mspd_r = np.asarray(mspd_recalls, dtype=np.float64).reshape(-1)
-    ar_vsd = float(np.mean(vsd_r.reshape(-1)))
-    ar_mssd = float(np.mean(mssd_r))
-    ar_mspd = float(np.mean(mspd_r))
-    return AverageRecalls(
-        vsd_recalls=vsd_r,
-        mssd_recalls=mssd_r,
-        mspd_recalls=mspd_r,
-        ar_vsd=ar_vsd,
-        ar_mssd=ar_mssd,
-        ar_mspd=ar_mspd,
-        ar=float(np.mean([ar_vsd, ar_mssd, ar_mspd])),
-        ar_mspd_5px=float(mspd_r[0]),
-        ar_mssd_5pct=float(mssd_r[0]),
-    )
+    ar_mssd, ar_mspd = float(np.mean(mssd_r)), float(np.mean(mspd_r))
+    ar_vsd = None if vsd_recalls is None else float(np.mean(np.asarray(vsd_recalls, dtype=np.float64).reshape(-1)))
+    return {
+        "AR": None if ar_vsd is None else float(np.mean([ar_vsd, ar_mssd, ar_mspd])),
+        "AR_VSD": ar_vsd,
+        "AR_MSSD": ar_mssd,
+        "AR_MSPD": ar_mspd,
+        "AR_MSPD<5px": float(mspd_r[0]),
+        "AR_MSSD<5%": float(mssd_r[0]),
+    }
 
 
 def normalize_by_diameter(error: float | np.ndarray, diameter: float) -> float | np.ndarray:

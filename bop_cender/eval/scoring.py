@@ -37,8 +37,10 @@ from bop_cender.eval.matching import (
     GtInstance,
     Matches,
     Target,
+    bop19_scores,
     match,
     normalize_by_image_width,
+    recall,
     select_top_n,
     valid_gts,
 )
@@ -113,12 +115,12 @@ def score_results(
     m_mspd = match(per_est["mspd"], valid, MSPD_THRESHOLDS)
     m_vsd = None if raw.vsd is None else match(per_est["vsd"], valid, VSD_THRESHOLDS)
     n_targets = _targets_count(valid, n_top)
-    r_mssd = _recall(m_mssd, n_targets)[0]
-    r_mspd = _recall(m_mspd, n_targets)[0]
-    r_vsd = None if m_vsd is None else _recall(m_vsd, n_targets)
+    r_mssd = recall(m_mssd, n_targets)[0]
+    r_mspd = recall(m_mspd, n_targets)[0]
+    r_vsd = None if m_vsd is None else recall(m_vsd, n_targets)
     timings["matching"] = time.perf_counter() - clock
 
-    scores = _scores(r_vsd, r_mssd, r_mspd)
+    scores = bop19_scores(r_vsd, r_mssd, r_mspd)
     not_target = _count_not_target(rows, targets.targets)
     records = _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd)
     notes = [f"GT poses: {gt.pose_source}"]
@@ -279,27 +281,6 @@ def _targets_count(valid: list[GtInstance], n_top: int) -> int:
         key = (g.scene_id, g.im_id, g.obj_id)
         counts[key] = counts.get(key, 0) + 1
     return int(sum(min(n_top, c) for c in counts.values()))
-
-
-def _recall(matches: Matches, n_targets: int) -> np.ndarray:
-    """``(V, K)`` true positives / targets, 0 without targets (score.calc_recall)."""
-    if n_targets == 0:
-        return np.zeros(matches.est_ids.shape[:2])
-    return matches.tp_counts / float(n_targets)
-
-
-def _scores(r_vsd: np.ndarray | None, r_mssd: np.ndarray, r_mspd: np.ndarray) -> dict[str, float | None]:
-    ar_mssd, ar_mspd = float(np.mean(r_mssd)), float(np.mean(r_mspd))
-    ar_vsd = None if r_vsd is None else float(np.mean(r_vsd.reshape(-1)))
-    ar = None if ar_vsd is None else float(np.mean([ar_vsd, ar_mssd, ar_mspd]))
-    return {
-        "AR": ar,
-        "AR_VSD": ar_vsd,
-        "AR_MSSD": ar_mssd,
-        "AR_MSPD": ar_mspd,
-        "AR_MSPD<5px": float(r_mspd[0]),
-        "AR_MSSD<5%": float(r_mssd[0]),
-    }
 
 
 def _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd) -> list[EstimateRecord]:

@@ -16,7 +16,7 @@ from bop_cender.eval.matching import (
     EstimateErrors,
     GtInstance,
     Target,
-    average_recalls,
+    bop19_scores,
     match,
     normalize_by_diameter,
     normalize_by_image_width,
@@ -106,7 +106,7 @@ def test_duplicates_match_only_one_gt():
     ests = [est(0, 0.9, {0: 0.01, 1: 0.9}), est(1, 0.8, {0: 0.02, 1: 0.8})]
     m = match(ests, valid, [0.05])
     assert matched(m) == {0: 0}
-    assert recall(m).tolist() == [[0.5]]
+    assert recall(m).tolist() == [[0.5]] and recall(m, n_targets=4).tolist() == [[0.25]]
 
 
 def test_greedy_in_score_order_takes_the_lowest_error():
@@ -169,13 +169,12 @@ def test_average_recalls():
     vsd_r = np.linspace(0.0, 0.99, 100).reshape(10, 10)
     mssd_r = np.linspace(0.1, 1.0, 10)[None]  # recall() gives a leading variant axis
     mspd_r = np.linspace(0.2, 0.65, 10)
-    ar = average_recalls(vsd_r, mssd_r, mspd_r)
-    assert (
-        ar.ar_vsd == pytest.approx(0.495) and ar.ar_mssd == pytest.approx(0.55) and ar.ar_mspd == pytest.approx(0.425)
-    )
-    assert ar.ar == pytest.approx((0.495 + 0.55 + 0.425) / 3)
-    assert ar.ar_mspd_5px == 0.2 and ar.ar_mssd_5pct == pytest.approx(0.1)
-    assert set(ar.as_dict()) == {"AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%"}
+    ar = bop19_scores(vsd_r, mssd_r, mspd_r)
+    assert ar["AR_VSD"] == pytest.approx(0.495) and ar["AR_MSSD"] == pytest.approx(0.55)
+    assert ar["AR_MSPD"] == pytest.approx(0.425) and ar["AR"] == pytest.approx((0.495 + 0.55 + 0.425) / 3)
+    assert ar["AR_MSPD<5px"] == 0.2 and ar["AR_MSSD<5%"] == pytest.approx(0.1)
+    no_depth = bop19_scores(None, mssd_r, mspd_r)
+    assert no_depth["AR"] is None and no_depth["AR_VSD"] is None and no_depth["AR_MSSD"] == ar["AR_MSSD"]
 
 
 def test_normalisation_in_the_toolkit_order():
@@ -205,7 +204,12 @@ def test_matches_official_toolkit_numbers():
         ]
         recalls[kind] = recall(match(errs, valid, ths))
         assert recalls[kind].tolist() == ref["recalls"][kind], kind  # exact
-    ar = average_recalls(recalls["vsd"], recalls["mssd"], recalls["mspd"])
+    ar = bop19_scores(recalls["vsd"], recalls["mssd"], recalls["mspd"])
     want = ref["average_recalls"]
-    assert (ar.ar_vsd, ar.ar_mssd, ar.ar_mspd, ar.ar) == (want["vsd"], want["mssd"], want["mspd"], want["all"])
-    assert 0.0 < ar.ar < 1.0
+    assert (ar["AR_VSD"], ar["AR_MSSD"], ar["AR_MSPD"], ar["AR"]) == (
+        want["vsd"],
+        want["mssd"],
+        want["mspd"],
+        want["all"],
+    )
+    assert 0.0 < ar["AR"] < 1.0
