@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 from bop_cender.errors import BopCenderError
 
@@ -62,19 +61,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_dataset_args(p)
     p.set_defaults(func=cmd_info)
-    for register in _EXTRA_COMMANDS:
-        register(sub)
     for name in COMMAND_MODULES:
-        if importlib.util.find_spec(name) is not None:
-            importlib.import_module(name).register(sub)
+        importlib.import_module(name).register(sub)
     return parser
 
 
-#: Modules with a ``register(subparsers)`` function that adds their sub-commands (synth, score, ...).
+#: Modules with a ``register(subparsers)`` function that adds their sub-commands (synth, score, ...); they
+#: import only argparse at the top, so ``--help`` stays fast.
 COMMAND_MODULES = ("bop_cender.synth.cli_commands", "bop_cender.eval.cli_commands", "bop_toolkit_adapters.cli_commands")
-
-#: Extra registrations added at run time (plugins, tests): each takes the subparsers object.
-_EXTRA_COMMANDS: list[Callable] = []
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
@@ -102,6 +96,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"error: {e.format()}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the file system said no (an output folder that is a file, a full disk, no permission)
+        if args.debug:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

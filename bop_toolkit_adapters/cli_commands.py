@@ -49,7 +49,11 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         )  # fmt: skip
     except ToolkitUnavailable as e:
         print(f"crosscheck not run: {e}", file=sys.stderr)
-        print("(the official toolkit is optional: pass --toolkit DIR, a checkout of thodan/bop_toolkit)")
+        if args.toolkit is not None:  # a toolkit was asked for and is not there: a failure, not an optional skip
+            return 2
+        print(
+            "(the official toolkit is optional: pass --toolkit DIR, a checkout of thodan/bop_toolkit)", file=sys.stderr
+        )
         return 0
     print(format_crosscheck(check))
     if check.differences:

@@ -165,6 +165,8 @@ def score_file(
             None = start one where it helps: ``fork`` exists and torch is not imported yet (a cold start).
     """
     csv_path = Path(csv_path)
+    if not csv_path.is_file():  # before the data is opened (the demo may have to be generated first)
+        raise ResultsError("results file not found", file=csv_path)
     clock = time.perf_counter()
     if isinstance(render_process, RenderProcess):
         process = nullcontext(render_process)

@@ -98,3 +98,16 @@ def test_other_bop_datasets_need_a_data_root(tmp_path: Path) -> None:
     choice = choose_data(tmp_path / "method_lmo-test.csv", data_root=tmp_path)
     assert (choice.loader, choice.name, choice.split) == ("bop", "lmo", "test")
     assert choose_data(tmp_path / "cosypose1-eccv2020_tless-test-primesense.csv").split_type == "primesense"
+
+
+def test_file_system_errors_and_missing_results_are_one_line(small_fixture, results_dir, capsys) -> None:
+    missing = results_dir / "nope_tless-test.csv"
+    assert main(["score", str(missing), "--no-progress"]) == 2  # refused before any data is opened or generated
+    assert "results file not found" in capsys.readouterr().err
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:2])
+    (results_dir / "a_file").write_text("x")
+    code = main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--out",
+                 str(results_dir / "a_file" / "out"), "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and "Traceback" not in err and len(err.strip().splitlines()) == 1
