@@ -12,6 +12,7 @@ the toolkit is never a dependency.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +78,7 @@ class Crosscheck:
             of pairs compared (``n_<type>``); ``missing_<type>`` counts pairs only one side has.
         notes: what was skipped and why.
         differences: every pair whose errors differ beyond :data:`LIST_TOLERANCE`, largest first.
+        toolkit_seconds: wall time of the toolkit's evaluation (its scripts, run in this process).
     """
 
     ours: ScoreReport
@@ -87,6 +89,7 @@ class Crosscheck:
     pair_diffs: dict[str, float]
     notes: list[str] = field(default_factory=list)
     differences: list[PairDifference] = field(default_factory=list)
+    toolkit_seconds: float | None = None
 
     @property
     def recall_diffs(self) -> dict[str, float]:
@@ -129,7 +132,9 @@ def crosscheck(
         notes.append("VSD skipped on request")
     vsd_delta = ours.metadata.get("vsd_delta")
     export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
+    clock = time.perf_counter()
     toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet)
+    toolkit_seconds = time.perf_counter() - clock
     theirs = result_summary(toolkit)
     score_diffs = {
         k: None if ours.scores.get(k) is None or theirs.get(k) is None else abs(ours.scores[k] - theirs[k])
@@ -137,7 +142,7 @@ def crosscheck(
     }
     return Crosscheck(
         ours, toolkit, export, theirs, score_diffs, compare_pair_errors(ours, toolkit), notes,
-        pair_differences(ours, toolkit),
+        pair_differences(ours, toolkit), toolkit_seconds,
     )  # fmt: skip
 
 
@@ -220,8 +225,14 @@ def format_crosscheck(check: Crosscheck, digits: int = 6) -> str:
             )
     for err in ("vsd", "mssd", "mspd"):
         if err in check.pair_diffs:
-            count = sum(1 for d in check.differences if d.error == err)
-            lines.append(f"{err.upper():<5} pairs differing by more than {LIST_TOLERANCE[err]:g}: {count}")
+            diffs = [d.max_diff for d in check.differences if d.error == err]
+            median = f" (median |diff| {float(np.median(diffs)):.2g})" if diffs else ""
+            lines.append(f"{err.upper():<5} pairs differing by more than {LIST_TOLERANCE[err]:g}: {len(diffs)}{median}")
+    ours_s = check.ours.timings.get("total")
+    if ours_s is not None and check.toolkit_seconds is not None:
+        lines.append(
+            f"time: bop-cender {ours_s:.1f} s, BOP toolkit {check.toolkit_seconds:.1f} s (its scripts, in-process)"
+        )
     lines += [f"note: {n}" for n in check.notes]
     lines.append(f"toolkit input written to {check.export.out_dir}")
     return "\n".join(lines)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import socket
 import sys
 import time
@@ -27,6 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import bench_machine
 import numpy as np
 import torch
 import trimesh
@@ -193,25 +193,13 @@ def _row(part: str, faces: int, device: str, batch: int, per_call: list[float]) 
     return row
 
 
-def cpu_model() -> str:
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or "cpu"
-
-
 def machine_slug() -> str:
     """``amd-epyc-2cores`` (and the GPU, where there is one): the results file's name."""
-    name = f"{cpu_model()}-{len(os.sched_getaffinity(0))}cores"
-    if torch.cuda.is_available():
-        name += "-" + torch.cuda.get_device_name(0)
-    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
+    return bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
 
 
 def machine_description() -> list[str]:
-    model = cpu_model()
+    model = bench_machine.cpu_model()
     maps = Path("/proc/self/maps")
     tcmalloc = maps.exists() and "tcmalloc" in maps.read_text()
     lines = [

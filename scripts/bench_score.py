@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_machine
+
 ROOT = Path(__file__).resolve().parents[1]
 #: 5 scenes x 40 images of 7 objects as T-LESS mixes them (6 ids, one repeated; ids 1 and 4 are cylinders with a
 #: continuous symmetry and a half-turn, 2 and 5 boxes with 3 half-turns, 3 and 6 asymmetric wedges), meshes of
@@ -75,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         stage = _stage_times(work / "out" / "scores_bench_tless-test.json")
     median = statistics.median(times)
     text = _report(args, times, cpu, median, output, stage, len(rows), load_before)
-    out = args.out or ROOT / "results" / "bench" / f"score_{_machine_slug()}.md"
+    out = args.out or ROOT / "results" / "bench" / f"score_{bench_machine.machine_slug()}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     print(text)
@@ -117,7 +119,7 @@ def _report(args, times, cpu, median: float, output: str, stages: str, n: int, l
         "",
         "## Machine",
         "",
-        f"- CPU: {_cpu_model()}, {os.cpu_count()} cores visible",
+        f"- CPU: {bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores usable",
         f"- load average (1, 5, 15 min) before the runs: {load_before[0]:.2f}, {load_before[1]:.2f},"
         f" {load_before[2]:.2f}; after: {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f} (a shared machine: other"
         " sessions' processes, invisible here, use the same cores)",
@@ -131,24 +133,6 @@ def _report(args, times, cpu, median: float, output: str, stages: str, n: int, l
         "",
     ]
     return "\n".join(lines)
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
-def _machine_slug() -> str:
-    model = _cpu_model().lower()
-    slug = "".join(c if c.isalnum() else "-" for c in model).strip("-")
-    while "--" in slug:
-        slug = slug.replace("--", "-")
-    return f"{slug or 'cpu'}-{os.cpu_count()}cores"
 
 
 if __name__ == "__main__":

@@ -3,17 +3,24 @@ official toolkit's anchor (results/regression/README.md)."""
 
 from __future__ import annotations
 
+import pytest
+
 from bop_cender.eval.regression import compare_tables, format_problems, run_regression
 
 
-def test_scores_equal_the_committed_tables_and_the_toolkit_anchor() -> None:
-    run = run_regression()
+@pytest.fixture(scope="module")
+def run():
+    """One seeded regression evaluation, shared by both tests (it takes a few seconds)."""
+    return run_regression()
+
+
+def test_scores_equal_the_committed_tables_and_the_toolkit_anchor(run) -> None:
     problems = compare_tables(run)
     assert not problems, format_problems(problems)
     assert run.report.metadata["counts"]["evaluated"] > 20 and run.report.vsd_recalls is not None
 
 
-def test_a_drift_is_reported_as_a_diff(tmp_path) -> None:
+def test_a_drift_is_reported_as_a_diff(run, tmp_path) -> None:
     """The check is not vacuous: change one recall in a copy of the tables and it is named."""
     from bop_cender.eval.regression import ANCHOR, OURS, TABLES_DIR
 
@@ -23,6 +30,5 @@ def test_a_drift_is_reported_as_a_diff(tmp_path) -> None:
     metric, tau, th, value = lines[1].split(",")
     lines[1] = ",".join([metric, tau, th, f"{float(value) + 0.01:.9f}"])
     (tmp_path / "scores.csv").write_text("\n".join(lines) + "\n")
-    run = run_regression()
     problems = compare_tables(run, tmp_path)
     assert problems == [f"scores.csv: {metric}//{th}: value: expected {float(value) + 0.01:.9f}, got {value}"]

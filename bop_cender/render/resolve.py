@@ -25,7 +25,7 @@ class WindowMaps:
             background; None if not asked for.
         depth: ``(C, h, w)`` float32 z in mm (not distance), 0 on background; None if not asked for.
         normals: ``(C, h, w, 3)`` float32 camera-space unit normals, 0 on background; None if not asked
-            for. With ``channels_first`` the layout is ``(C, 3, h, w)`` instead.
+            for.
     """
 
     mask: torch.Tensor
@@ -50,16 +50,12 @@ class Buffers:
     normals: torch.Tensor | None
 
 
-def resolve(
-    raster: Raster, depth: bool = True, normals: bool = True, faces: bool = True, channels_first: bool = False
-) -> WindowMaps:
+def resolve(raster: Raster, depth: bool = True, normals: bool = True, faces: bool = True) -> WindowMaps:
     """Turn a :class:`~bop_cender.render.raster.Raster` with uniform windows into per-pixel maps.
 
     Args:
         raster: the z-buffer (windows of one height h, as :meth:`Windows.uniform` makes).
         depth, normals, faces: which maps to compute (the others are None; ``mask`` always).
-        channels_first: normals as ``(C, 3, h, w)`` (what the curvature wants) instead of
-            ``(C, h, w, 3)``.
     """
     windows = raster.windows
     C, w = windows.num_canvases, windows.width
@@ -70,8 +66,7 @@ def resolve(
     normal_map = None
     if buffers.normals is not None:
         planes = buffers.normals.view(3, C, h, w)
-        normal_map = planes.permute(1, 0, 2, 3) if channels_first else planes.permute(1, 2, 3, 0)
-        normal_map = normal_map.contiguous()
+        normal_map = planes.permute(1, 2, 3, 0).contiguous()
     return WindowMaps(raster.keys.view(C, h, w) >= 0, face_map, depth_map, normal_map)
 
 

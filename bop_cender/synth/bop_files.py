@@ -27,16 +27,15 @@ def flat(a: np.ndarray) -> list[float]:
     return [float(x) for x in np.asarray(a, dtype=np.float64).ravel()]
 
 
-def camera_entry(K: np.ndarray, T_cam_world: np.ndarray, *, with_c2w: bool, with_w2c: bool = True, **extra) -> dict:
-    """A ``scene_camera.json`` entry: ``cam_K`` and the camera pose (w2c and/or DIMO's c2w)."""
+def camera_entry(K: np.ndarray, T_cam_world: np.ndarray, *, with_c2w: bool, **extra) -> dict:
+    """A ``scene_camera.json`` entry: ``cam_K`` and the camera pose (w2c, and DIMO's c2w with ``with_c2w``)."""
     entry: dict = {"cam_K": flat(K)}
     if with_c2w:
         T_world_cam = invert_pose(T_cam_world)
         entry["cam_R_c2w"] = flat(T_world_cam[:3, :3])
         entry["cam_t_c2w"] = flat(T_world_cam[:3, 3])
-    if with_w2c:
-        entry["cam_R_w2c"] = flat(T_cam_world[:3, :3])
-        entry["cam_t_w2c"] = flat(T_cam_world[:3, 3])
+    entry["cam_R_w2c"] = flat(T_cam_world[:3, :3])
+    entry["cam_t_w2c"] = flat(T_cam_world[:3, 3])
     entry.update(extra)
     return entry
 

@@ -17,7 +17,7 @@ import torch
 from bop_cender.geometry.poses import transform_points
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh
-from bop_cender.render.rasterizer import render_objects_separately, render_scene
+from bop_cender.render.rasterizer import render_scene
 from bop_cender.render.shading import apply_sensor, make_environment, procedural_texture, random_background, shade_view
 from bop_cender.synth.rigs import look_at
 from bop_cender.synth.styles import Style
@@ -36,14 +36,12 @@ class ViewBuffers:
         depth: ``(H, W)`` float32 z in mm, 0 = nothing.
         instance: ``(H, W)`` int64 index into the scene's objects, -1 = background.
         curvature: ``(H, W)`` float32 GT curvature map of all objects.
-        full_masks: ``(M, H, W)`` bool silhouette of each object alone (only when asked for).
     """
 
     rgb: np.ndarray | None
     depth: np.ndarray
     instance: np.ndarray
     curvature: np.ndarray
-    full_masks: np.ndarray | None = None
 
 
 def render_views(
@@ -54,8 +52,6 @@ def render_views(
     width: int,
     style: Style | None,
     rng: np.random.Generator,
-    full_masks: bool = False,
-    shadows: bool = True,
 ) -> list[ViewBuffers]:
     """Render M posed objects in V cameras.
 
@@ -65,8 +61,6 @@ def render_views(
         cameras: V pairs ``(K (3, 3), T_cam_world (4, 4))``.
         style: appearance; None renders only the ground truth (no RGB).
         rng: draws backgrounds, textures and sensor noise (deterministic per seed).
-        full_masks: also render every object alone (BOP ``mask/``).
-        shadows: cast shadows from the style's lights.
 
     Returns:
         One :class:`ViewBuffers` per camera.
@@ -76,10 +70,9 @@ def render_views(
     T_cm = np.einsum("vij,mjk->vmik", T_cw, T_world_model)  # (V, M, 4, 4)
     scene = render_scene(list(meshes), T_cm, Ks, height, width)
     curv = curvature(scene.normals)
-    alone = render_objects_separately(list(meshes), T_cm, Ks, height, width).mask if full_masks else None
     out = []
     shading_inputs = _shading_inputs(style, rng, height, width) if style else None
-    maps = shadow_maps(meshes, T_world_model, style) if style is not None and shadows else None
+    maps = shadow_maps(meshes, T_world_model, style) if style is not None else None
     gen = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
     for v in range(len(cameras)):
         rgb = None
@@ -108,7 +101,6 @@ def render_views(
                 depth=scene.depth[v].numpy(),
                 instance=scene.instance[v].numpy(),
                 curvature=curv[v].numpy(),
-                full_masks=None if alone is None else alone[v].numpy(),
             )
         )
     return out

@@ -108,7 +108,8 @@ def write_model_folders(
     T-LESS ``models_cad/`` + ``models_eval/``.
 
     The evaluation copy is identical to the main folder for now (no resampling); the same bytes
-    are written to both. For DIMO the (in real data undocumented) ``models/construction/`` folder
+    are written to both. A folder whose ``models_info.json`` exists (written last) is complete and
+    kept, so a run cut off between the folders is finished by the next one. For DIMO the (in real data undocumented) ``models/construction/`` folder
     is created empty, as datasets.md section 6.1 lists it.
 
     Returns:
@@ -119,7 +120,8 @@ def write_model_folders(
     root = Path(root)
     written: dict[str, Path] = {}
     for name in MODEL_FOLDERS[layout]:
-        write_models(root / name, parts)
+        if not (root / name / "models_info.json").is_file():  # written last: a folder that has it is complete
+            write_models(root / name, parts)
         written[name] = root / name
     if layout == "dimo":
         (root / "models" / "construction").mkdir(parents=True, exist_ok=True)

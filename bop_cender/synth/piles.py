@@ -27,7 +27,7 @@ from enum import StrEnum
 import numpy as np
 import trimesh
 
-from bop_cender.geometry.poses import compose, make_pose
+from bop_cender.geometry.poses import compose, make_pose, transform_points
 from bop_cender.geometry.rotations import axis_angle_to_rotmat
 
 logger = logging.getLogger(__name__)
@@ -263,8 +263,10 @@ class _PlacedScene:
 
     def add(self, mesh_world: trimesh.Trimesh, data: _MeshData, T_world_model: np.ndarray) -> None:
         self.meshes.append(mesh_world)
-        self.check_points.append(_transform(T_world_model, data.check_points))
-        self.contact_points = np.concatenate([self.contact_points, _transform(T_world_model, data.contact_points)])
+        self.check_points.append(transform_points(T_world_model, data.check_points))
+        self.contact_points = np.concatenate(
+            [self.contact_points, transform_points(T_world_model, data.contact_points)]
+        )
         self.combined = trimesh.util.concatenate(self.meshes)
 
 
@@ -280,7 +282,7 @@ def _try_drop(
     rest = data.rest_poses[rng.choice(len(data.rest_probs), p=data.rest_probs)]
     yaw = make_pose(axis_angle_to_rotmat(np.array([0.0, 0.0, 1.0]), rng.uniform(0.0, 2.0 * np.pi)), np.zeros(3))
     T = compose(yaw, rest)
-    local = _transform(T, data.contact_points)
+    local = transform_points(T, data.contact_points)
     lo, hi = local.min(axis=0), local.max(axis=0)
     carrier_lo, carrier_hi = scene.meshes[0].bounds
     # the part's xy box must stay within the carrier's footprint: its centre within [c_lo, c_hi]
@@ -296,7 +298,7 @@ def _try_drop(
         return None  # nothing below: it would fall past the carrier
     T = compose(make_pose(np.eye(3), np.array([0.0, 0.0, -drop])), T)
     moving_mesh.apply_translation([0.0, 0.0, -drop])
-    if _max_penetration(moving_mesh, _transform(T, data.check_points), scene) > max_penetration_mm:
+    if _max_penetration(moving_mesh, transform_points(T, data.check_points), scene) > max_penetration_mm:
         return None
     return T
 
@@ -370,8 +372,3 @@ def _draw_in_disk_and_box(
     if np.any(box_lo > box_hi):
         return (box_lo + box_hi) / 2.0
     return np.clip(points[0], box_lo, box_hi)
-
-
-def _transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``points (N, 3)`` mapped by ``T (4, 4)``."""
-    return points @ T[:3, :3].T + T[:3, 3]

@@ -17,7 +17,7 @@ and ``100 + variant`` for random lighting.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,7 +68,6 @@ class DimoSpec:
     seed: int = 0
     write_real: bool = True
     contact_sheets: bool = True
-    extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         bad = [v for v in self.variants if not 0 <= v <= 70]
@@ -92,8 +91,7 @@ def dimo_models(seed: int) -> dict[int, Part]:
 def write_models(root: Path, spec: DimoSpec) -> dict[int, Part]:
     """Write ``models/`` and ``models_eval/`` once (deterministic from the seed); return the parts."""
     models = dimo_models(spec.seed)
-    if not (Path(root) / "models" / "models_info.json").is_file():
-        write_model_folders(root, models, "dimo")
+    write_model_folders(root, models, "dimo")
     return models
 
 
@@ -131,12 +129,12 @@ def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], mes
         folders.append(("sim_jaigo", f"{s:06d}_{v:02d}", pile, "sim", lid, light_id if real_light else 100 + v))
     for camera, name, pile, domain, lid, light_value in folders:
         written += _write_folder(
-            root, camera, name, pile, domain, lid, {**info, "light": light_value}, spec, models, meshes, [spec.seed, s]
+            root, camera, name, pile, domain, lid, {**info, "light": light_value}, spec, meshes, [spec.seed, s]
         )
     return written
 
 
-def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: DimoSpec, models, meshes, key) -> int:
+def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: DimoSpec, meshes, key) -> int:
     folder_rng = np.random.default_rng([*key, zlib.crc32(f"{camera}/{name}".encode())])  # stable across runs
     final = Path(root) / camera / name
     with scene_folder(final) as tmp:

@@ -23,12 +23,13 @@ from bop_cender.synth.gt_info import MIN_VISIB_FRACT, object_visibility
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
-from bop_cender.synth.rigs import tless_cameras
+from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
 from bop_cender.synth.styles import make_style
 
 DEPTH_SCALE = 0.1
+#: Views on a scene's contact sheet (the first ones rendered).
+SHEET_VIEWS = 4
 TABLE_ID = 0  # render-only support; never written to GT files
-FX, FY = 1075.65091572, 1073.90347929
 
 
 @dataclass(frozen=True)
@@ -70,10 +71,11 @@ def write_models(root: Path, spec: TlessSpec) -> dict[int, Part]:
     """Write ``models_cad/``, ``models_eval/`` and ``camera_primesense.json`` once; return the models."""
     models = tless_models(spec)
     root = Path(root)
-    if not (root / "models_cad" / "models_info.json").is_file():
-        write_model_folders(root, {i: p for i, p in models.items() if i != TABLE_ID}, "tless")
+    write_model_folders(root, {i: p for i, p in models.items() if i != TABLE_ID}, "tless")
     if not (root / "camera_primesense.json").is_file():
-        cam = {"cx": spec.width / 2, "cy": spec.height / 2, "depth_scale": DEPTH_SCALE, "fx": FX, "fy": FY}
+        scale = spec.width / TLESS_WIDTH  # the images' own intrinsics (rigs.tless_cameras) at this size
+        cam = {"cx": spec.width / 2, "cy": spec.height / 2, "depth_scale": DEPTH_SCALE, "fx": TLESS_FX * scale,
+               "fy": TLESS_FY * scale}  # fmt: skip
         save_json(root / "camera_primesense.json", {**cam, "height": spec.height, "width": spec.width})
     return models
 
@@ -102,11 +104,12 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
             n = int(rng.integers(lo, hi + 1))
             pile = make_pile(models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False)
             ids = range(start, min(start + step, n_images))
-            sheet += _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
+            views = _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
+            sheet += views[: max(0, SHEET_VIEWS - len(sheet))]  # keep only what the contact sheet shows
         for name, content in records.items():
             save_json(tmp / f"{name}.json", content)
         if spec.contact_sheets:
-            write_contact_sheet(Path(root) / "contact_sheets" / f"{split}_{s:06d}.png", sheet)
+            write_contact_sheet(Path(root) / "contact_sheets" / f"{split}_{s:06d}.png", sheet, SHEET_VIEWS)
     return 1
 
 

@@ -128,3 +128,15 @@ def test_symmetry_deviation_is_zero_for_identity_and_inf_beyond_the_radius():
     shift = np.array([[0.05, 0.0, 0.0]])  # within the search radius: the distance is reported
     assert symmetry_deviation(box, eye, shift, 0.1)[0] == pytest.approx(0.05, abs=1e-9)
     assert symmetry_deviation(box, eye, shift * 10, 0.1)[0] == np.inf
+
+
+def test_a_run_cut_off_between_the_model_folders_is_finished_by_the_next(tmp_path, parts):
+    import shutil
+
+    write_model_folders(tmp_path, parts, "tless")
+    info = tmp_path / "models_cad" / "models_info.json"
+    stamp = info.stat().st_mtime_ns
+    shutil.rmtree(tmp_path / "models_eval")  # as if the first run stopped after models_cad/
+    write_model_folders(tmp_path, parts, "tless")
+    assert (tmp_path / "models_eval" / "models_info.json").is_file()
+    assert info.stat().st_mtime_ns == stamp  # the complete folder is kept as it is

@@ -109,3 +109,10 @@ def test_loaded_by_our_loader(tless_root):
     assert ds.has_depth and ds.residuals["gt_max_mm"] < 1e-6
     pbr = open_tless(tless_root, "train_pbr")
     assert len(pbr) == 2 and all(len(s.views) == 1 for s in pbr.scenes())
+
+
+def test_camera_file_matches_the_images_intrinsics_at_any_size(tless_root):
+    cam = load(tless_root / "camera_primesense.json")
+    K = load(tless_root / "test_primesense" / "000001" / "scene_camera.json")["0"]["cam_K"]
+    assert (cam["width"], cam["height"]) == (SPEC.width, SPEC.height)
+    assert cam["fx"] == pytest.approx(K[0]) and cam["fy"] == pytest.approx(K[4])
