@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import as_int, as_number, load_json, require_keys
+from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_keys
 from bop_cender.data.bop_io import image_size as read_image_size
 from bop_cender.data.bop_scene import (
     IMAGE_SUFFIXES,
@@ -35,7 +35,6 @@ from bop_cender.data.bop_scene import (
     SCENE_CAMERA,
     BopSceneLoader,
     ScenePlan,
-    load_image_dict,
 )
 from bop_cender.data.models import load_models
 from bop_cender.data.scene_ids import scene_folder_to_int

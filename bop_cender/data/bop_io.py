@@ -11,7 +11,7 @@ import json
 import math
 import os
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -225,6 +225,43 @@ def require_keys(entry: Mapping, keys: tuple[str, ...], file: Path, where: str) 
     for k in keys:
         if k not in entry:
             raise DatasetError(f"missing key '{k}'", file=file, field=where)
+
+
+def load_image_dict(path: Path) -> dict[int, Any]:
+    """A BOP per-image JSON file (keys = image ids, ``"0"``, ``"1"``, ...) with int keys in ascending order, or a
+    DatasetError."""
+    content = load_json(path, keys_to_int=True)
+    if not isinstance(content, dict):
+        raise DatasetError(f"expected an object keyed by image id, got {type(content).__name__}", file=path)
+    for key in content:
+        if not isinstance(key, int) or key < 0:
+            raise DatasetError("expected image ids (non-negative integers) as keys", file=path, field=repr(key))
+    return dict(sorted(content.items()))
+
+
+def check_same_image_ids(files: Mapping[Path, Iterable[int]]) -> None:
+    """The image-id sets of the given files must be identical (the first file is the reference); else one
+    DatasetError naming the file that differs and a few of the ids."""
+    items = [(path, set(ids)) for path, ids in files.items()]
+    ref_path, ref = items[0]
+    for path, ids in items[1:]:
+        if ids != ref:
+            missing, extra = sorted(ref - ids), sorted(ids - ref)
+            parts = [f"missing {few_ids(missing)}"] * bool(missing) + [
+                f"not in {ref_path.name}: {few_ids(extra)}"
+            ] * bool(extra)
+            raise DatasetError(
+                f"image ids differ from {ref_path.name} ({'; '.join(parts)}); expected the same set",
+                file=path,
+                field="image ids",
+            )
+
+
+def few_ids(ids: Sequence[int], n: int = 8) -> str:
+    """The first ``n`` ids, comma-separated, and how many there are in all when there are more ("none" if empty)."""
+    if not ids:
+        return "none"
+    return ", ".join(map(str, ids[:n])) + (f", ... ({len(ids)} in all)" if len(ids) > n else "")
 
 
 def as_int(value: Any, file: Path, where: str, strings: bool = False) -> int:

@@ -27,7 +27,14 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from bop_cender.data.bop_io import as_int, as_number, load_json, require_keys
+from bop_cender.data.bop_io import (
+    as_int,
+    as_number,
+    check_same_image_ids,
+    few_ids,
+    load_image_dict,
+    require_keys,
+)
 from bop_cender.data.consistency import FAIL_MM, ResidualTracker
 from bop_cender.data.types import CameraView, GtObject, Scene, check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
@@ -99,17 +106,6 @@ class ScenePlan:
     multi_view: bool
 
 
-def load_image_dict(path: Path) -> dict[int, Any]:
-    """A BOP per-image JSON file (keys = image ids) with int keys, or a DatasetError."""
-    content = load_json(path, keys_to_int=True)
-    if not isinstance(content, dict):
-        raise DatasetError(f"expected an object keyed by image id, got {type(content).__name__}", file=path)
-    for key in content:
-        if not isinstance(key, int) or key < 0:
-            raise DatasetError("expected image ids (non-negative integers) as keys", file=path, field=repr(key))
-    return content
-
-
 def read_scene_folder(
     scene_dir: Path, obj_ids: Collection[int], default_depth_scale: float | None = None
 ) -> SceneFolder:
@@ -123,13 +119,13 @@ def read_scene_folder(
     cam_path, gt_path, info_path = scene_dir / SCENE_CAMERA, scene_dir / SCENE_GT, scene_dir / SCENE_GT_INFO
     cam_raw = load_image_dict(cam_path)
     gt_raw = load_image_dict(gt_path)
-    _same_image_ids(cam_raw, cam_path, gt_raw, gt_path)
+    check_same_image_ids({cam_path: cam_raw, gt_path: gt_raw})
     cameras = {im: _parse_camera(cam_raw[im], im, cam_path, default_depth_scale) for im in sorted(cam_raw)}
     gt = {im: _parse_gt(gt_raw[im], im, gt_path, obj_ids) for im in sorted(gt_raw)}
     visib = None
     if info_path.is_file():
         info_raw = load_image_dict(info_path)
-        _same_image_ids(cam_raw, cam_path, info_raw, info_path)
+        check_same_image_ids({cam_path: cam_raw, info_path: info_raw})
         visib = {im: _parse_visib(info_raw[im], len(gt[im]), im, info_path) for im in sorted(info_raw)}
     listing = {
         sub: frozenset(os.listdir(scene_dir / sub))
@@ -137,22 +133,6 @@ def read_scene_folder(
         if (scene_dir / sub).is_dir()
     }
     return SceneFolder(scene_dir, cameras, gt, visib, listing)
-
-
-def _same_image_ids(ref: dict, ref_path: Path, other: dict, other_path: Path) -> None:
-    if ref.keys() == other.keys():
-        return
-    missing, extra = sorted(ref.keys() - other.keys()), sorted(other.keys() - ref.keys())
-    parts = [f"missing {_few(missing)}"] * bool(missing) + [f"not in {ref_path.name}: {_few(extra)}"] * bool(extra)
-    raise DatasetError(
-        f"image ids differ from {ref_path.name} ({'; '.join(parts)}); expected the same set",
-        file=other_path,
-        field="image ids",
-    )
-
-
-def _few(ids: list[int], n: int = 8) -> str:
-    return ", ".join(map(str, ids[:n])) + (f", ... ({len(ids)} in all)" if len(ids) > n else "")
 
 
 def _parse_camera(entry: Any, im: int, path: Path, default_depth_scale: float | None) -> ImageCamera:
@@ -189,7 +169,7 @@ def _parse_gt(entries: Any, im: int, path: Path, obj_ids: Collection[int]) -> li
         obj_id = as_int(e["obj_id"], path, f"{where}.obj_id")
         if obj_id not in obj_ids:
             raise DatasetError(
-                f"unknown object {obj_id}; expected one of the models ({_few(sorted(obj_ids))})",
+                f"unknown object {obj_id}; expected one of the models ({few_ids(sorted(obj_ids))})",
                 file=path,
                 field=f"{where}.obj_id",
             )
@@ -249,7 +229,7 @@ class BopSceneLoader:
         gone = [im for im in plan.im_ids if im not in folder.cameras]
         if gone:
             raise DatasetError(
-                f"images {_few(gone)} were listed when the dataset was opened but are gone",
+                f"images {few_ids(gone)} were listed when the dataset was opened but are gone",
                 file=folder.path / SCENE_CAMERA,
             )
         views = tuple(self._view(folder, im, plan.multi_view) for im in plan.im_ids)

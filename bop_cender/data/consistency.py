@@ -75,6 +75,3 @@ class ResidualTracker:
                 DatasetWarning,
                 stacklevel=2,
             )
-
-    def as_dict(self) -> dict[str, float]:
-        return {"max_mm": self.max_mm, "max_rad": self.max_rad, "pairs": float(self.count)}

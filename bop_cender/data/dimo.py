@@ -19,17 +19,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.bop_io import image_size
+from bop_cender.data.bop_io import check_same_image_ids, image_size, load_image_dict
 from bop_cender.data.consistency import ResidualTracker
 from bop_cender.data.dimo_files import (
     CAMERA_FILE,
     GT_FILE,
     GT_WORLD_FILE,
     INFO_FILE,
-    check_same_image_ids,
     check_scene_gt,
     dimo_image_dir,
-    load_image_keyed,
     read_cameras,
     read_gt_world,
     read_scene_info,
@@ -274,7 +272,7 @@ def load_dimo_scene(
     cameras = read_cameras(paths[CAMERA_FILE], cam_tracker)
     world = read_gt_world(paths[GT_WORLD_FILE], models.keys())
     info = read_scene_info(paths[INFO_FILE])
-    scene_gt = load_image_keyed(paths[GT_FILE])
+    scene_gt = load_image_dict(paths[GT_FILE])
     check_same_image_ids({paths[CAMERA_FILE]: cameras, paths[GT_FILE]: scene_gt, paths[INFO_FILE]: info})
     check_scene_gt(paths[GT_FILE], scene_gt, world, cameras, gt_tracker)
     cam_tracker.report(f"{paths[CAMERA_FILE]}: cam_*_w2c vs inverted cam_*_c2w")

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import as_int, load_json, require_keys
+from bop_cender.data.bop_io import as_int, load_image_dict, load_json, require_keys
 from bop_cender.data.consistency import ResidualTracker
 from bop_cender.data.types import check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
@@ -65,17 +65,6 @@ def rgb_path(scene_dir: str | Path, im_id: int) -> Path:
     return dimo_image_dir(scene_dir) / f"{im_id:06d}.png"
 
 
-def load_image_keyed(path: Path) -> dict[int, Any]:
-    """A JSON object keyed by image id (``"0"``, ``"1"``, ...), keys turned into ints."""
-    data = load_json(path, keys_to_int=True)
-    if not isinstance(data, dict):
-        raise DatasetError(f"expected an object keyed by image id, got {type(data).__name__}", file=path)
-    for key in data:
-        if not isinstance(key, int) or key < 0:
-            raise DatasetError("image id keys must be non-negative integers", file=path, field=repr(key))
-    return dict(sorted(data.items()))
-
-
 def read_scene_info(path: Path) -> dict[int, dict[str, Any]]:
     """``scene_info.json`` per image, normalised to the newer key names with int values.
 
@@ -83,7 +72,7 @@ def read_scene_info(path: Path) -> dict[int, dict[str, Any]]:
     ``viewpoint`` / ``viewpoint_id``, ``light`` / ``light_id``), values int or numeric strings.
     Other keys are kept as they are.
     """
-    return {im_id: _normalise_info(entry, path, im_id) for im_id, entry in load_image_keyed(path).items()}
+    return {im_id: _normalise_info(entry, path, im_id) for im_id, entry in load_image_dict(path).items()}
 
 
 def _normalise_info(entry: Any, path: Path, im_id: int) -> dict[str, Any]:
@@ -113,7 +102,7 @@ def read_cameras(path: Path, tracker: ResidualTracker) -> dict[int, DimoCamera]:
     agree (checked with ``tracker``: fails beyond 5 mm / 0.01 rad).
     """
     cameras: dict[int, DimoCamera] = {}
-    for im_id, entry in load_image_keyed(path).items():
+    for im_id, entry in load_image_dict(path).items():
         where = str(im_id)
         require_keys(entry, ("cam_K",), path, where)
         K_flat = check_matrix(entry["cam_K"], (9,), f"{where}.cam_K", str(path))
@@ -175,7 +164,7 @@ def check_scene_gt(
     with ``tracker``: a frame mix-up is off by hundreds of mm and fails).
 
     Args:
-        scene_gt: ``scene_gt.json`` as loaded by :func:`load_image_keyed`; its image ids must
+        scene_gt: ``scene_gt.json`` as loaded by :func:`~bop_cender.data.bop_io.load_image_dict`; its image ids must
             already be known to equal those of ``cameras``.
     """
     relation = f"{CAMERA_FILE} and {GT_WORLD_FILE} (T_cam_world @ T_world_model)"
@@ -202,20 +191,6 @@ def check_scene_gt(
                 )
             T_cam_model = read_pose(entry, "cam_R_m2c", "cam_t_m2c", path, where)
             tracker.check(T_cam_world @ obj.T_world_model, T_cam_model, path, where, relation)
-
-
-def check_same_image_ids(files: Mapping[Path, Iterable[int]]) -> None:
-    """The image-id key sets of the given files must be identical (the first is the reference)."""
-    items = [(p, set(ids)) for p, ids in files.items()]
-    ref_path, ref = items[0]
-    for path, ids in items[1:]:
-        if ids != ref:
-            missing, extra = sorted(ref - ids), sorted(ids - ref)
-            raise DatasetError(
-                f"expected the same image ids as {ref_path.name}; missing {missing}, extra {extra}",
-                file=path,
-                field="image ids",
-            )
 
 
 def read_pose(entry: Mapping, r_key: str, t_key: str, path: Path, where: str) -> np.ndarray | None:

@@ -21,17 +21,15 @@ def model_path(models_dir: Path, obj_id: int) -> Path:
 def load_models(
     models_dir: str | Path,
     is_target: Callable[[int], bool] = lambda obj_id: True,
-    require_ply: bool = True,
 ) -> dict[int, ObjectModel]:
     """Read ``models_info.json`` of a models folder into :class:`ObjectModel` s (meshes lazy).
 
     Args:
         models_dir: folder with ``models_info.json`` and the PLY files.
         is_target: which ids are pose targets (DIMO: ids < 100); the others are occluders.
-        require_ply: check that each model's PLY exists now (cheap; the mesh loads later).
 
     Raises:
-        DatasetError: missing folder/file, malformed JSON, a missing key or a bad value.
+        DatasetError: missing folder/file (a listed model's PLY included), malformed JSON, a missing key or a bad value.
     """
     models_dir = Path(models_dir)
     info_path = models_dir / "models_info.json"
@@ -52,7 +50,7 @@ def load_models(
         except ValueError as e:
             raise DatasetError(str(e), file=info_path, field=where) from None
         path = model_path(models_dir, key)
-        if require_ply and not path.is_file():
+        if not path.is_file():  # checked now (cheap); the mesh loads later
             raise DatasetError(f"model of object {key} listed in models_info.json is missing", file=path)
         models[key] = ObjectModel(
             obj_id=key,

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bop_cender.errors import DatasetError
+from bop_cender.geometry.rotations import orthonormality_error
 from bop_cender.geometry.symmetry import (
     BOP19_MAX_SYM_DISC_STEP,
     ContinuousSymmetry,
@@ -51,10 +52,10 @@ def check_pose(T: Any, what: str, source: str | None = None, tol: float = ROTATI
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
         raise DatasetError("expected last row (0, 0, 0, 1)", file=source, field=what)
     R = T[:3, :3]
-    err = float(np.abs(R @ R.T - np.eye(3)).max())
-    if err > tol or np.linalg.det(R) < 0:
+    err, det = float(orthonormality_error(R)), float(np.linalg.det(R))
+    if err > tol or det < 0:
         raise DatasetError(
-            f"rotation is not orthonormal (max |R R^T - I| = {err:.3g}, det = {np.linalg.det(R):.4f};"
+            f"rotation is not orthonormal (max |R R^T - I| = {err:.3g}, det = {det:.4f};"
             f" expected <= {tol:g} and det +1)",
             file=source,
             field=what,

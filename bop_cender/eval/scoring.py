@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bop_cender.data.bop_io import few_ids
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth, split_folder
@@ -194,7 +195,7 @@ def _check_rows(rows: Sequence[BopEstimate], gt: GroundTruth, dataset: Dataset, 
     for k, row in enumerate(rows):
         where = f"line {row.line}" if row.line is not None else f"row {k}"
         if row.obj_id not in dataset.models:
-            problems.append(f"{where}: obj_id: unknown object {row.obj_id} (known: {_few(sorted(dataset.models))})")
+            problems.append(f"{where}: obj_id: unknown object {row.obj_id} (known: {few_ids(sorted(dataset.models))})")
             continue
         key = (row.scene_id, row.im_id)
         if key in gt.images:
@@ -332,7 +333,3 @@ def _image_width(gt: GroundTruth, dataset: Dataset) -> int:
     if dataset.image_size is not None:
         return int(dataset.image_size[0])
     return next(iter(gt)).width if len(gt) else 640
-
-
-def _few(ids: list[int], n: int = 8) -> str:
-    return ", ".join(map(str, ids[:n])) + (f", ... ({len(ids)} in all)" if len(ids) > n else "") if ids else "none"

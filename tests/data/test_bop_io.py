@@ -131,3 +131,13 @@ def test_save_depth_refuses_what_uint16_cannot_hold(tmp_path):
         with pytest.raises(ValueError, match="depth must be finite and within"):
             save_depth(tmp_path / "d.png", np.asarray(bad), 0.1)
     assert not (tmp_path / "d.png").exists()
+
+
+def test_differing_image_ids_name_the_file_and_a_few_ids(tmp_path):
+    from bop_cender.data.bop_io import check_same_image_ids
+
+    check_same_image_ids({tmp_path / "a.json": [0, 1, 2], tmp_path / "b.json": [2, 1, 0]})
+    with pytest.raises(
+        DatasetError, match=r"b.json: image ids: .*missing 0, 1, 2, 3, 4, 5, 6, 7, \.\.\. \(40 in all\)"
+    ):
+        check_same_image_ids({tmp_path / "a.json": range(50), tmp_path / "b.json": range(40, 50)})

@@ -257,12 +257,12 @@ def test_malformed_json(scene_dir):
 
 def test_image_ids_differ_between_files(scene_dir):
     edit_json(scene_dir / "scene_gt.json", lambda d: d.pop("1"))
-    _assert_names(_load_error(scene_dir), "scene_gt.json", "image ids", "scene_camera.json", "missing [1]")
+    _assert_names(_load_error(scene_dir), "scene_gt.json", "image ids", "scene_camera.json", "missing 1")
 
 
 def test_scene_info_lacks_an_image(scene_dir):
     edit_json(scene_dir / "scene_info.json", lambda d: d.pop("2"))
-    _assert_names(_load_error(scene_dir), "scene_info.json", "image ids", "missing [2]")
+    _assert_names(_load_error(scene_dir), "scene_info.json", "image ids", "missing 2")
 
 
 def test_unknown_obj_id(scene_dir):
