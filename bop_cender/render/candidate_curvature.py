@@ -30,7 +30,7 @@ from bop_cender.render.curvature import curvature_valid
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR, camera_vertices, rasterize
 from bop_cender.render.resolve import shade
-from bop_cender.render.window import Windows
+from bop_cender.render.window import Windows, plan_atlas_chunks
 
 #: Window pixels per chunk on CPU: small enough for the caches, large enough to amortise the per-call
 #: overhead of the few hundred torch operations of a chunk (2^18 to 2^20 measured within 5 %).
@@ -116,7 +116,7 @@ def prepare_candidates(
     lo, hi = _bounds(verts, Kc, height, width)
     extent = hi - lo
     order = torch.argsort(extent[:, 1], stable=True)
-    chunks = _plan(extent.index_select(0, order).cpu().tolist(), chunk_pixels) if B * V else []
+    chunks = plan_atlas_chunks(extent.index_select(0, order).cpu().tolist(), chunk_pixels)
     return CandidateBatch(mesh, R, t, Kc, verts, lo, extent, order, chunks, near)
 
 
@@ -145,19 +145,6 @@ def chunk_curvature(batch: CandidateBatch, chunk: tuple[int, int, int]) -> Curva
     row_image = torch.arange(row_canvas.numel(), device=device) - row_start.index_select(0, row_canvas)
     row_image += offsets[:, 0].index_select(0, row_canvas)
     return CurvatureAtlas(canvases, curv, row_canvas[1:-1], row_image[1:-1], offsets[:, 1] + 1)
-
-
-def _plan(extents: list[list[int]], chunk_pixels: int) -> list[tuple[int, int, int]]:
-    """Greedy chunks ``(start, stop, width)`` of canvases (in order of width) within the pixel budget."""
-    plan = []
-    start, rows, w = 0, 0, 0
-    for i, (eh, ew) in enumerate(extents):
-        if i > start and (rows + eh) * max(w, ew) > chunk_pixels:
-            plan.append((start, i, w))
-            start, rows, w = i, 0, 0
-        rows, w = rows + eh, max(w, ew)
-    plan.append((start, len(extents), w))
-    return plan
 
 
 def _bounds(verts: torch.Tensor, K: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -26,7 +26,7 @@ import torch
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR, _project, camera_vertices, rasterize
 from bop_cender.render.resolve import shade
-from bop_cender.render.window import Windows
+from bop_cender.render.window import Windows, plan_atlas_chunks
 
 #: Atlas pixels per rasteriser call (at least one pose per call).
 DEFAULT_CHUNK_PIXELS = 1 << 18
@@ -72,9 +72,8 @@ def tight_depth_crops(
     extent = hi - lo  # (E, 2)
     visible = np.flatnonzero((extent > 0).all(1))
     order = visible[np.argsort(extent[visible, 1], kind="stable")]
-    for chunk in _plan(extent[order], chunk_pixels):
-        idx = order[chunk]
-        w = int(extent[idx, 1].max())
+    for start, stop, w in plan_atlas_chunks(extent[order].tolist(), chunk_pixels):
+        idx = order[start:stop]
         rows = extent[idx, 0]
         windows = Windows.atlas(torch.from_numpy(lo[idx]), torch.from_numpy(rows), w)
         sel = torch.from_numpy(idx)
@@ -118,20 +117,6 @@ def _windows(
     clipped = (verts[2].amin(-1) < near).numpy()
     lo[clipped], hi[clipped] = 0, size
     return lo, hi
-
-
-def _plan(extent: np.ndarray, chunk_pixels: int) -> list[slice]:
-    """Greedy runs of poses (in order of window width, ``extent (n, 2)`` rows and columns) within the budget."""
-    plan = []
-    start, rows, w = 0, 0, 0
-    for i, (eh, ew) in enumerate(extent.tolist()):
-        if i > start and (rows + eh) * max(w, ew) > chunk_pixels:
-            plan.append(slice(start, i))
-            start, rows, w = i, 0, 0
-        rows, w = rows + eh, max(w, ew)
-    if len(extent):
-        plan.append(slice(start, len(extent)))
-    return plan
 
 
 def crop_to_silhouette(window: np.ndarray, lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

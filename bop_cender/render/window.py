@@ -12,6 +12,7 @@ to a multiple of 8.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -122,3 +123,19 @@ class Windows:
     def table(self) -> torch.Tensor:
         """``(C, 4)`` int32: v0, u0, rows, start (what the scanline pass reads per triangle)."""
         return torch.stack([self.offsets[:, 0], self.offsets[:, 1], self.rows, self.start], 1).to(torch.int32)
+
+
+def plan_atlas_chunks(extents: Sequence[Sequence[int]], chunk_pixels: int) -> list[tuple[int, int, int]]:
+    """Greedy runs ``(start, stop, width)`` of windows ``extents (n, 2)`` (rows, columns; in order of width) whose
+    atlas (:meth:`Windows.atlas`: stacked rows, the run's largest width) stays within ``chunk_pixels``; at least
+    one window per run. Empty for no windows."""
+    plan = []
+    start, rows, w = 0, 0, 0
+    for i, (eh, ew) in enumerate(extents):
+        if i > start and (rows + eh) * max(w, ew) > chunk_pixels:
+            plan.append((start, i, w))
+            start, rows, w = i, 0, 0
+        rows, w = rows + int(eh), max(w, int(ew))
+    if len(extents):
+        plan.append((start, len(extents), w))
+    return plan
