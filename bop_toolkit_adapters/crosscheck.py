@@ -133,7 +133,7 @@ def crosscheck(
     vsd_delta = ours.metadata.get("vsd_delta")
     export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
     clock = time.perf_counter()
-    toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet)
+    toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet, progress=progress)
     toolkit_seconds = time.perf_counter() - clock
     theirs = result_summary(toolkit)
     score_diffs = {
@@ -265,7 +265,7 @@ def crosscheck_file(
     Raises:
         ToolkitUnavailable: ``bop_toolkit_lib`` (or its scripts) cannot be imported.
     """
-    from bop_cender.eval.score_file import open_choice, score_file
+    from bop_cender.eval.score_file import score_file
 
     import_toolkit(toolkit_dir)
     out_dir = Path(out_dir)
@@ -273,5 +273,4 @@ def crosscheck_file(
         results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
         out_dir=out_dir, progress=progress,
     )  # fmt: skip
-    ds = open_choice(scored.choice)
-    return crosscheck(results_csv, scored.report, ds, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress)
+    return crosscheck(results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress)

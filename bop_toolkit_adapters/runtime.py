@@ -30,7 +30,9 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
+from bop_cender.errors import BopCenderError
 from bop_toolkit_adapters.export import ToolkitExport
 
 #: The BOP'19 settings of eval_bop19_pose.py (thresholds with np.arange's float noise).
@@ -41,6 +43,10 @@ CORRECT_TH = {"vsd": list(np.arange(0.05, 0.51, 0.05)), "mssd": list(np.arange(0
 
 class ToolkitUnavailable(RuntimeError):
     """The toolkit (or, for VSD, its renderer) cannot be imported; the message says why."""
+
+
+class ToolkitRunError(BopCenderError):
+    """One of the toolkit's scripts failed on the exported input (the message has the end of its output)."""
 
 
 @dataclass
@@ -141,10 +147,18 @@ def registered(export: ToolkitExport, phase: str) -> Iterator[None]:
         dp.get_split_params, dp.get_model_params = original_split, original_model
 
 
-def evaluate(export: ToolkitExport, scripts: Path, with_vsd: bool, quiet: bool = True) -> ToolkitScores:
-    """The BOP'19 evaluation of the exported results by the toolkit's own scripts (see the module docstring)."""
+def evaluate(
+    export: ToolkitExport, scripts: Path, with_vsd: bool, quiet: bool = True, progress: bool = True
+) -> ToolkitScores:
+    """The BOP'19 evaluation of the exported results by the toolkit's own scripts (see the module docstring).
+
+    Raises:
+        ToolkitRunError: a script exits non-zero or raises.
+    """
     out = ToolkitScores()
     error_types = ["vsd", "mssd", "mspd"] if with_vsd and export.vsd_delta is not None else ["mssd", "mspd"]
+    runs = sum(1 + len(_error_signs(err, export)) * len(CORRECT_TH[err]) for err in error_types)
+    bar = tqdm(total=runs, desc="BOP toolkit", unit="script", disable=not progress)
     if "vsd" not in error_types:
         out.skipped["vsd"] = "no test depth" if export.vsd_delta is None else "the toolkit's renderer is not available"
     common = [f"--datasets_path={export.datasets_path}", f"--eval_path={export.eval_path}",
@@ -158,6 +172,7 @@ def evaluate(export: ToolkitExport, scripts: Path, with_vsd: bool, quiet: bool =
                      "--vsd_normalized_by_diameter=True"]  # fmt: skip
         with registered(export, "errors"):
             _run(scripts / "eval_calc_errors.py", args, quiet)
+        bar.update()
         signs = _error_signs(err, export)
         out.errors[err] = _read_errors(export, signs)
         recalls = []
@@ -168,8 +183,10 @@ def evaluate(export: ToolkitExport, scripts: Path, with_vsd: bool, quiet: bool =
                          [f"--error_dir_paths={os.path.join(export.result_name, sign)}", "--visib_gt_min=-1",
                           f"--correct_th_{err}={th}", *common], quiet)  # fmt: skip
                     recalls.append(_read_recall(export, sign, th))
+                    bar.update()
         out.recalls[err] = recalls
         out.average_recalls[err] = float(np.mean(recalls))
+    bar.close()
     if len(out.average_recalls) == 3:
         out.average_recalls["bop19"] = float(np.mean([out.average_recalls[k] for k in ("vsd", "mssd", "mspd")]))
     return out
@@ -216,7 +233,9 @@ def _run(script: Path, args: list[str], quiet: bool) -> None:
             runpy.run_path(str(script), run_name="__main__")
     except SystemExit as e:
         if e.code not in (0, None):
-            raise RuntimeError(f"{script.name} exited with {e.code}: {sink.getvalue()[-2000:]}") from None
+            raise ToolkitRunError(f"exited with {e.code}: {sink.getvalue()[-2000:]}", file=script) from None
+    except Exception as e:  # noqa: BLE001 - the toolkit's own failure, reported as one error naming its script
+        raise ToolkitRunError(f"failed: {type(e).__name__}: {e}", file=script) from e
     finally:
         sys.argv = argv
         if quiet:

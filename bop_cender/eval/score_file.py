@@ -56,10 +56,11 @@ class DataChoice:
 
 @dataclass(frozen=True)
 class ScoredFile:
-    """A scored results file: the report and the files written."""
+    """A scored results file: the report, the data it was scored on and the files written."""
 
     report: ScoreReport
     choice: DataChoice
+    dataset: Dataset
     scores_path: Path
     errors_path: Path
 
@@ -191,7 +192,7 @@ def score_file(
     write_errors_csv(errors_path, report)
     report.timings["total"] = time.perf_counter() - clock
     write_scores_json(scores_path, report)
-    return ScoredFile(report, choice, scores_path, errors_path)
+    return ScoredFile(report, choice, ds, scores_path, errors_path)
 
 
 def method_name(path: str | Path) -> str:

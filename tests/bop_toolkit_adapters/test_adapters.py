@@ -145,3 +145,14 @@ def test_pairs_that_differ_from_the_toolkit_are_listed_largest_first(small_fixtu
     check = Crosscheck(report, toolkit, export, {}, {}, diffs, [], differences)
     text = format_crosscheck(check)
     assert "VSD   pairs differing by more than 0: 1" in text and "MSSD  pairs differing by more than 1e-06: 0" in text
+
+
+def test_a_failing_toolkit_script_is_one_error_naming_it(tmp_path) -> None:
+    from bop_toolkit_adapters.runtime import ToolkitRunError, _run
+
+    (tmp_path / "exits.py").write_text("import sys\nprint('bad input')\nsys.exit(3)\n")
+    (tmp_path / "raises.py").write_text("raise ValueError('no such scene')\n")
+    with pytest.raises(ToolkitRunError, match=r"exits.py: exited with 3: bad input"):
+        _run(tmp_path / "exits.py", [], quiet=True)
+    with pytest.raises(ToolkitRunError, match=r"raises.py: failed: ValueError: no such scene"):
+        _run(tmp_path / "raises.py", [], quiet=True)
