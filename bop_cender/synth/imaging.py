@@ -16,7 +16,7 @@ import torch
 
 from bop_cender.geometry.poses import transform_points
 from bop_cender.render.curvature import curvature
-from bop_cender.render.mesh import RenderMesh
+from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
 from bop_cender.render.rasterizer import render_scene
 from bop_cender.render.shading import apply_sensor, make_environment, procedural_texture, random_background, shade_view
 from bop_cender.synth.rigs import look_at
@@ -68,11 +68,12 @@ def render_views(
     Ks = np.stack([np.asarray(K, dtype=np.float64) for K, _ in cameras])
     T_cw = np.stack([np.asarray(T, dtype=np.float64) for _, T in cameras])
     T_cm = np.einsum("vij,mjk->vmik", T_cw, T_world_model)  # (V, M, 4, 4)
-    scene = render_scene(list(meshes), T_cm, Ks, height, width)
+    packed = pack_meshes(list(meshes))  # once, for the views and every light's shadow map
+    scene = render_scene(packed, T_cm, Ks, height, width)
     curv = curvature(scene.normals)
     out = []
     shading_inputs = _shading_inputs(style, rng, height, width) if style else None
-    maps = shadow_maps(meshes, T_world_model, style) if style is not None else None
+    maps = shadow_maps(meshes, T_world_model, style, packed) if style is not None else None
     gen = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
     for v in range(len(cameras)):
         rgb = None
@@ -123,8 +124,14 @@ class ShadowMap:
     T_light_world: np.ndarray
 
 
-def shadow_maps(meshes: Sequence[RenderMesh], T_world_model: np.ndarray, style: Style) -> list[ShadowMap]:
-    """One shadow map per light, rendered towards the scene centre (shared by every view of the scene)."""
+def shadow_maps(
+    meshes: Sequence[RenderMesh], T_world_model: np.ndarray, style: Style, packed: PackedMeshes | None = None
+) -> list[ShadowMap]:
+    """One shadow map per light, rendered towards the scene centre (shared by every view of the scene).
+
+    ``packed``: the same meshes already packed (:func:`~bop_cender.render.mesh.pack_meshes`), if at hand.
+    """
+    packed = packed if packed is not None else pack_meshes(list(meshes))
     centre = T_world_model[:, :3, 3].mean(axis=0)
     radius = float(np.linalg.norm(T_world_model[:, :3, 3] - centre, axis=1).max() + max(m.radius for m in meshes))
     maps = []
@@ -135,7 +142,7 @@ def shadow_maps(meshes: Sequence[RenderMesh], T_world_model: np.ndarray, style: 
         f = 0.5 * SHADOW_MAP_SIZE * (dist - radius) / (1.15 * radius)
         K_l = np.array([[f, 0, SHADOW_MAP_SIZE / 2], [0, f, SHADOW_MAP_SIZE / 2], [0, 0, 1.0]])
         T_lm = np.einsum("ij,mjk->mik", T_light_world, T_world_model)[None]
-        depth = render_scene(list(meshes), T_lm, K_l[None], SHADOW_MAP_SIZE, SHADOW_MAP_SIZE).depth[0].numpy()
+        depth = render_scene(packed, T_lm, K_l[None], SHADOW_MAP_SIZE, SHADOW_MAP_SIZE).depth[0].numpy()
         maps.append(ShadowMap(depth, K_l, T_light_world))
     return maps
 
