@@ -37,6 +37,7 @@ from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.render.rasterizer import render_scene
 from bop_cender.synth.reference_meshes import reference_bracket
+from bop_cender.synth.rigs import look_at
 
 HEIGHT, WIDTH = 256, 320
 BATCHES = (1, 4, 16, 64, 256)
@@ -77,13 +78,7 @@ def make_rig() -> tuple[np.ndarray, np.ndarray]:
     for elevation, azimuth in [(25, 0), (25, 120), (25, 240), (55, 60), (55, 180), (55, 300)]:
         el, az = np.radians(elevation), np.radians(azimuth)
         eye = 500.0 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        z = -eye / np.linalg.norm(eye)
-        x = np.cross(z, (0.0, 0.0, 1.0))
-        x /= np.linalg.norm(x)
-        R = np.stack([x, np.cross(z, x), z])
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R, -R @ eye
-        poses.append(T)
+        poses.append(look_at(eye, (0.0, 0.0, 0.0)))
     K = np.array([[600.0, 0.0, WIDTH / 2], [0.0, 600.0, HEIGHT / 2], [0.0, 0.0, 1.0]])
     return np.stack(poses), np.repeat(K[None], 6, axis=0)
 

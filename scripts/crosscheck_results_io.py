@@ -40,6 +40,7 @@ from bop_cender.results import (
     scene_estimates_to_rows,
     write_bop_results,
 )
+from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
 
 DEFAULT_SAMPLES = Path(__file__).resolve().parents[1].parent / "shared/reference/bop_results_samples"
 
@@ -50,12 +51,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sample", type=Path, nargs="*", help="real BOP results CSVs (default: shared samples)")
     args = parser.parse_args(argv)
 
-    sys.path.insert(0, str(args.toolkit_dir.resolve()))
     try:
-        from bop_toolkit_lib import inout
-    except ImportError as e:
-        print(f"bop_toolkit_lib is not importable from {args.toolkit_dir} ({e}); cross-check skipped.")
-        return 0
+        import_toolkit(args.toolkit_dir)
+    except ToolkitUnavailable as e:
+        print(f"cross-check not run: {e}", file=sys.stderr)
+        return 2
+    from bop_toolkit_lib import inout
+
     print(f"official toolkit: {Path(inout.__file__).resolve()}")
 
     failures: list[str] = []

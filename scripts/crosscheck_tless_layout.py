@@ -22,12 +22,15 @@ def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print(__doc__)
         return 0
-    sys.path.insert(0, argv[0])
+    from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
+
     try:
-        from bop_toolkit_lib import dataset_params, inout
-    except ImportError as e:
-        print(f"bop_toolkit_lib not importable from {argv[0]} ({e}): cross-check skipped.")
-        return 0
+        import_toolkit(argv[0])
+    except ToolkitUnavailable as e:
+        print(f"cross-check not run: {e}", file=sys.stderr)
+        return 2
+    from bop_toolkit_lib import dataset_params, inout
+
     root = Path(argv[1])
     from bop_cender.data.bop_io import load_depth
     from bop_cender.data.tless import open_tless
