@@ -273,4 +273,6 @@ def crosscheck_file(
         results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
         out_dir=out_dir, progress=progress,
     )  # fmt: skip
-    return crosscheck(results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress)
+    return crosscheck(
+        results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress
+    )
