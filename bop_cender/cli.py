@@ -68,7 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: Modules with a ``register(subparsers)`` function that adds their sub-commands (synth, score, ...); they
 #: import only argparse at the top, so ``--help`` stays fast.
-COMMAND_MODULES = ("bop_cender.synth.cli_commands", "bop_cender.eval.cli_commands", "bop_toolkit_adapters.cli_commands")
+COMMAND_MODULES = (
+    "bop_cender.synth.cli_commands",
+    "bop_cender.eval.cli_commands",
+    "bop_cender.run_cli",
+    "bop_toolkit_adapters.cli_commands",
+)
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
