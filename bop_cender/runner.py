@@ -34,6 +34,7 @@ from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
 from bop_cender.results import scene_estimates_to_rows, write_bop_results, write_run_sidecar
 
 SHARD_FORMAT = "bop-cender-shard"
+HEATMAP_SOURCES = ("oracle", "net")
 SHARD_VERSION = 1
 
 
@@ -133,14 +134,9 @@ def build_method(request: RunRequest, dataset: Dataset) -> CenDerNet:
         from bop_cender.net.oracle import OraclePredictor
 
         predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
-    elif request.heatmaps == "net":
-        raise ConfigError(
-            "network heatmaps are not available yet (stage 1 has no trained weights in this version);"
-            " use --heatmaps oracle",
-            field="--heatmaps",
-        )
     else:
-        raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")
+        _check_request(request)  # raises: the source is not available
+        raise AssertionError(request.heatmaps)
     return CenDerNet(dataset.models, request.config, predictor, meshes)
 
 
@@ -171,6 +167,17 @@ def run(
     if work.exists() and not request.resume:
         shutil.rmtree(work)
     work.mkdir(parents=True, exist_ok=True)
+    try:
+        outcomes, resumed = _run_scenes(request, dataset, keys, work, fingerprint, progress)
+    except BaseException:
+        if not any(work.iterdir()):
+            work.rmdir()  # nothing done: leave nothing behind
+        raise
+    return _merge(request, dataset, keys, outcomes, resumed, work, start)
+
+
+def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[dict[str, SceneOutcome], int]:
+    """Shards of the same settings kept, the other scenes estimated and written as they finish."""
     outcomes: dict[str, SceneOutcome] = {}
     for key in keys:
         shard = read_shard(shard_path(work, key), fingerprint)
@@ -187,6 +194,11 @@ def run(
         done += 1
         if progress is not None:
             progress(done, len(keys), outcome.scene_key)
+    return outcomes, resumed
+
+
+def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary:
+    """All shards into one BOP CSV and its sidecar (atomic writes), then the work folder goes."""
     rows = []
     stage_seconds: dict[str, float] = {}
     failed, empty = {}, []
@@ -301,6 +313,14 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
 def _check_request(request: RunRequest) -> None:
     from bop_cender.results import parse_result_filename
 
+    if request.heatmaps not in HEATMAP_SOURCES:
+        raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")
+    if request.heatmaps == "net":
+        raise ConfigError(
+            "network heatmaps are not available yet (stage 1 has no trained weights in this version);"
+            " use --heatmaps oracle",
+            field="--heatmaps",
+        )
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
     if request.limit_scenes is not None and request.limit_scenes < 1:
