@@ -30,11 +30,15 @@ class ObjectEstimate:
         obj_id: BOP object id (non-negative).
         T_world_model: ``(4, 4)`` float64 model-to-world transform, mm; stored read-only.
         score: confidence, higher is better (BOP ranks estimates per image by it); finite.
+        image_scores: optional per-image factor in [0, 1] by image id (how well the object is seen
+            there): its row in that image gets ``score * factor``, so that BOP's per-image top-n keeps the
+            objects that image shows rather than ones hidden in it. Images not listed get ``score``.
     """
 
     obj_id: int
     T_world_model: np.ndarray
     score: float
+    image_scores: Mapping[int, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if isinstance(self.obj_id, bool) or not isinstance(self.obj_id, int | np.integer) or self.obj_id < 0:
@@ -44,6 +48,17 @@ class ObjectEstimate:
         T.setflags(write=False)
         object.__setattr__(self, "T_world_model", T)
         object.__setattr__(self, "score", _finite(self.score, f"obj {self.obj_id}: score"))
+        factors = {}
+        for im_id, value in dict(self.image_scores).items():
+            x = _finite(value, f"obj {self.obj_id}: image_scores[{im_id!r}]")
+            if not 0.0 <= x <= 1.0:
+                raise ValueError(f"obj {self.obj_id}: image_scores[{im_id!r}]: expected a factor in [0, 1], got {x}")
+            factors[int(im_id)] = x
+        object.__setattr__(self, "image_scores", factors)
+
+    def score_in(self, im_id: int) -> float:
+        """The confidence of this estimate in image ``im_id``: ``score * image_scores[im_id]`` (or ``score``)."""
+        return self.score * self.image_scores.get(im_id, 1.0)
 
 
 @dataclass(frozen=True, eq=False)

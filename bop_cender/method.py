@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from bop_cender.centers import Center3D, CenterConfig, detect_centers
+from bop_cender.centers import Center3D, CenterConfig, detect_centers, sample_scores
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.net.heatmaps import Heatmaps
@@ -125,10 +125,21 @@ class CenDerNet:
             else []
         )
         t3 = time.perf_counter()
-        objects = tuple(ObjectEstimate(p.obj_id, p.T_world_model, 1.0 / (1.0 + p.cost)) for p in placed)
+        objects = tuple(
+            ObjectEstimate(p.obj_id, p.T_world_model, 1.0 / (1.0 + p.cost), self._image_scores(p, heatmaps, Ks, T_cw))
+            for p in placed
+        )
         timings = {"heatmaps": t1 - t0, "centers": t2 - t1, "poses": t3 - t2}
         estimate = SceneEstimate(scene.key, scene.scene_id, objects, time_s=t3 - t0, timings=timings)
         return SceneOutput(estimate, heatmaps, centers, placed)
+
+    def _image_scores(self, placed: PlacedObject, heatmaps: Heatmaps, Ks: np.ndarray, T_cw: np.ndarray) -> dict:
+        """Per image, the center heatmap at the projection of the placed object's centre (in [0, 1]): how
+        well that image shows it, so that BOP's per-image top-n prefers the objects an image shows."""
+        center = placed.T_world_model[:3, :3] @ self.models[placed.obj_id].center + placed.T_world_model[:3, 3]
+        maps = heatmaps.center[:, heatmaps.channel_of(placed.obj_id)].detach().cpu().numpy()
+        scores = np.clip(sample_scores(center[None], maps, Ks, T_cw)[0], 0.0, 1.0)
+        return {im_id: float(s) for im_id, s in zip(heatmaps.im_ids, scores, strict=True)}
 
     def _known_counts(self, scene: Scene, heatmaps: Heatmaps) -> dict[int, int]:
         counts = Counter(g.obj_id for g in scene.gt if g.obj_id in self.models and self.models[g.obj_id].is_target)

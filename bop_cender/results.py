@@ -116,7 +116,8 @@ def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEs
     BOP's evaluation only looks at the targets of each image, so an object outside one view costs
     nothing. ``time`` of every row is the scene's ``time_s``: a multi-view method produces no
     image's estimates before the whole scene is processed, so each image waited that long (dividing
-    by the view count would understate the latency of a single image).
+    by the view count would understate the latency of a single image; the runner passes the split it
+    wants). Each row's score is the object's confidence in that image (:meth:`ObjectEstimate.score_in`).
 
     Returns:
         ``len(scene.views) * len(estimate.objects)`` rows, view by view, objects in estimate order.
@@ -128,7 +129,8 @@ def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEs
     for view in scene.views:
         for obj in estimate.objects:
             T = compose(view.T_cam_world, obj.T_world_model)
-            rows.append(BopEstimate(scene_id, view.im_id, obj.obj_id, obj.score, T[:3, :3], T[:3, 3], estimate.time_s))
+            score = obj.score_in(view.im_id)
+            rows.append(BopEstimate(scene_id, view.im_id, obj.obj_id, score, T[:3, :3], T[:3, 3], estimate.time_s))
     return rows
 
 

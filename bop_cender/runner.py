@@ -308,7 +308,12 @@ def write_shard(path: Path, outcome: SceneOutcome, fingerprint: str) -> None:
             time_s=est.time_s,
             timings=dict(est.timings),
             objects=[
-                {"obj_id": o.obj_id, "score": o.score, "T_world_model": np.asarray(o.T_world_model).tolist()}
+                {
+                    "obj_id": o.obj_id,
+                    "score": o.score,
+                    "T_world_model": np.asarray(o.T_world_model).tolist(),
+                    "image_scores": {str(k): v for k, v in o.image_scores.items()},
+                }
                 for o in est.objects
             ],
         )
@@ -327,7 +332,15 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
     try:
         if data.get("error") is not None:
             return SceneOutcome(data["scene_key"], None, str(data["error"]))
-        objects = tuple(ObjectEstimate(o["obj_id"], np.array(o["T_world_model"]), o["score"]) for o in data["objects"])
+        objects = tuple(
+            ObjectEstimate(
+                o["obj_id"],
+                np.array(o["T_world_model"]),
+                o["score"],
+                {int(k): v for k, v in o.get("image_scores", {}).items()},
+            )
+            for o in data["objects"]
+        )
         est = SceneEstimate(data["scene_key"], data["scene_id"], objects, data["time_s"], data["timings"])
     except (KeyError, TypeError, ValueError, BopCenderError):
         return None
