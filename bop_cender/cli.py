@@ -36,12 +36,17 @@ def _add_dataset_args(p: argparse.ArgumentParser) -> None:
 def cmd_info(args: argparse.Namespace) -> int:
     from bop_cender.data.describe import describe
     from bop_cender.data.registry import open_dataset
+    from bop_cender.datasets import resolve_data_root
 
-    ds = open_dataset(
-        args.dataset, args.data_root, args.split, n_views=args.n_views, seed=args.seed, model_type=args.model_type
-    )
+    root = resolve_data_root(args.dataset, args.data_root, announce=announce)
+    ds = open_dataset(args.dataset, root, args.split, n_views=args.n_views, seed=args.seed, model_type=args.model_type)
     print(describe(ds))
     return 0
+
+
+def announce(line: str) -> None:
+    """Tell the user what the command does on their behalf (the embedded demo), on stderr."""
+    print(f"[bop-cender] {line}", file=sys.stderr)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,12 +1,12 @@
 """Open a dataset split by name: ``dimo``, ``tless`` or any BOP-layout dataset (``bop``).
 
-This is the single entry point the CLI and the runner use; with no data root it falls back
-to the embedded synthetic demo dataset of the requested layout.
+This is the single entry point the CLI and the runner use. It needs a data root: the embedded demo
+(no ``--data-root``) is resolved one level above, by :func:`bop_cender.datasets.resolve_data_root`, so
+that the data layer never imports the synthetic generator.
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from bop_cender.data.types import Dataset
@@ -24,36 +24,26 @@ def open_dataset(
     n_views: int | None = None,
     seed: int = 0,
     model_type: str | None = None,
-    quiet: bool = False,
 ) -> Dataset:
-    """Open ``name``'s ``split`` under ``data_root`` (or the embedded demo when it is None).
+    """Open ``name``'s ``split`` under ``data_root``.
 
     Args:
         name: ``dimo``, ``tless`` or ``bop``.
-        data_root: dataset root; None uses the cached synthetic demo (generated on first use).
+        data_root: dataset root (see :func:`bop_cender.datasets.resolve_data_root` for the demo).
         split: split name; defaults per dataset (dimo: real, tless/bop: test).
         n_views: views per multi-view group for BOP-layout test splits (default 5, the paper's).
         seed: seed of the view grouping shuffle.
         model_type: BOP models folder variant (``cad``, ``eval``, ``reconst``; T-LESS default cad).
-        quiet: do not announce the demo dataset on stderr.
 
     Raises:
-        ConfigError: unknown dataset name or split.
+        ConfigError: unknown dataset name or split, or no data root.
         DatasetError: the data on disk is missing or inconsistent.
     """
     if name not in DATASETS:
         raise ConfigError(f"unknown dataset {name!r}; expected one of {', '.join(DATASETS)}", field="--dataset")
     split = split or DEFAULT_SPLIT[name]
     if data_root is None:
-        if name == "bop":
-            raise ConfigError("--dataset bop needs --data-root DIR (a folder in the BOP layout)", field="--data-root")
-        from bop_cender.data.demo import ensure_demo
-
-        data_root = ensure_demo(name)
-        if not quiet:
-            print(
-                f"[bop-cender] no --data-root: using the embedded synthetic {name} demo at {data_root}", file=sys.stderr
-            )
+        raise ConfigError(f"--dataset {name} needs --data-root DIR", field="--data-root")
     root = Path(data_root)
     if name == "dimo":
         from bop_cender.data.dimo import open_dimo

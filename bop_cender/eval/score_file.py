@@ -138,7 +138,11 @@ def open_choice(choice: DataChoice) -> Dataset:
             choice.data_root, split or "test", name=choice.name, n_views=choice.n_views, seed=choice.seed,
             split_type=choice.split_type,
         )  # fmt: skip
-    return open_dataset(choice.loader, choice.data_root, split, n_views=choice.n_views, seed=choice.seed)
+    from bop_cender.cli import announce
+    from bop_cender.datasets import resolve_data_root
+
+    root = resolve_data_root(choice.loader, choice.data_root, announce=announce)
+    return open_dataset(choice.loader, root, split, n_views=choice.n_views, seed=choice.seed)
 
 
 def score_file(
