@@ -138,7 +138,7 @@ def open_choice(choice: DataChoice) -> Dataset:
             choice.data_root, split or "test", name=choice.name, n_views=choice.n_views, seed=choice.seed,
             split_type=choice.split_type,
         )  # fmt: skip
-    from bop_cender.cli import announce
+    from bop_cender.cli.options import announce
     from bop_cender.datasets import resolve_data_root
 
     root = resolve_data_root(choice.loader, choice.data_root, announce=announce)

@@ -1,0 +1,37 @@
+"""``bop-cender info``: describe a dataset split."""
+
+from __future__ import annotations
+
+import argparse
+
+from bop_cender.cli.options import add_data_options, announce
+
+EPILOG = """examples:
+  bop-cender info --dataset dimo                      # the embedded synthetic DIMO demo, split real
+  bop-cender info --dataset dimo --data-root ~/dimo --split sim
+  bop-cender info --dataset tless --data-root ~/bop/tless --split test --n-views 8
+  bop-cender info --dataset bop --data-root ~/bop/lmo --split test
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``info`` to ``bop-cender``'s subparsers."""
+    p = sub.add_parser(
+        "info",
+        help="describe a dataset split: scenes, views, objects, symmetries, what the split selected and why",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_data_options(p)
+    p.set_defaults(func=cmd_info)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from bop_cender.data.describe import describe
+    from bop_cender.data.registry import open_dataset
+    from bop_cender.datasets import resolve_data_root
+
+    root = resolve_data_root(args.dataset, args.data_root, announce=announce)
+    ds = open_dataset(args.dataset, root, args.split, n_views=args.n_views, seed=args.seed, model_type=args.model_type)
+    print(describe(ds))
+    return 0
