@@ -10,8 +10,11 @@ the caller decides where it goes (the CLI: stderr).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError
 
 #: Layouts that have an embedded demo.
@@ -43,3 +46,8 @@ def resolve_data_root(
     if announce is not None:
         announce(f"no --data-root: using the embedded synthetic {dataset} demo at {root}")
     return root
+
+
+def open_with_demo(request: DatasetRequest, announce: Callable[[str], None] | None = None) -> Dataset:
+    """:func:`~bop_cender.data.registry.open_dataset`, with no root resolved to the embedded demo."""
+    return open_dataset(replace(request, root=resolve_data_root(request.dataset, request.root, announce)))

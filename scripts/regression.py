@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
     from bop_cender.data.bop_io import write_text_atomic
-    from bop_cender.data.registry import open_dataset
+    from bop_cender.data.registry import DatasetRequest, open_dataset
     from bop_toolkit_adapters.export import export_for_toolkit
     from bop_toolkit_adapters.runtime import evaluate, import_toolkit, vsd_renderer_available
 
@@ -69,7 +69,7 @@ def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
     if why is not None:
         print(f"the toolkit's VSD renderer is not available ({why}): the anchor needs it", file=sys.stderr)
         return 2
-    dataset = open_dataset("tless", work / "tless", "test")
+    dataset = open_dataset(DatasetRequest("tless", work / "tless", "test"))
     export = export_for_toolkit(dataset, work / RESULTS_NAME, work / "toolkit", progress=False)
     scores = evaluate(export, scripts, with_vsd=True)
     for name, text in anchor_tables(scores.errors, scores.recalls, scores.average_recalls).items():

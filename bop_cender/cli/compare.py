@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bop_cender.cli.options import add_results_data_options
+from bop_cender.cli.options import add_data_options, add_scoring_options, data_overrides
 
 COMPARE_EPILOG = """examples:
   bop-cender compare cendernet_tless-test.csv cosypose114533-eccv2020_tless-test-primesense.csv \\
@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        epilog=COMPARE_EPILOG, formatter_class=fmt)  # fmt: skip
     p.add_argument("inputs", nargs="+", type=Path, help="results CSVs (scored here) and/or scores JSONs")
     p.add_argument("--reference", default=None, help="'paper': add the CenDerNet paper's reported numbers (or a CSV)")
-    add_results_data_options(p)
+    add_data_options(p, from_results=True)
+    add_scoring_options(p)
     p.add_argument("--out", type=Path, default=Path("."), help="output folder (default: .)")
     p.set_defaults(func=cmd_compare)
 
@@ -30,8 +31,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from bop_cender.eval.tables import compare
 
     comparison = compare(
-        args.inputs, reference=args.reference, dataset=args.dataset, data_root=args.data_root, split=args.split,
-        n_views=args.n_views, vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
+        args.inputs, reference=args.reference, **data_overrides(args), vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
     )  # fmt: skip
     print(comparison.markdown())
     print("wrote " + ", ".join(str(p) for p in comparison.files.values()))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import add_data_options, announce
+from bop_cender.cli.options import add_data_options, announce, data_request
 
 EPILOG = """examples:
   bop-cender info --dataset dimo                      # the embedded synthetic DIMO demo, split real
@@ -28,10 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def cmd_info(args: argparse.Namespace) -> int:
     from bop_cender.data.describe import describe
-    from bop_cender.data.registry import open_dataset
-    from bop_cender.datasets import resolve_data_root
+    from bop_cender.datasets import open_with_demo
 
-    root = resolve_data_root(args.dataset, args.data_root, announce=announce)
-    ds = open_dataset(args.dataset, root, args.split, n_views=args.n_views, seed=args.seed, model_type=args.model_type)
+    ds = open_with_demo(data_request(args), announce=announce)
     print(describe(ds))
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bop_cender.cli.options import add_results_data_options
+from bop_cender.cli.options import add_data_options, add_scoring_options, data_overrides
 
 SCORE_EPILOG = """examples:
   bop-cender score results/cendernet_tless-test.csv                # dataset, split from the name / sidecar
@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("score", help="BOP'19 scores (AR, AR_VSD, AR_MSSD, AR_MSPD, ...) of a results CSV",
                        epilog=SCORE_EPILOG, formatter_class=fmt)  # fmt: skip
     p.add_argument("results", type=Path, help="BOP results CSV ({method}_{dataset}-{split}.csv)")
-    add_results_data_options(p)
+    add_data_options(p, from_results=True)
+    add_scoring_options(p)
     p.add_argument("--out", type=Path, default=None, help="output folder (default: beside the CSV)")
     p.set_defaults(func=cmd_score)
 
@@ -37,7 +38,7 @@ def cmd_score(args: argparse.Namespace) -> int:
         from bop_cender.eval.score_file import method_name, score_file
 
         scored = score_file(
-            args.results, dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views,
+            args.results, **data_overrides(args),
             vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
             render_process=renderer or False,
         )  # fmt: skip

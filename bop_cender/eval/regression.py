@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.eval.regression_fixture import FixtureSpec, build_fixture, regression_estimates
 from bop_cender.eval.report import SCORE_KEYS, ScoreReport
 from bop_cender.eval.scoring import score_results
@@ -61,7 +61,7 @@ def run_regression(work_dir: str | Path | None = None, progress: bool = False) -
         built = build_fixture(work / "tless", FixtureSpec())
         rows = regression_estimates(built)
         write_bop_results(work / RESULTS_NAME, rows, sort=False)
-        report = score_results(rows, open_dataset("tless", work / "tless", "test"), progress=progress)
+        report = score_results(rows, open_dataset(DatasetRequest("tless", work / "tless", "test")), progress=progress)
     return RegressionRun(report, report_tables(report))
 
 

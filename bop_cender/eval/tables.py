@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from bop_cender.data.bop_io import atomic_path, write_text_atomic
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.report import SCORE_KEYS, read_scores_json
 from bop_cender.eval.score_file import method_name, score_file
@@ -81,16 +84,20 @@ def compare(
     data_root: str | Path | None = None,
     split: str | None = None,
     n_views: int | None = None,
+    seed: int | None = None,
+    model_type: str | None = None,
     vsd_delta: float | None = None,
     out_dir: str | Path = ".",
     progress: bool = True,
+    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
 ) -> Comparison:
     """Build, write and return the comparison of ``inputs`` (see the module docstring).
 
     Args:
         inputs: results CSVs and/or scores JSONs, one row each, in this order.
         reference: ``"paper"`` (or a CSV in the paper tables' format) to add reference rows.
-        dataset, data_root, split, n_views, vsd_delta: passed to the scoring of CSV inputs (default: their
+        dataset, data_root, split, n_views, seed, model_type, vsd_delta, open_data: passed to the scoring of CSV inputs
+            (:func:`~bop_cender.eval.score_file.score_file`) (default: their
             file names / sidecars, the toolkit's delta).
         out_dir: where the scores of CSV inputs and the comparison files are written.
 
@@ -104,8 +111,8 @@ def compare(
         path = Path(item)
         if path.suffix == ".csv":
             scored = score_file(
-                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
-                out_dir=out_dir, progress=progress,
+                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+                model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
             )  # fmt: skip
             meta = scored.report.metadata
             rows.append(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import collect_ground_truth
 from bop_cender.eval.model_points import MeshCache
@@ -134,7 +134,7 @@ def test_average_time_per_image() -> None:
 
 def test_dimo_layout_without_depth_has_no_vsd_and_computes_targets(small_fixture, dimo_copy) -> None:
     """The same scene in DIMO layout: targets from rendered visibility equal the fixture's 0.1 rule; no VSD, no AR."""
-    ds = open_dataset("dimo", dimo_copy, "real")
+    ds = open_dataset(DatasetRequest("dimo", dimo_copy, "real"))
     gt = collect_ground_truth(ds, progress=False)
     targets = resolve_targets(
         ds.root, gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
