@@ -21,7 +21,7 @@ import numpy as np
 
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
-from bop_cender.eval.report import SCORE_KEYS, ScoreReport
+from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_toolkit_adapters.export import ToolkitExport, export_for_toolkit
 from bop_toolkit_adapters.runtime import (
     ToolkitScores,

@@ -35,7 +35,7 @@ from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import TARGETS_FILE, resolve_targets, write_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
-from bop_cender.result_files import parse_result_filename, result_filename
+from bop_cender.results.files import parse_result_filename, result_filename
 
 #: Split folder the toolkit uses for (dataset, split) when no split type is given (dataset_params.py).
 TOOLKIT_DEFAULT_SPLIT_TYPE = {("tless", "test"): "primesense", ("tless", "train"): "primesense"}

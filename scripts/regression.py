@@ -6,7 +6,7 @@ Usage:
     EGL_PLATFORM=surfaceless PYTHONPATH=<vispy, pypng> \\
     python scripts/regression.py --anchor TOOLKIT   # recompute toolkit_anchor_*.csv with the official toolkit
 
-The fixture, the tables and the tolerances are described in ``bop_cender/eval/regression.py``. The
+The fixture, the tables and the tolerances are described in ``bop_cender/regression.py``. The
 anchor is made by the toolkit's own ``eval_calc_errors.py`` / ``eval_calc_scores.py`` (run in-process on
 an export of the fixture, see ``bop_toolkit_adapters``); the toolkit is not part of this repository.
 """
@@ -18,7 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bop_cender.eval.regression import (
+from bop_cender.regression import (
     RESULTS_NAME,
     TABLES_DIR,
     anchor_tables,

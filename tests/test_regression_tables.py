@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bop_cender.eval.regression import compare_tables, format_problems, run_regression
+from bop_cender.regression import compare_tables, format_problems, run_regression
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +22,7 @@ def test_scores_equal_the_committed_tables_and_the_toolkit_anchor(run) -> None:
 
 def test_a_drift_is_reported_as_a_diff(run, tmp_path) -> None:
     """The check is not vacuous: change one recall in a copy of the tables and it is named."""
-    from bop_cender.eval.regression import ANCHOR, OURS, TABLES_DIR
+    from bop_cender.regression import ANCHOR, OURS, TABLES_DIR
 
     for name in OURS + ANCHOR:
         (tmp_path / name).write_text((TABLES_DIR / name).read_text())

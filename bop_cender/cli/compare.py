@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from bop_cender.eval.tables import compare
+    from bop_cender.report.tables import compare
 
     comparison = compare(
         args.inputs, reference=args.reference, **data_overrides(args), vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_convert_pvnet(args: argparse.Namespace) -> int:
-    from bop_cender.eval.convert_pvnet import convert_pvnet
+    from bop_cender.results.convert_pvnet import convert_pvnet
 
     known = None
     if args.dataset_root is not None:

@@ -34,8 +34,8 @@ def cmd_score(args: argparse.Namespace) -> int:
     # The VSD render process is forked before anything heavy is imported here: its torch import (and
     # NumPy's) runs while this process imports the scorer and reads the data.
     with RenderProcess.start() if render_process_useful() else nullcontext() as renderer:
-        from bop_cender.eval.report import format_scores, summary_lines
         from bop_cender.eval.score_file import method_name, score_file
+        from bop_cender.report.summary import format_scores, summary_lines
 
         scored = score_file(
             args.results, **data_overrides(args),

@@ -3,7 +3,7 @@
 Follows ``shared/reference/bop_metrics.md`` sections 3-4 (toolkit ``eval_calc_errors.py``,
 ``eval_calc_scores.py``, ``pose_matching.match_poses``, ``score.calc_localization_scores``,
 ``eval_bop19_pose.py``). Nothing here loads files: a scorer loads the dataset and the results CSV,
-calls :func:`select_top_n`, computes errors (``errors.py``, ``vsd.py``) for the kept estimates
+calls :func:`select_top_n`, computes errors (``pose_errors.py``, ``vsd.py``) for the kept estimates
 against every GT of the same object in the image, normalises them with :func:`normalize_by_diameter`
 / :func:`normalize_by_image_width`, and then calls :func:`valid_gts`, :func:`match`, :func:`recall`
 and :func:`average_recalls`.

@@ -3,7 +3,7 @@
 Where the data comes from, first found wins for each setting:
 
 1. the options given (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``);
-2. the run sidecar beside the CSV (``<stem>.json``, :func:`bop_cender.result_files.read_run_sidecar`):
+2. the run sidecar beside the CSV (``<stem>.json``, :func:`bop_cender.results.files.read_run_sidecar`):
    data root, dataset, split, seed and ``n_views`` from its selection;
 3. the BOP file name ``{method}_{dataset}-{split}[-{split_type}]...csv``: ``dimo`` and ``tless`` map
    to our loaders, any other name to the generic BOP loader (which then needs a data root);
@@ -27,10 +27,10 @@ from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.render_process import RenderProcess, render_process_useful
-from bop_cender.eval.report import ScoreReport, write_errors_csv, write_scores_json
+from bop_cender.eval.score_report import ScoreReport, write_errors_csv, write_scores_json
 from bop_cender.eval.scoring import score_results
-from bop_cender.result_files import ResultName, parse_result_filename, read_run_sidecar
-from bop_cender.results import read_bop_results
+from bop_cender.results.bop_csv import read_bop_results
+from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar
 
 
 @dataclass(frozen=True)

@@ -48,12 +48,12 @@ from bop_cender.eval.matching import (
 from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_errors import Pairs, pair_errors
 from bop_cender.eval.render_process import DepthRenderer
-from bop_cender.eval.report import EstimateRecord, ScoreReport
+from bop_cender.eval.score_report import EstimateRecord, ScoreReport
 from bop_cender.eval.targets import TargetSet, resolve_targets
 from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
 from bop_cender.eval.vsd import VSD_TAUS
-from bop_cender.results import BopEstimate
+from bop_cender.results.bop_csv import BopEstimate
 
 
 def score_results(

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from bop_cender.data.registry import DatasetRequest, open_dataset
-from bop_cender.eval.regression_fixture import BuiltFixture, build_fixture
+from bop_cender.synth.regression_fixture import BuiltFixture, build_fixture
 from tests.eval.scoring_data import SMALL, write_dimo_copy
 
 

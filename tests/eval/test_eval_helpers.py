@@ -83,7 +83,7 @@ def test_depth_crops_hold_the_whole_silhouette_inside_the_image() -> None:
 def test_mspd_hot_vertex_prune_is_exact_for_near_gt_estimates(monkeypatch) -> None:
     """Estimates a few degrees off a cylinder's GT: many symmetries nearly tie, the second prune must keep the
     minimum (bit for bit the exhaustive result)."""
-    from bop_cender.eval import errors
+    from bop_cender.eval import pose_errors as errors
     from bop_cender.geometry.symmetry import ContinuousSymmetry, symmetry_transforms
 
     pts = np.asarray(trimesh.creation.cylinder(radius=30.0, height=80.0, sections=48).subdivide().vertices)

@@ -28,7 +28,7 @@ from bop_cender.eval.scoring import _pairs
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.vsd import VSD_TAUS, vsd
 from bop_cender.render.rasterizer import render_objects_separately
-from bop_cender.results import write_bop_results
+from bop_cender.results.bop_csv import write_bop_results
 from tests.eval.scoring_data import gt_rows, row
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,10 +10,10 @@ import pytest
 
 from bop_cender.cli import main
 from bop_cender.errors import ConfigError
-from bop_cender.eval.report import SCORE_KEYS
 from bop_cender.eval.score_file import choose_data
-from bop_cender.result_files import write_run_sidecar
-from bop_cender.results import write_bop_results
+from bop_cender.eval.score_report import SCORE_KEYS
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.results.files import write_run_sidecar
 from tests.eval.scoring_data import gt_rows, row
 
 

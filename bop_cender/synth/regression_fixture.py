@@ -35,7 +35,7 @@ from bop_cender.data.bop_io import save_depth, save_json, save_ply
 from bop_cender.eval.depth_render import render_pile_instances, silhouette_areas
 from bop_cender.eval.targets import MIN_VISIB_FRACT, TARGETS_FILE
 from bop_cender.render.mesh import prepare_mesh
-from bop_cender.results import BopEstimate
+from bop_cender.results.bop_csv import BopEstimate
 
 SPLIT_FOLDER = "test_primesense"
 #: The non-annotated occluders: the table everything stands on, and the plate over the last object.

@@ -4,7 +4,7 @@ Inputs, any mix:
 
 - a BOP results CSV (ours, CosyPose's published files such as
   ``cosypose114533-eccv2020_tless-test-primesense.csv``, PVNet outputs converted by
-  :mod:`bop_cender.eval.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
+  :mod:`bop_cender.results.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
   (its scores JSON and errors CSV are written too);
 - a ``scores_*.json`` already written by ``bop-cender score``;
 - ``reference="paper"``: the numbers the CenDerNet paper reports, from ``results/reference/paper_tables.csv``,
@@ -25,8 +25,8 @@ from bop_cender.data.bop_io import atomic_path, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
-from bop_cender.eval.report import SCORE_KEYS, read_scores_json
 from bop_cender.eval.score_file import method_name, score_file
+from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
 
 #: The paper's reported numbers (dataset, split, method, source, metric, value).
 PAPER_TABLES = Path(__file__).resolve().parents[2] / "results" / "reference" / "paper_tables.csv"

@@ -1,6 +1,6 @@
 """The regression check: a fixed, seeded evaluation whose every number is committed under ``results/regression/``.
 
-:func:`run_regression` builds the fixture of :mod:`bop_cender.eval.regression_fixture` (T-LESS layout,
+:func:`run_regression` builds the fixture of :mod:`bop_cender.synth.regression_fixture` (T-LESS layout,
 720x540, rendered depth; results with perturbations straddling the thresholds, symmetric, occluded,
 duplicate and non-target estimates), scores it with the real scorer and turns the report into tables:
 
@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.registry import DatasetRequest, open_dataset
-from bop_cender.eval.regression_fixture import FixtureSpec, build_fixture, regression_estimates
-from bop_cender.eval.report import SCORE_KEYS, ScoreReport
+from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_cender.eval.scoring import score_results
-from bop_cender.results import write_bop_results
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.synth.regression_fixture import FixtureSpec, build_fixture, regression_estimates
 
-TABLES_DIR = Path(__file__).resolve().parents[2] / "results" / "regression"
+TABLES_DIR = Path(__file__).resolve().parents[1] / "results" / "regression"
 RESULTS_NAME = "regression_tless-test.csv"
 #: Digits written for errors and recalls; compared within TOLERANCE (half a unit of the last digit, plus slack).
 DIGITS = 9
