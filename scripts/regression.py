@@ -20,13 +20,15 @@ from pathlib import Path
 
 from bop_cender.regression import (
     RESULTS_NAME,
-    TABLES_DIR,
     anchor_tables,
     compare_tables,
     format_problems,
     run_regression,
     write_tables,
 )
+
+#: The committed tables, in the repository (the package does not read them).
+TABLES_DIR = Path(__file__).resolve().parents[1] / "results" / "regression"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,7 +7,7 @@ Inputs, any mix:
   :mod:`bop_cender.results.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
   (its scores JSON and errors CSV are written too);
 - a ``scores_*.json`` already written by ``bop-cender score``;
-- ``reference="paper"``: the numbers the CenDerNet paper reports, from ``results/reference/paper_tables.csv``,
+- ``reference="paper"``: the numbers the CenDerNet paper reports, from the package's ``paper_tables.csv`` (``results/reference/``),
   filtered to the table's dataset and split (one row per method, its tables merged).
 
 Outputs: a markdown table (returned and written), a CSV and a bar chart PNG (matplotlib, Agg) of the scores.
@@ -19,6 +19,8 @@ import csv
 import io
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from bop_cender.data.bop_io import atomic_path, write_text_atomic
@@ -28,8 +30,9 @@ from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.score_file import method_name, score_file
 from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
 
-#: The paper's reported numbers (dataset, split, method, source, metric, value).
-PAPER_TABLES = Path(__file__).resolve().parents[2] / "results" / "reference" / "paper_tables.csv"
+#: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
+#: installed package finds them (a copy of results/reference/paper_tables.csv, kept equal by a test).
+PAPER_TABLES = resources.files("bop_cender.report").joinpath("paper_tables.csv")
 
 
 @dataclass(frozen=True)
@@ -153,7 +156,7 @@ def compare(
     return comparison
 
 
-def reference_rows(path: Path, dataset: str | None, split: str | None) -> list[MethodRow]:
+def reference_rows(path: Path | Traversable, dataset: str | None, split: str | None) -> list[MethodRow]:
     """Rows of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are comments)
     for ``dataset`` / ``split`` (None: any), one per method, its tables merged.
 
@@ -161,7 +164,7 @@ def reference_rows(path: Path, dataset: str | None, split: str | None) -> list[M
         ConfigError: the file is missing or malformed.
     """
     if not path.is_file():
-        raise ConfigError("reference table not found (expected results/reference/paper_tables.csv)", field=str(path))
+        raise ConfigError("reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path))
     lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
     merged: dict[tuple[str, str, str], dict[str, float]] = {}
     sources: dict[tuple[str, str, str], list[str]] = {}
