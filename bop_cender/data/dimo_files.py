@@ -19,12 +19,13 @@ import numpy as np
 
 from bop_cender.data.bop_io import as_int, load_image_dict, load_json, require_keys
 from bop_cender.data.consistency import ResidualTracker
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
 from bop_cender.data.types import check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
 from bop_cender.geometry.poses import c2w_to_w2c, make_pose
 
-CAMERA_FILE = "scene_camera.json"
-GT_FILE = "scene_gt.json"
+CAMERA_FILE = SCENE_CAMERA
+GT_FILE = SCENE_GT
 GT_WORLD_FILE = "scene_gt_world.json"
 INFO_FILE = "scene_info.json"
 

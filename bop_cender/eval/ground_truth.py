@@ -22,13 +22,12 @@ import numpy as np
 from tqdm import tqdm
 
 from bop_cender.data.bop_io import load_json
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
 from bop_cender.data.scene_ids import int_to_scene_folder, is_suffixed, scene_folder_to_int
 from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.geometry.poses import pose_from_bop
 
-SCENE_GT = "scene_gt.json"
-SCENE_CAMERA = "scene_camera.json"
 POSES_STORED = "scene_gt.json (per-image poses as stored, as the toolkit reads them)"
 POSES_COMPOSED = "T_cam_world @ T_world_model (no scene_gt.json)"
 

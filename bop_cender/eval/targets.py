@@ -18,13 +18,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bop_cender.data.bop_io import load_json, save_json
+from bop_cender.data.layout import MIN_VISIB_FRACT, TARGETS_FILE
 from bop_cender.errors import DatasetError
 from bop_cender.eval.ground_truth import GroundTruth, ImageGt
 from bop_cender.eval.matching import Target
-
-TARGETS_FILE = "test_targets_bop19.json"
-#: The toolkit's ``min_visib_fract`` for BOP'19 targets.
-MIN_VISIB_FRACT = 0.1
 
 SOURCE_FILE = "file"
 SOURCE_GT_INFO = "scene_gt_info"

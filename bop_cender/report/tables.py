@@ -164,7 +164,9 @@ def reference_rows(path: Path | Traversable, dataset: str | None, split: str | N
         ConfigError: the file is missing or malformed.
     """
     if not path.is_file():
-        raise ConfigError("reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path))
+        raise ConfigError(
+            "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
+        )
     lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
     merged: dict[tuple[str, str, str], dict[str, float]] = {}
     sources: dict[tuple[str, str, str], list[str]] = {}

@@ -24,6 +24,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import save_json, write_image
 from bop_cender.data.dimo import CARRIER_MIN_ID
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
 from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
 from bop_cender.synth.imaging import render_views
@@ -161,8 +162,8 @@ def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: 
             }
             for i in pile.gt_indices
         ]
-        save_json(tmp / "scene_camera.json", scene_camera)
-        save_json(tmp / "scene_gt.json", scene_gt)
+        save_json(tmp / SCENE_CAMERA, scene_camera)
+        save_json(tmp / SCENE_GT, scene_gt)
         save_json(tmp / "scene_gt_world.json", world)
         save_json(tmp / "scene_info.json", scene_info)
         if spec.contact_sheets:

@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
+from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
 from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
-from bop_cender.synth.gt_info import MIN_VISIB_FRACT, object_visibility
+from bop_cender.synth.gt_info import object_visibility
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
@@ -147,8 +148,8 @@ def write_targets(root: Path) -> int:
     targets = []
     test_dir = Path(root) / "test_primesense"
     for scene_dir in sorted(p for p in test_dir.iterdir() if p.is_dir() and p.name.isdigit()):
-        gt = load_json(scene_dir / "scene_gt.json", keys_to_int=True)
-        info = load_json(scene_dir / "scene_gt_info.json", keys_to_int=True)
+        gt = load_json(scene_dir / SCENE_GT, keys_to_int=True)
+        info = load_json(scene_dir / SCENE_GT_INFO, keys_to_int=True)
         for im_id in sorted(gt):
             counts: dict[int, int] = {}
             for g, i in zip(gt[im_id], info[im_id], strict=True):
@@ -158,5 +159,5 @@ def write_targets(root: Path) -> int:
                 {"im_id": im_id, "inst_count": c, "obj_id": o, "scene_id": int(scene_dir.name)}
                 for o, c in sorted(counts.items())
             ]
-    save_json(Path(root) / "test_targets_bop19.json", targets)
+    save_json(Path(root) / TARGETS_FILE, targets)
     return len(targets)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import trimesh
 
-from bop_cender.eval.targets import MIN_VISIB_FRACT
+from bop_cender.data.layout import MIN_VISIB_FRACT
 from bop_cender.results.bop_csv import BopEstimate
 from bop_cender.synth.regression_fixture import PLATE_EXTENTS, TABLE_EXTENTS, BuiltFixture, FixtureSpec, perturb
 
