@@ -31,7 +31,6 @@ from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT, SCENE_GT_INFO, TARGET
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
-from bop_cender.eval.ground_truth import split_folder as data_split_folder
 from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import resolve_targets, write_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
@@ -104,7 +103,9 @@ def export_for_toolkit(
     targets = resolve_targets(
         dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
-    split_folder = data_split_folder(gt, dataset)
+    # The toolkit knows no DIMO: it is registered with the user's split names (real, sim); BOP datasets keep their
+    # split folder, whose suffix is the split type (test_primesense).
+    split_folder = dataset.split if dataset.name == "dimo" else dataset.split_folder
     split, split_type = _toolkit_split(dataset.name, split_folder)
     method = method or _method(results_csv)
     name = result_filename(method, dataset.name, split, split_type)

@@ -174,6 +174,7 @@ def open_bop_split(
         residuals=residuals,
         image_size=size,
         has_depth=has_depth,
+        split_dir=split_dir,
     )
 
 

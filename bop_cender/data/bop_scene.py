@@ -353,6 +353,7 @@ def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, trac
             T_world_model=inst.T_world_model,
             gt_ids=inst.gt_ids,
             visib_fract={} if folder.visib is None else {im: folder.visib[im][g] for im, g in inst.gt_ids.items()},
+            T_cam_model={im: folder.gt[im][g].T_cam_model for im, g in inst.gt_ids.items()},
             source=source,
         )
         for inst in instances

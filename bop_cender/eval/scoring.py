@@ -29,7 +29,7 @@ import numpy as np
 from bop_cender.data.bop_io import few_ids
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
-from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth, split_folder
+from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
     MSPD_THRESHOLDS,
     MSSD_THRESHOLDS,
@@ -98,7 +98,7 @@ def score_results(
 
     kept = select_top_n(list(rows), targets.targets, n_top)
     pairs = _pairs(kept, gt)
-    width = mspd_width(dataset.name, split_folder(gt, dataset), _image_width(gt, dataset))
+    width = mspd_width(dataset.name, dataset.split_folder, _image_width(gt, dataset))
     has_depth = bool(gt.images) and all(im.depth_path is not None for im in gt)
     delta = vsd_delta_for(dataset.name, vsd_delta) if has_depth else None
 

@@ -183,3 +183,20 @@ def test_mspd_width_follows_the_split_type_of_the_folder(small_fixture, tmp_path
     ds = open_bop(root, "test", name="hb", split_type="kinect", model_type="cad")
     report = score_results(gt_rows(small_fixture), ds, progress=False)
     assert report.metadata["mspd_width"] == 1920, report.metadata["mspd_width_source"]
+
+
+def test_ground_truth_is_what_the_loader_read(small_dataset) -> None:
+    """Per-image GT poses are the stored scene_gt.json values, bit for bit, read once by the loader."""
+    import json
+
+    from bop_cender.eval.ground_truth import POSES_STORED, collect_ground_truth
+    from bop_cender.geometry.poses import pose_from_bop
+
+    gt = collect_ground_truth(small_dataset, progress=False)
+    assert gt.pose_source == POSES_STORED and small_dataset.split_folder == "test_primesense"
+    for scene in small_dataset.scenes():
+        stored = json.loads((small_dataset.split_dir / scene.scene_id / "scene_gt.json").read_text())
+        for obj in scene.gt:
+            for im, g in obj.gt_ids.items():
+                entry = stored[str(im)][g]
+                assert np.array_equal(obj.T_cam_model[im], pose_from_bop(entry["cam_R_m2c"], entry["cam_t_m2c"]))
