@@ -133,7 +133,7 @@ def crosscheck(
         notes.append("VSD skipped: the dataset has no test depth")
     else:
         notes.append("VSD skipped on request")
-    vsd_delta = ours.metadata.get("vsd_delta")
+    vsd_delta = ours.metadata.vsd_delta
     export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
     clock = time.perf_counter()
     toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet, progress=progress)

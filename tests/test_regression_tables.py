@@ -21,7 +21,7 @@ def run():
 def test_scores_equal_the_committed_tables_and_the_toolkit_anchor(run) -> None:
     problems = compare_tables(run, TABLES_DIR)
     assert not problems, format_problems(problems)
-    assert run.report.metadata["counts"]["evaluated"] > 20 and run.report.vsd_recalls is not None
+    assert run.report.metadata.counts.evaluated > 20 and run.report.vsd_recalls is not None
 
 
 def test_a_drift_is_reported_as_a_diff(run, tmp_path) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -162,8 +162,7 @@ def score_file(
         read = time.perf_counter()
         report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path, renderer=renderer)
     report.timings.update(open_dataset=opened - clock, read_results=read - opened)
-    report.metadata["data_origin"] = choice.origin
-    report.metadata["method"] = method_name(csv_path)
+    report = replace(report, metadata=replace(report.metadata, data_origin=choice.origin, method=method_name(csv_path)))
     out = Path(out_dir) if out_dir is not None else csv_path.parent
     stem = csv_path.name.split(".")[0]
     scores_path, errors_path = out / f"scores_{stem}.json", out / f"errors_{stem}.csv"

@@ -19,15 +19,14 @@ def summary_lines(report: ScoreReport) -> list[str]:
     """Metadata lines printed under the AR table."""
     m = report.metadata
     lines = [
-        f"dataset {m['dataset']} split {m['split']} ({m['root']})",
-        f"targets: {m['targets_note']}",
-        f"estimates: {m['counts']['rows']} rows, {m['counts']['evaluated']} evaluated (top-n per target),"
-        f" {m['counts']['not_target']} for non-target images/objects ignored, {m['counts']['beyond_top_n']} beyond"
+        f"dataset {m.dataset} split {m.split} ({m.root})",
+        f"targets: {m.targets_note}",
+        f"estimates: {m.counts.rows} rows, {m.counts.evaluated} evaluated (top-n per target),"
+        f" {m.counts.not_target} for non-target images/objects ignored, {m.counts.beyond_top_n} beyond"
         " the top-n cut",
-        f"MSPD width {m['mspd_width']} px ({m['mspd_width_source']}); VSD delta "
-        + ("n/a" if m["vsd_delta"] is None else f"{m['vsd_delta']:g} mm ({m['vsd_delta_source']})"),
-        "time per image: "
-        + ("n/a (a row has time < 0)" if m["time_per_image"] is None else f"{m['time_per_image']:.3f} s"),
+        f"MSPD width {m.mspd_width} px ({m.mspd_width_source}); VSD delta "
+        + ("n/a" if m.vsd_delta is None else f"{m.vsd_delta:g} mm ({m.vsd_delta_source})"),
+        "time per image: " + ("n/a (a row has time < 0)" if m.time_per_image is None else f"{m.time_per_image:.3f} s"),
     ]
     return lines + [f"note: {n}" for n in report.notes]
 

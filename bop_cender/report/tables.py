@@ -119,9 +119,7 @@ def compare(
             )  # fmt: skip
             meta = scored.report.metadata
             rows.append(
-                MethodRow(
-                    method_name(path), f"scored {path.name}", scored.report.scores, meta["dataset"], meta["split"]
-                )
+                MethodRow(method_name(path), f"scored {path.name}", scored.report.scores, meta.dataset, meta.split)
             )
         elif path.suffix == ".json":
             data = read_scores_json(path)

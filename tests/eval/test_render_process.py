@@ -217,7 +217,7 @@ def test_a_cold_start_score_renders_in_a_process_with_the_same_numbers(small_fix
     env = {**os.environ, "BOP_CENDER_ALLOCATOR": "system"}
     subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=ROOT, env=env)
     here = score_file(csv_path, data_root=small_fixture.root, out_dir=warm, progress=False, render_process=False)
-    assert here.report.metadata["vsd_renders"] == "threads of the scoring process"
+    assert here.report.metadata.vsd_renders == "threads of the scoring process"
     forked = json.loads((cold / "scores_cold_tless-test.json").read_text())
     threaded = json.loads((warm / "scores_cold_tless-test.json").read_text())
     assert forked["metadata"]["vsd_renders"] == "a forked render process"
