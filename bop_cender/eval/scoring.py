@@ -27,9 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import few_ids
 from bop_cender.data.types import Dataset, ObjectModel
-from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
     MSPD_THRESHOLDS,
@@ -39,7 +37,6 @@ from bop_cender.eval.matching import (
     GtInstance,
     Matches,
     SelectedEstimate,
-    Target,
     bop19_scores,
     match,
     normalize_by_image_width,
@@ -50,7 +47,8 @@ from bop_cender.eval.matching import (
 from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_errors import PairErrors, Pairs, pair_errors
 from bop_cender.eval.render_process import DepthRenderer
-from bop_cender.eval.score_report import EstimateRecord, ScoreCounts, ScoreMetadata, ScoreReport
+from bop_cender.eval.score_report import ScoreCounts, ScoreMetadata, ScoreReport
+from bop_cender.eval.score_rows import check_rows, count_not_target, estimate_records
 from bop_cender.eval.targets import TargetSet, resolve_targets
 from bop_cender.eval.toolkit_constants import Choice, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
@@ -162,7 +160,7 @@ def gather(
     clock = time.perf_counter()
     gt = collect_ground_truth(dataset, progress)
     timings["ground_truth"] = time.perf_counter() - clock
-    unselected = _check_rows(rows, gt, dataset, source)
+    unselected = check_rows(rows, gt, dataset, source)
     models = dataset.eval_models or dataset.models
     meshes = MeshCache(models)
     clock = time.perf_counter()
@@ -236,8 +234,8 @@ def build_report(
     r_vsd = None if matched.vsd is None else recall(matched.vsd, matched.n_targets)
     scores = bop19_scores(r_vsd, r_mssd, r_mspd)
     gt, targets, kept, pairs, raw = gathered.gt, gathered.targets, paired.kept, paired.pairs, errors.raw
-    not_target = _count_not_target(rows, targets.targets)
-    records = _records(kept, pairs, raw, errors.mssd, errors.mspd, matched.mssd, matched.mspd, matched.vsd)
+    not_target = count_not_target(rows, targets.targets)
+    records = estimate_records(kept, pairs, raw, errors.mssd, errors.mspd, matched.mssd, matched.mspd, matched.vsd)
     notes = [f"GT poses: {gt.pose_source}"]
     if errors.delta is None:
         notes.append("no test depth: VSD, AR_VSD and AR are not available; MSSD and MSPD stand alone")
@@ -298,47 +296,6 @@ def average_time_per_image(rows: Sequence[BopEstimate]) -> float | None:
 # --------------------------------------------------------------------------------------------- helpers
 
 
-def _check_rows(rows: Sequence[BopEstimate], gt: GroundTruth, dataset: Dataset, source: str | Path | None) -> int:
-    """Raise one ResultsError listing every row with an unknown object, scene or image; count ignored rows.
-
-    Returns:
-        rows for images that exist in the split but were not selected (ignored, as the toolkit does).
-    """
-    problems: list[str] = []
-    ignored = 0
-    known: dict[tuple[int, int], bool] = {}
-    for k, row in enumerate(rows):
-        where = f"line {row.line}" if row.line is not None else f"row {k}"
-        if row.obj_id not in dataset.models:
-            problems.append(f"{where}: obj_id: unknown object {row.obj_id} (known: {few_ids(sorted(dataset.models))})")
-            continue
-        key = (row.scene_id, row.im_id)
-        if key in gt.images:
-            continue
-        if key not in known:
-            known[key] = gt.image_on_disk(*key)
-        if known[key]:
-            ignored += 1
-        elif not gt.scene_on_disk(row.scene_id):
-            problems.append(f"{where}: scene_id: no scene {row.scene_id} in {dataset.name} {dataset.split}")
-        else:
-            problems.append(f"{where}: im_id: scene {row.scene_id} has no image {row.im_id}")
-    if problems:
-        raise ResultsError(
-            f"{len(problems)} row(s) name data that is not in {dataset.name} {dataset.split} at {dataset.root}"
-            " (were the results made on other data?)",
-            file=source,
-            problems=problems,
-        )
-    return ignored
-
-
-def _count_not_target(rows: Sequence[BopEstimate], targets: list[Target]) -> int:
-    """Rows whose (image, object) is not a target (ignored without penalty)."""
-    keys = {(t.scene_id, t.im_id, t.obj_id) for t in targets}
-    return sum(1 for r in rows if (r.scene_id, r.im_id, r.obj_id) not in keys)
-
-
 def _pairs(kept: list, gt: GroundTruth) -> Pairs:
     """Every (kept estimate, GT instance of its object in its image) pair."""
     images = list(gt.images.values())
@@ -397,51 +354,6 @@ def _targets_count(valid: list[GtInstance], n_top: int) -> int:
         key = (g.scene_id, g.im_id, g.obj_id)
         counts[key] = counts.get(key, 0) + 1
     return int(sum(min(n_top, c) for c in counts.values()))
-
-
-def _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd) -> list[EstimateRecord]:
-    """One EstimateRecord per kept estimate, with the gt_id it matched per threshold."""
-    group_of = {(s.estimate.scene_id, s.estimate.im_id, s.estimate.obj_id, s.est_id): k for k, s in enumerate(kept)}
-    matched = {name: _matched_gt(m, group_of, len(kept)) for name, m in (("mssd", m_mssd), ("mspd", m_mspd))}
-    vsd_matched = None if m_vsd is None else _matched_gt(m_vsd, group_of, len(kept))
-    rows_of: list[list[int]] = [[] for _ in kept]
-    for p in range(len(pairs)):
-        rows_of[int(pairs.est[p])].append(p)
-    records = []
-    for k, sel in enumerate(kept):
-        r = np.asarray(rows_of[k], dtype=np.int64)
-        row = sel.estimate
-        records.append(
-            EstimateRecord(
-                scene_id=row.scene_id,
-                im_id=row.im_id,
-                obj_id=row.obj_id,
-                est_id=sel.est_id,
-                score=row.score,
-                line=row.line,
-                gt_ids=pairs.gt_id[r],
-                mssd_mm=raw.mssd[r],
-                mssd=mssd_n[r],
-                mspd_px=raw.mspd[r],
-                mspd=mspd_n[r],
-                vsd=None if raw.vsd is None else raw.vsd[r],
-                mssd_match=matched["mssd"][k, 0],
-                mspd_match=matched["mspd"][k, 0],
-                vsd_match=None if vsd_matched is None else vsd_matched[k],
-            )
-        )
-    return records
-
-
-def _matched_gt(m: Matches, group_of: dict[tuple, int], n: int) -> np.ndarray:
-    """``(n, V, K)`` gt_id each kept estimate is matched to per (variant, threshold), -1 if none."""
-    V, K, _ = m.est_ids.shape
-    out = np.full((n, V, K), -1, dtype=np.int64)
-    v, k, j = np.nonzero(m.est_ids >= 0)
-    for vv, kk, jj in zip(v.tolist(), k.tolist(), j.tolist(), strict=True):
-        g = m.gts[jj]
-        out[group_of[(g.scene_id, g.im_id, g.obj_id, int(m.est_ids[vv, kk, jj]))], vv, kk] = g.gt_id
-    return out
 
 
 def _image_width(gt: GroundTruth, dataset: Dataset) -> int:
