@@ -115,7 +115,7 @@ def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], mes
         comp = [type_index] if composition in SAME_TYPE else "mixed"
         n = int(pile_rng.integers(lo, hi + 1))
         cid = CARRIER_MIN_ID + carrier
-        return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True)
+        return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True, cache=meshes.piles)
 
     real_pile = new_pile(np.random.default_rng([spec.seed, s, 1000]))
     info = {"carrier": carrier, "parts": composition}

@@ -103,7 +103,9 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
         for start in range(0, n_images, step):
             lo, hi = spec.objects_per_scene
             n = int(rng.integers(lo, hi + 1))
-            pile = make_pile(models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False)
+            pile = make_pile(
+                models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=meshes.piles
+            )
             ids = range(start, min(start + step, n_images))
             views = _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
             sheet += views[: max(0, SHEET_VIEWS - len(sheet))]  # keep only what the contact sheet shows
