@@ -28,11 +28,12 @@ from pathlib import Path
 
 from bop_cender.data.bop_io import load_json, save_json
 from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
+from bop_cender.data.targets_file import write_targets
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.model_points import MeshCache
-from bop_cender.eval.targets import resolve_targets, write_targets
+from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
 from bop_cender.results.files import parse_result_filename, result_filename
@@ -101,7 +102,7 @@ def export_for_toolkit(
     gt = collect_ground_truth(dataset, progress)
     meshes = MeshCache(dataset.eval_models or dataset.models)
     targets = resolve_targets(
-        dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
+        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
     # The toolkit knows no DIMO: it is registered with the user's split names (real, sim); BOP datasets keep their
     # split folder, whose suffix is the split type (test_primesense).

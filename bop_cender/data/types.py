@@ -28,6 +28,8 @@ from bop_cender.geometry.symmetry import (
 if TYPE_CHECKING:
     import trimesh
 
+    from bop_cender.data.targets_file import Target
+
 #: A rotation whose ``R R^T - I`` has an entry above this is not accepted (BOP files are rounded
 #: to ~6 digits, so real rotations sit around 1e-6).
 ROTATION_TOLERANCE = 1e-2
@@ -282,6 +284,7 @@ class Dataset:
     split_dir: Path | None = None
     _cache: dict[str, Scene] = field(default_factory=dict, repr=False)
     _on_disk: dict[str, frozenset[int] | None] = field(default_factory=dict, repr=False)
+    _files: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def scene(self, key: str) -> Scene:
         """Load (once) and return the scene with this key."""
@@ -305,6 +308,20 @@ class Dataset:
     def split_folder(self) -> str:
         """The split folder's name (``test_primesense``: its suffix is the BOP split type); the split name without one."""
         return self.split_dir.name if self.split_dir is not None else self.split
+
+    def bop19_targets(self) -> list[Target] | None:
+        """The dataset's ``test_targets_bop19.json`` (at its root), read once; None without one.
+
+        Raises:
+            DatasetError: the file is malformed (every entry needs integer ids and ``inst_count`` >= 1).
+        """
+        if "targets" not in self._files:
+            from bop_cender.data.layout import TARGETS_FILE
+            from bop_cender.data.targets_file import read_targets
+
+            path = self.root / TARGETS_FILE
+            self._files["targets"] = read_targets(path) if path.is_file() else None
+        return self._files["targets"]
 
     def scene_on_disk(self, scene_id: str) -> bool:
         """Whether the split has a folder for this scene id (selected or not)."""

@@ -165,7 +165,7 @@ def gather(
     meshes = MeshCache(models)
     clock = time.perf_counter()
     targets = resolve_targets(
-        dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
+        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
     timings["targets"] = time.perf_counter() - clock
     return Gathered(gt, unselected, models, meshes, targets)

@@ -15,7 +15,7 @@ import pytest
 
 from bop_cender.cli import main
 from bop_cender.data.registry import DatasetRequest, open_dataset
-from bop_cender.eval.targets import read_targets
+from bop_cender.data.targets_file import read_targets
 from bop_cender.results.bop_csv import write_bop_results
 from bop_toolkit_adapters.export import export_for_toolkit
 from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit

@@ -10,12 +10,12 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from bop_cender.data.targets_file import read_targets, write_targets
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
 from bop_cender.eval.depth_render import render_depth_crops
 from bop_cender.eval.matching import Target
 from bop_cender.eval.model_points import eval_vertices
-from bop_cender.eval.targets import read_targets, write_targets
 from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.render.rasterizer import render_objects_separately

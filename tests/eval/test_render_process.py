@@ -39,7 +39,7 @@ def scene_pairs(small_fixture, small_dataset):
     """Pairs of the small fixture's estimates (GT poses perturbed, so VSD is neither 0 nor 1), and the meshes."""
     rows = gt_rows(small_fixture, {o: "rot_5deg" for o in small_fixture.models}, seed=2)
     gt = collect_ground_truth(small_dataset, False)
-    targets = resolve_targets(small_dataset.root, gt, small_dataset.target_obj_ids, None)
+    targets = resolve_targets(small_dataset.bop19_targets(), gt, small_dataset.target_obj_ids, None)
     pairs = _pairs(select_top_n(rows, targets.targets, -1), gt)
     models = small_dataset.eval_models or small_dataset.models
     return pairs, models, MeshCache(models)

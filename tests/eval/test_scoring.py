@@ -138,7 +138,7 @@ def test_dimo_layout_without_depth_has_no_vsd_and_computes_targets(small_fixture
     ds = open_dataset(DatasetRequest("dimo", dimo_copy, "real"))
     gt = collect_ground_truth(ds, progress=False)
     targets = resolve_targets(
-        ds.root, gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
+        ds.bop19_targets(), gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
     )
     assert targets.source == SOURCE_RENDERED
     expected = set()
