@@ -32,10 +32,10 @@ from bop_cender.data.targets_file import write_targets
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
+from bop_cender.meshes import MeshCache
 from bop_cender.results.files import parse_result_filename, result_filename
 
 #: Split folder the toolkit uses for (dataset, split) when no split type is given (dataset_params.py).

@@ -26,6 +26,7 @@ NEVER = {
     "report": {"synth"} | METHOD | APPS,
     "bop_toolkit_adapters": {"synth"} | METHOD | APPS,
     "visibility": {"data", "synth", "eval", "results", "report"} | METHOD | APPS,
+    "meshes": {"synth", "eval", "results", "report"} | METHOD | APPS,
 }
 
 

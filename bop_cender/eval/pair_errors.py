@@ -24,11 +24,12 @@ from tqdm import tqdm
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.eval.ground_truth import ImageGt
-from bop_cender.eval.model_points import MeshCache, eval_vertices
+from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pair_vsd import pair_vsd
 from bop_cender.eval.pose_errors import hull_vertices, mspd, mssd
 from bop_cender.eval.render_process import DepthRenderer, ThreadRenderer
 from bop_cender.eval.vsd import VSD_TAUS
+from bop_cender.meshes import MeshCache
 
 #: Worker threads (the benchmark target is two cores).
 WORKERS = 2

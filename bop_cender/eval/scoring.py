@@ -44,7 +44,6 @@ from bop_cender.eval.matching import (
     select_top_n,
     valid_gts,
 )
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_errors import PairErrors, Pairs, pair_errors
 from bop_cender.eval.render_process import DepthRenderer
 from bop_cender.eval.score_report import ScoreCounts, ScoreMetadata, ScoreReport
@@ -53,6 +52,7 @@ from bop_cender.eval.targets import TargetSet, resolve_targets
 from bop_cender.eval.toolkit_constants import Choice, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
 from bop_cender.eval.vsd import VSD_TAUS
+from bop_cender.meshes import MeshCache
 from bop_cender.results.bop_csv import BopEstimate
 
 

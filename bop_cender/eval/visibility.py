@@ -15,8 +15,8 @@ import numpy as np
 from tqdm import tqdm
 
 from bop_cender.eval.ground_truth import ImageGt
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import VisibFracts
+from bop_cender.meshes import MeshCache
 
 
 def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress: bool = True) -> VisibFracts:

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.geometry.poses import invert_pose
-from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache, build_pile
 
@@ -95,7 +94,7 @@ def make_pile(
 ) -> Pile:
     """Drop ``n_parts`` of ``part_ids`` on the support (carrier or table) centred at the origin.
 
-    ``cache``: the per-mesh drop data kept between piles (:class:`MeshCache.piles` of the generating process).
+    ``cache``: the per-mesh drop data kept between piles (one per generating process).
     """
     meshes = [models[i].mesh for i in part_ids]
     placements = build_pile(meshes, support.mesh, np.eye(4), n_parts, rng, composition=composition, cache=cache)
@@ -103,23 +102,3 @@ def make_pile(
     T = np.stack([np.eye(4)] + [p.T_world_model for p in placements])
     gt = list(range(len(obj_ids))) if support_in_gt else list(range(1, len(obj_ids)))
     return Pile(obj_ids=obj_ids, T_world_model=T, gt_indices=gt)
-
-
-class MeshCache:
-    """Render meshes prepared once per model id, and the piles' per-mesh drop data (a worker process keeps its own).
-
-    Attributes:
-        piles: what :func:`~bop_cender.synth.piles.build_pile` computes once per geometry (stable poses, contact
-            points), kept for every pile this cache serves.
-    """
-
-    def __init__(self, models: dict[int, Part]):
-        self._models = models
-        self._cache: dict[int, RenderMesh] = {}
-        self.piles = PileGeometryCache()
-
-    def __call__(self, obj_ids: list[int]) -> list[RenderMesh]:
-        for i in obj_ids:
-            if i not in self._cache:
-                self._cache[i] = prepare_mesh(self._models[i].mesh)
-        return [self._cache[i] for i in obj_ids]

@@ -20,9 +20,10 @@ from typing import Any, Protocol
 import torch
 from tqdm import tqdm
 
+from bop_cender.meshes import MeshCache
 from bop_cender.synth import write_dimo, write_tless
-from bop_cender.synth.bop_files import MeshCache
 from bop_cender.synth.parts import Part
+from bop_cender.synth.piles import PileGeometryCache
 
 
 class SynthLayout(Protocol):
@@ -39,7 +40,9 @@ class SynthLayout(Protocol):
     def scene_jobs(self, spec: Any) -> list:
         """The independent units of work."""
 
-    def write_scene(self, root: Path, spec: Any, job: Any, models: dict[int, Part], meshes: MeshCache) -> int:
+    def write_scene(
+        self, root: Path, spec: Any, job: Any, models: dict[int, Part], meshes: MeshCache, piles: PileGeometryCache
+    ) -> int:
         """Write one job's scene folders (skipping complete ones); the number written."""
 
     def folders_per_job(self, spec: Any) -> int:
@@ -63,8 +66,8 @@ class DimoLayout:
     def scene_jobs(self, spec: write_dimo.DimoSpec) -> list:
         return write_dimo.scene_jobs(spec)
 
-    def write_scene(self, root, spec, job, models, meshes) -> int:
-        return write_dimo.write_scene(root, spec, job, models, meshes)
+    def write_scene(self, root, spec, job, models, meshes, piles) -> int:
+        return write_dimo.write_scene(root, spec, job, models, meshes, piles)
 
     def folders_per_job(self, spec: write_dimo.DimoSpec) -> int:
         return int(spec.write_real) + len(spec.variants)
@@ -87,8 +90,8 @@ class TlessLayout:
     def scene_jobs(self, spec: write_tless.TlessSpec) -> list:
         return write_tless.scene_jobs(spec)
 
-    def write_scene(self, root, spec, job, models, meshes) -> int:
-        return write_tless.write_scene(root, spec, job, models, meshes)
+    def write_scene(self, root, spec, job, models, meshes, piles) -> int:
+        return write_tless.write_scene(root, spec, job, models, meshes, piles)
 
     def folders_per_job(self, spec: write_tless.TlessSpec) -> int:
         return 1
@@ -114,15 +117,17 @@ class GenerationReport:
 
 @dataclass
 class _Worker:
-    """What a generating process keeps between its jobs: the layout, its spec, the models and their meshes."""
+    """What a generating process keeps between its jobs: the layout, its spec, the models, their render meshes
+    and the piles' per-mesh drop data."""
 
     layout: SynthLayout
     spec: Any
     models: dict[int, Part]
     meshes: MeshCache
+    piles: PileGeometryCache
 
     def run(self, root: str, job) -> int:
-        return self.layout.write_scene(Path(root), self.spec, job, self.models, self.meshes)
+        return self.layout.write_scene(Path(root), self.spec, job, self.models, self.meshes, self.piles)
 
 
 #: This process's worker (set by :func:`_init_worker`: a pool's initializer, or :func:`generate` itself).
@@ -134,7 +139,7 @@ def _init_worker(layout: str, spec, threads: int) -> None:
     torch.set_num_threads(threads)
     impl = LAYOUTS[layout]
     models = impl.models(spec)
-    _WORKER = _Worker(impl, spec, models, MeshCache(models))
+    _WORKER = _Worker(impl, spec, models, MeshCache(models), PileGeometryCache())
 
 
 def _run_job(root: str, job) -> int:

@@ -18,12 +18,14 @@ import numpy as np
 
 from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
 from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
-from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.meshes import MeshCache
+from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
 from bop_cender.synth.gt_info import object_visibility
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
 from bop_cender.synth.styles import make_style
 
@@ -86,7 +88,14 @@ def scene_jobs(spec: TlessSpec) -> list[tuple[str, int]]:
     return [("test", s + 1) for s in range(spec.n_scenes)] + [("pbr", s) for s in range(spec.pbr_scenes)]
 
 
-def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[int, Part], meshes: MeshCache) -> int:
+def write_scene(
+    root: Path,
+    spec: TlessSpec,
+    job: tuple[str, int],
+    models: dict[int, Part],
+    meshes: MeshCache,
+    piles: PileGeometryCache | None = None,
+) -> int:
     """Write one test or PBR scene folder (skipped if it exists). Returns folders written."""
     kind, s = job
     split = "test_primesense" if kind == "test" else "train_pbr"
@@ -104,7 +113,7 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
             lo, hi = spec.objects_per_scene
             n = int(rng.integers(lo, hi + 1))
             pile = make_pile(
-                models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=meshes.piles
+                models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=piles
             )
             ids = range(start, min(start + step, n_images))
             views = _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
@@ -118,7 +127,7 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
 
 def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec, rng, meshes, records) -> list:
     domain = "tless" if kind == "test" else "pbr"
-    mesh_list = meshes(pile.obj_ids)
+    mesh_list = meshes.many(pile.obj_ids)
     centre = pile.T_world_model[:, :3, 3].mean(axis=0)
     style = make_style(rng, domain, len(pile.obj_ids), centre, carrier_index=0)
     views = render_views(mesh_list, pile.T_world_model, cameras, spec.height, spec.width, style, rng)

@@ -20,13 +20,13 @@ from bop_cender.data.bop_io import load_depth
 from bop_cender.eval import render_process
 from bop_cender.eval.ground_truth import collect_ground_truth
 from bop_cender.eval.matching import select_top_n
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_vsd import pair_vsd, plan_renders
 from bop_cender.eval.render_process import RenderJob, RenderProcess, ThreadRenderer, render_job
 from bop_cender.eval.score_file import score_file
 from bop_cender.eval.scoring import _pairs
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.vsd import VSD_TAUS, vsd
+from bop_cender.meshes import MeshCache
 from bop_cender.render.rasterizer import render_objects_separately
 from bop_cender.results.bop_csv import write_bop_results
 from tests.eval.scoring_data import gt_rows, row

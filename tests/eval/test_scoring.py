@@ -9,10 +9,10 @@ from bop_cender.data.layout import MIN_VISIB_FRACT
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import collect_ground_truth
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.scoring import average_time_per_image, score_results
 from bop_cender.eval.targets import SOURCE_FILE, SOURCE_RENDERED, resolve_targets
 from bop_cender.eval.visibility import rendered_visib_fracts
+from bop_cender.meshes import MeshCache
 from bop_cender.results.bop_csv import write_bop_results
 from bop_cender.synth.regression_fixture import BuiltFixture
 from tests.eval.scoring_data import gt_rows, row, target_instances
