@@ -133,6 +133,7 @@ def candidate_costs(
     near: float = DEFAULT_NEAR,
     chunk_pixels: int | None = None,
     workers: int = 1,
+    occluder_depth: ArrayLike | None = None,
 ) -> torch.Tensor:
     """Render, take curvature and cost B candidates end to end: ``T_cam_model (B, V, 4, 4)`` -> ``(B,)``.
 
@@ -153,6 +154,8 @@ def candidate_costs(
             is the same bits; worth it only with ``torch.set_num_threads(1)`` and free cores (on a
             shared machine, one intra-op thread per process is the safe default: OpenMP threads that
             wait for a busy core make every parallel op cost a scheduler time slice).
+        occluder_depth: ``(V, H, W)`` depth (mm) of objects already placed, 0 where none: candidate
+            pixels behind it draw no curvature (the paper's sequential occlusion). None: no occluders.
 
     Returns:
         ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
@@ -167,7 +170,8 @@ def candidate_costs(
         chunk_pixels = CUDA_CHUNK_PIXELS if device.type == "cuda" else DEFAULT_CHUNK_PIXELS
     B, V = int(T.shape[0]), int(T.shape[1])
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
-    batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels)
+    occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
+    batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels, occluder_depth=occ)
 
     def run(chunk: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor]:
         atlas = chunk_curvature(batch, chunk)

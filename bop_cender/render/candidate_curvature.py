@@ -75,6 +75,9 @@ class CandidateBatch:
         order: ``(C,)`` canvases by window width.
         chunks: ``(start, stop, width)``: canvases ``order[start:stop]`` rendered together, ``width`` wide.
         near: near plane (mm).
+        num_views: V (canvas ``c`` is in view ``c % V``).
+        occluder_depth: ``(V, H, W)`` float32 z (mm) of objects already placed in each view, 0 where
+            there is none, or None: a candidate pixel behind it is hidden (see :func:`chunk_curvature`).
     """
 
     mesh: RenderMesh
@@ -87,6 +90,13 @@ class CandidateBatch:
     order: torch.Tensor
     chunks: list[tuple[int, int, int]]
     near: float
+    num_views: int = 1
+    occluder_depth: torch.Tensor | None = None
+
+
+#: A candidate pixel is hidden by a placed object when it lies more than this (mm) behind the placed
+#: object's surface: surfaces in contact (a part resting on another) do not hide each other by rounding.
+OCCLUSION_MARGIN_MM = 0.5
 
 
 def prepare_candidates(
@@ -97,6 +107,7 @@ def prepare_candidates(
     width: int,
     near: float = DEFAULT_NEAR,
     chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
+    occluder_depth: torch.Tensor | None = None,
 ) -> CandidateBatch:
     """Windows and chunk plan of a batch; :func:`chunk_curvature` then renders each chunk.
 
@@ -107,6 +118,7 @@ def prepare_candidates(
         height, width: image size.
         near: near plane (mm).
         chunk_pixels: window pixels per chunk (at least one canvas per chunk).
+        occluder_depth: ``(V, H, W)`` float32 depth of already placed objects (0: none), or None.
     """
     B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
     T = T_cam_model.reshape(B * V, 4, 4)
@@ -117,11 +129,18 @@ def prepare_candidates(
     extent = hi - lo
     order = torch.argsort(extent[:, 1], stable=True)
     chunks = plan_atlas_chunks(extent.index_select(0, order).cpu().tolist(), chunk_pixels)
-    return CandidateBatch(mesh, R, t, Kc, verts, lo, extent, order, chunks, near)
+    if occluder_depth is not None and tuple(occluder_depth.shape) != (V, height, width):
+        raise ValueError(f"occluder_depth must be (V, H, W) = {(V, height, width)}, got {tuple(occluder_depth.shape)}")
+    return CandidateBatch(mesh, R, t, Kc, verts, lo, extent, order, chunks, near, V, occluder_depth)
 
 
 def chunk_curvature(batch: CandidateBatch, chunk: tuple[int, int, int]) -> CurvatureAtlas:
-    """Render one chunk of a prepared batch and take its curvature (chunks are independent)."""
+    """Render one chunk of a prepared batch and take its curvature (chunks are independent).
+
+    With ``batch.occluder_depth``, candidate pixels more than :data:`OCCLUSION_MARGIN_MM` behind an
+    already placed object become background before the Prewitt gradients: the hidden part of the
+    candidate draws no curvature, and the occluder's contour across it is an edge, as in the image.
+    """
     start, stop, w = chunk
     canvases = batch.order[start:stop]
     offsets = batch.lo.index_select(0, canvases)
@@ -136,8 +155,12 @@ def chunk_curvature(batch: CandidateBatch, chunk: tuple[int, int, int]) -> Curva
         batch.near,
         batch.verts.index_select(1, canvases),
     )
-    normals = shade(raster, depth=False, faces=False).normals.view(3, -1, w)
+    occ = batch.occluder_depth
+    buffers = shade(raster, depth=occ is not None, faces=False)
+    normals = buffers.normals.view(3, -1, w)
     row_start = windows.start // w
+    if occ is not None:
+        _hide_occluded(normals, buffers.depth.view(-1, w), occ, canvases % batch.num_views, offsets, rows, row_start)
     normals.index_fill_(1, torch.cat([row_start, row_start + rows - 1]), 0.0)
     curv = curvature_valid(normals[None])[0]  # (R_total - 2, w - 2)
     device = curv.device
@@ -145,6 +168,35 @@ def chunk_curvature(batch: CandidateBatch, chunk: tuple[int, int, int]) -> Curva
     row_image = torch.arange(row_canvas.numel(), device=device) - row_start.index_select(0, row_canvas)
     row_image += offsets[:, 0].index_select(0, row_canvas)
     return CurvatureAtlas(canvases, curv, row_canvas[1:-1], row_image[1:-1], offsets[:, 1] + 1)
+
+
+def _hide_occluded(
+    normals: torch.Tensor,
+    depth: torch.Tensor,
+    occluder_depth: torch.Tensor,
+    view: torch.Tensor,
+    offsets: torch.Tensor,
+    rows: torch.Tensor,
+    row_start: torch.Tensor,
+) -> None:
+    """Zero ``normals (3, R, w)`` in place where the atlas ``depth (R, w)`` lies behind ``occluder_depth (V, H, W)``."""
+    V, H, W = occluder_depth.shape
+    R, w = depth.shape
+    device = depth.device
+    row_canvas = torch.repeat_interleave(torch.arange(rows.numel(), device=device), rows)
+    img_row = (
+        torch.arange(R, device=device)
+        - row_start.index_select(0, row_canvas)
+        + offsets[:, 0].index_select(0, row_canvas)
+    )
+    img_col = offsets[:, 1].index_select(0, row_canvas)[:, None] + torch.arange(w, device=device)
+    inside = ((img_row >= 0) & (img_row < H))[:, None] & (img_col >= 0) & (img_col < W)
+    flat = (view.index_select(0, row_canvas)[:, None] * H + img_row.clamp(0, H - 1)[:, None]) * W + img_col.clamp(
+        0, W - 1
+    )
+    occ = occluder_depth.reshape(-1).index_select(0, flat.reshape(-1)).view(R, w)
+    hidden = inside & (occ > 0) & (depth > 0) & (depth > occ + OCCLUSION_MARGIN_MM)
+    normals.masked_fill_(hidden[None], 0.0)
 
 
 def _bounds(verts: torch.Tensor, K: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:

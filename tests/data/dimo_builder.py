@@ -42,6 +42,7 @@ class SceneSpec:
         camera_keys: ``c2w``, ``w2c`` or ``both`` (written consistently).
         old_info_keys: write ``carrier_id``/``composition_type``/... with string values.
         image_size: (width, height) of the rgb PNGs.
+        focal_factor: fx = fy = focal_factor * width.
     """
 
     folder: str
@@ -54,6 +55,7 @@ class SceneSpec:
     camera_keys: str = "both"
     old_info_keys: bool = False
     image_size: tuple[int, int] = (16, 12)
+    focal_factor: float = 2.0
 
 
 @dataclass
@@ -78,42 +80,63 @@ def viewpoint_pose(viewpoint: int, seed: int = 0) -> np.ndarray:
     return random_pose(np.random.default_rng([seed, 1000 + viewpoint]), (0.0, 0.0, 500.0), 150.0)
 
 
-def write_models(root: Path, obj_ids: Iterable[int] = tuple(MODEL_SIZES)) -> None:
-    """``models/models_info.json`` and ASCII box PLYs; object 1 gets a 90-degree z symmetry."""
+def write_models(
+    root: Path, obj_ids: Iterable[int] = tuple(MODEL_SIZES), meshes: dict[int, trimesh.Trimesh] | None = None
+) -> None:
+    """``models/models_info.json`` and ASCII box PLYs; object 1 gets a 90-degree z symmetry.
+
+    ``meshes`` replaces the box of an object id by another mesh (centred on its bounding box).
+    """
     models = root / "models"
     models.mkdir(parents=True, exist_ok=True)
     info = {}
     for obj_id in obj_ids:
-        size = np.asarray(MODEL_SIZES[obj_id])
-        mesh = trimesh.creation.box(extents=size)
+        if meshes and obj_id in meshes:
+            mesh = meshes[obj_id]
+            size = np.asarray(mesh.bounds[1] - mesh.bounds[0])
+        else:
+            size = np.asarray(MODEL_SIZES[obj_id])
+            mesh = trimesh.creation.box(extents=size)
         (models / f"obj_{obj_id:06d}.ply").write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="ascii"))
         entry: dict[str, Any] = {"diameter": float(np.linalg.norm(size))}
-        entry.update({f"min_{a}": float(-s / 2) for a, s in zip("xyz", size, strict=True)})
+        entry.update({f"min_{a}": float(lo) for a, lo in zip("xyz", mesh.bounds[0], strict=True)})
         entry.update({f"size_{a}": float(s) for a, s in zip("xyz", size, strict=True)})
-        if obj_id == 1:
+        if obj_id == 1 and not (meshes and obj_id in meshes):
             entry["symmetries_discrete"] = [[0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]
         info[str(obj_id)] = entry
     (models / "models_info.json").write_text(json.dumps(info, indent=1))
 
 
-def write_scene(root: Path, spec: SceneSpec, rng: np.random.Generator, seed: int = 0) -> SceneTruth:
-    """Write one scene folder from ``spec``; object poses from ``rng``, cameras from their viewpoint."""
+def write_scene(
+    root: Path,
+    spec: SceneSpec,
+    rng: np.random.Generator,
+    seed: int = 0,
+    camera_pose: Callable[[int, int], np.ndarray] | None = None,
+    object_poses: list[np.ndarray] | None = None,
+) -> SceneTruth:
+    """Write one scene folder from ``spec``; object poses from ``rng`` (or ``object_poses``, in
+    ``spec.obj_ids`` order), cameras from their viewpoint (``camera_pose(viewpoint, seed)`` ->
+    ``T_world_cam``; default :func:`viewpoint_pose`)."""
+    camera_pose = camera_pose or viewpoint_pose
     scene_dir = root / spec.camera_dir / spec.folder
     (scene_dir / "rgb").mkdir(parents=True, exist_ok=True)
     truth = SceneTruth(scene_dir)
-    for obj_id in spec.obj_ids:
-        if obj_id >= 100:
+    for k, obj_id in enumerate(spec.obj_ids):
+        if object_poses is not None:
+            T = np.asarray(object_poses[k], dtype=float)
+        elif obj_id >= 100:
             T = np.eye(4)
             T[2, 3] = -5.0
         else:
             T = random_pose(rng, (0.0, 0.0, 20.0), 60.0)
         truth.objects.append((obj_id, T))
     width, height = spec.image_size
-    fx = 2.0 * width
+    fx = spec.focal_factor * width
     K = [fx, 0.0, width / 2, 0.0, fx, height / 2, 0.0, 0.0, 1.0]
     cameras, gt, info = {}, {}, {}
     for im_id, vp in enumerate(spec.viewpoints):
-        T_wc = viewpoint_pose(vp, seed)
+        T_wc = camera_pose(vp, seed)
         truth.T_world_cam[im_id] = T_wc
         T_cw = np.linalg.inv(T_wc)
         cam: dict[str, Any] = {"cam_K": K}

@@ -1,0 +1,305 @@
+"""Stage 2 of CenDerNet (paper, Section 2.2): center heatmaps of several views -> 3D object centres.
+
+1. Peaks: ``skimage.feature.peak_local_max`` above ``peak_threshold`` in each view's center channel.
+2. One ray per peak from ``K`` and ``T_cam_world``, through the peak pixel's centre ``(u + 0.5, v + 0.5)``
+   (design.md's pixel convention).
+3. For every pair of rays from different views, their closest points (Szeliski): the distance between
+   them and the midpoint, all pairs at once. Midpoints of pairs closer than ``d_t`` and in front of both
+   cameras are candidates.
+4. Candidates closer than ``d_c`` are merged: greedily, best aggregated heatmap score first, into their
+   score-weighted mean (a chain of phantom midpoints between two objects cannot pull them together, as
+   single-linkage clustering would).
+5. Each merged point is refined by maximising its summed, bilinearly sampled heatmap score over the views
+   (scipy Nelder-Mead); its per-view scores are kept (stage 3 reads them as visibility).
+6. Points outside every view's frustum, or scoring ``min_view_score`` in fewer than ``min_views`` views,
+   are dropped; with a known object count, points are sorted by aggregated score, those within ``d_o``
+   of a better one dropped, and the top n kept.
+
+Pure functions on NumPy arrays (float64 geometry, millimetres); :func:`detect_centers` composes them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+from skimage.feature import peak_local_max
+
+from bop_cender.geometry.camera import camera_center_in_world
+
+
+@dataclass(frozen=True)
+class CenterConfig:
+    """Stage-2 settings (paper appendix: d_t = d_c = d_o = 30 mm; the rest are ours, commented).
+
+    Attributes:
+        peak_threshold: minimum heatmap value of a peak (ours: 0.3 of a peak-1 blob keeps objects whose
+            predicted blob is weak and drops the tails of neighbouring blobs).
+        peak_min_distance: ``peak_local_max``'s ``min_distance`` (pixels; ours: 2 keeps two close centres apart).
+        d_t: maximum distance between two rays for their midpoint to be a candidate (mm).
+        d_c: candidates closer than this are merged (mm).
+        d_o: with a known object count, centres closer than this to a better one are dropped (mm).
+        min_views: a centre must score ``min_view_score`` in at least this many views (a point seen in
+            one view only cannot be triangulated; ours: 2).
+        min_view_score: see ``min_views`` (ours: 0.2).
+        min_views_unknown_count: ``min_views`` when the object count is not known (ours: 3): two
+            rays of different objects often pass within ``d_t`` of each other, and nothing else then
+            prunes such phantom points; three views rarely agree by chance.
+        refine_tol: Nelder-Mead ``xatol`` of the refinement (mm) and its ``fatol`` (score units).
+        refine_maxiter: Nelder-Mead iterations per centre.
+    """
+
+    peak_threshold: float = 0.3
+    peak_min_distance: int = 2
+    d_t: float = 30.0
+    d_c: float = 30.0
+    d_o: float = 30.0
+    min_views: int = 2
+    min_view_score: float = 0.2
+    min_views_unknown_count: int = 3
+    refine_tol: float = 0.05
+    refine_maxiter: int = 200
+
+
+@dataclass(frozen=True, eq=False)
+class Center3D:
+    """One detected object centre.
+
+    Attributes:
+        position: ``(3,)`` float64 world coordinates (mm).
+        view_scores: ``(V,)`` heatmap value at its projection in each view (0 outside or behind).
+        channel: the center channel it was found in.
+        obj_id: the object id of that channel, None when the channel is shared by all objects.
+    """
+
+    position: np.ndarray
+    view_scores: np.ndarray
+    channel: int = 0
+    obj_id: int | None = None
+
+    @property
+    def score(self) -> float:
+        """Aggregated heatmap score: the sum over views (paper: "accumulated for all views")."""
+        return float(np.sum(self.view_scores))
+
+    def as_dict(self) -> dict:
+        return {
+            "position": [float(x) for x in self.position],
+            "view_scores": [float(x) for x in self.view_scores],
+            "channel": self.channel,
+            "obj_id": self.obj_id,
+            "score": self.score,
+        }
+
+
+def find_peaks(heatmap: np.ndarray, threshold: float, min_distance: int) -> tuple[np.ndarray, np.ndarray]:
+    """Local maxima of ``heatmap (H, W)``: continuous image points ``(N, 2)`` (x, y) of the peak pixels'
+    centres and their values ``(N,)``, best first."""
+    rc = peak_local_max(
+        np.asarray(heatmap, dtype=np.float64),
+        min_distance=max(1, int(min_distance)),
+        threshold_abs=threshold,
+        exclude_border=False,
+    )
+    if len(rc) == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    values = heatmap[rc[:, 0], rc[:, 1]].astype(np.float64)
+    return np.stack([rc[:, 1] + 0.5, rc[:, 0] + 0.5], axis=1).astype(np.float64), values
+
+
+def peak_rays(K: np.ndarray, T_cam_world: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame origins ``(N, 3)`` and unit directions ``(N, 3)`` of the rays through image points ``xy (N, 2)``."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    homog = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    d_cam = homog @ np.linalg.inv(K).T
+    d_world = d_cam @ np.asarray(T_cam_world)[:3, :3]  # R^T d
+    d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
+    origin = np.broadcast_to(camera_center_in_world(T_cam_world), d_world.shape).copy()
+    return origin, d_world
+
+
+def closest_points(
+    o1: np.ndarray, d1: np.ndarray, o2: np.ndarray, d2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of pairs of lines ``o + s d`` (unit ``d``), all ``(..., 3)``.
+
+    Returns:
+        ``distance (...)`` between the two closest points, their ``midpoint (..., 3)`` and the ray
+        parameters ``s, t (...)`` (distances along each ray, mm). Parallel lines get distance inf.
+    """
+    w0 = o1 - o2
+    b = np.sum(d1 * d2, axis=-1)
+    d = np.sum(d1 * w0, axis=-1)
+    e = np.sum(d2 * w0, axis=-1)
+    denom = 1.0 - b * b
+    parallel = denom < 1e-12
+    safe = np.where(parallel, 1.0, denom)
+    s = (b * e - d) / safe
+    t = (e - b * d) / safe
+    p1 = o1 + s[..., None] * d1
+    p2 = o2 + t[..., None] * d2
+    distance = np.where(parallel, np.inf, np.linalg.norm(p1 - p2, axis=-1))
+    return distance, (p1 + p2) / 2.0, s, t
+
+
+def triangulate_pairs(origins: np.ndarray, directions: np.ndarray, view_index: np.ndarray, d_t: float) -> np.ndarray:
+    """Midpoints ``(P, 3)`` of every pair of rays from different views that pass within ``d_t`` of each
+    other, in front of both cameras. Rays: ``origins, directions (N, 3)``, ``view_index (N,)``."""
+    i, j = np.triu_indices(len(origins), k=1)
+    keep = view_index[i] != view_index[j]
+    i, j = i[keep], j[keep]
+    if len(i) == 0:
+        return np.zeros((0, 3))
+    dist, mid, s, t = closest_points(origins[i], directions[i], origins[j], directions[j])
+    ok = (dist < d_t) & (s > 0) & (t > 0)
+    return mid[ok]
+
+
+def sample_scores(points: np.ndarray, heatmaps: np.ndarray, Ks: np.ndarray, T_cam_world: np.ndarray) -> np.ndarray:
+    """Bilinearly sampled heatmap value ``(N, V)`` at the projection of world ``points (N, 3)`` in each of
+    ``heatmaps (V, H, W)``; 0 behind the camera or outside the image (pixel centres at ``(u + 0.5, v + 0.5)``)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    V, H, W = heatmaps.shape
+    p = np.einsum("vij,nj->vni", T_cam_world[:, :3, :3], points) + T_cam_world[:, None, :3, 3]  # (V, N, 3)
+    z = p[..., 2]
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    x = (Ks[:, None, 0, 0] * p[..., 0] + Ks[:, None, 0, 1] * p[..., 1]) / zs + Ks[:, None, 0, 2] - 0.5
+    y = Ks[:, None, 1, 1] * p[..., 1] / zs + Ks[:, None, 1, 2] - 0.5
+    inside = front & (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5)
+    x = np.clip(x, 0, W - 1)
+    y = np.clip(y, 0, H - 1)
+    x0 = np.clip(np.floor(x).astype(np.int64), 0, W - 2 if W > 1 else 0)
+    y0 = np.clip(np.floor(y).astype(np.int64), 0, H - 2 if H > 1 else 0)
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
+    vi = np.arange(V)[:, None]
+    val = (
+        heatmaps[vi, y0, x0] * (1 - fx) * (1 - fy)
+        + heatmaps[vi, y0, x1] * fx * (1 - fy)
+        + heatmaps[vi, y1, x0] * (1 - fx) * fy
+        + heatmaps[vi, y1, x1] * fx * fy
+    )
+    return np.where(inside, val, 0.0).T
+
+
+def merge_candidates(points: np.ndarray, scores: np.ndarray, d_c: float) -> np.ndarray:
+    """Greedy merge: the best-scoring unmerged point takes every unmerged point within ``d_c`` and becomes
+    their score-weighted mean. ``points (P, 3)``, ``scores (P,)`` -> ``(Q, 3)``, best first."""
+    if len(points) == 0:
+        return np.zeros((0, 3))
+    order = np.argsort(-scores, kind="stable")
+    pts, sc = points[order], np.maximum(scores[order], 1e-12)
+    dist = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    free = np.ones(len(pts), dtype=bool)
+    merged = []
+    for k in range(len(pts)):
+        if not free[k]:
+            continue
+        group = free & (dist[k] < d_c)
+        free &= ~group
+        w = sc[group]
+        merged.append((pts[group] * w[:, None]).sum(0) / w.sum())
+    return np.asarray(merged)
+
+
+def refine_center(
+    point: np.ndarray, heatmaps: np.ndarray, Ks: np.ndarray, T_cam_world: np.ndarray, config: CenterConfig
+) -> np.ndarray:
+    """Nelder-Mead maximisation of the summed heatmap score of one point ``(3,)`` (initial simplex 5 mm)."""
+
+    def negative(x: np.ndarray) -> float:
+        return -float(sample_scores(x[None], heatmaps, Ks, T_cam_world).sum())
+
+    simplex = point[None] + np.vstack([np.zeros(3), 5.0 * np.eye(3)])
+    res = minimize(
+        negative,
+        point,
+        method="Nelder-Mead",
+        options={
+            "initial_simplex": simplex,
+            "xatol": config.refine_tol,
+            "fatol": 1e-4,
+            "maxiter": config.refine_maxiter,
+        },
+    )
+    return res.x if -res.fun >= -negative(point) else point
+
+
+def detect_centers(
+    center_maps: np.ndarray,
+    Ks: np.ndarray,
+    T_cam_world: np.ndarray,
+    config: CenterConfig,
+    channel_obj_ids: Sequence[int] | None = None,
+    known_counts: Mapping[int, int] | None = None,
+) -> list[Center3D]:
+    """3D centres from the center heatmaps of V views, per channel.
+
+    Args:
+        center_maps: ``(V, C, H, W)`` heatmaps in [0, 1].
+        Ks: ``(V, 3, 3)`` intrinsics. T_cam_world: ``(V, 4, 4)`` extrinsics (mm).
+        config: see :class:`CenterConfig`.
+        channel_obj_ids: object id per channel (None: one channel shared by all objects).
+        known_counts: number of objects per channel when known (DIMO ``scene_info``, BOP targets);
+            channels missing from it are not pruned by count.
+
+    Returns:
+        Centres, best aggregated score first within each channel, channels in order.
+    """
+    center_maps = np.asarray(center_maps, dtype=np.float64)
+    V, C = center_maps.shape[:2]
+    out: list[Center3D] = []
+    for c in range(C):
+        maps = center_maps[:, c]
+        rays_o, rays_d, view = [], [], []
+        for v in range(V):
+            xy, _ = find_peaks(maps[v], config.peak_threshold, config.peak_min_distance)
+            o, d = peak_rays(Ks[v], T_cam_world[v], xy)
+            rays_o.append(o)
+            rays_d.append(d)
+            view.append(np.full(len(xy), v))
+        origins, directions, view_index = np.concatenate(rays_o), np.concatenate(rays_d), np.concatenate(view)
+        candidates = triangulate_pairs(origins, directions, view_index, config.d_t)
+        if len(candidates) == 0:
+            continue
+        merged = merge_candidates(candidates, sample_scores(candidates, maps, Ks, T_cam_world).sum(1), config.d_c)
+        refined = np.array([refine_center(p, maps, Ks, T_cam_world, config) for p in merged])
+        scores = sample_scores(refined, maps, Ks, T_cam_world)  # (Q, V)
+        n = None if known_counts is None else known_counts.get(c)
+        min_views = config.min_views if n is not None else max(config.min_views, config.min_views_unknown_count)
+        keep = (scores >= config.min_view_score).sum(1) >= min_views
+        keep &= _in_some_frustum(refined, Ks, T_cam_world, maps.shape[1:])
+        refined, scores = refined[keep], scores[keep]
+        order = np.argsort(-scores.sum(1), kind="stable")
+        refined, scores = refined[order], scores[order]
+        if n is not None:
+            refined, scores = _prune_known_count(refined, scores, n, config.d_o)
+        obj_id = None if channel_obj_ids is None else int(channel_obj_ids[c])
+        out.extend(Center3D(p, s, c, obj_id) for p, s in zip(refined, scores, strict=True))
+    return out
+
+
+def _in_some_frustum(points: np.ndarray, Ks: np.ndarray, T_cam_world: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``(N,)`` True where a point projects inside at least one image, in front of its camera."""
+    H, W = size
+    p = np.einsum("vij,nj->vni", T_cam_world[:, :3, :3], points) + T_cam_world[:, None, :3, 3]
+    z = p[..., 2]
+    zs = np.where(z > 1e-6, z, 1.0)
+    x = (Ks[:, None, 0, 0] * p[..., 0] + Ks[:, None, 0, 1] * p[..., 1]) / zs + Ks[:, None, 0, 2]
+    y = Ks[:, None, 1, 1] * p[..., 1] / zs + Ks[:, None, 1, 2]
+    inside = (z > 1e-6) & (x >= 0) & (x <= W) & (y >= 0) & (y <= H)
+    return inside.any(0)
+
+
+def _prune_known_count(points: np.ndarray, scores: np.ndarray, n: int, d_o: float) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the best ``n`` points (already sorted best first), none within ``d_o`` of a better kept one."""
+    kept: list[int] = []
+    for k in range(len(points)):
+        if len(kept) >= n:
+            break
+        if all(np.linalg.norm(points[k] - points[j]) >= d_o for j in kept):
+            kept.append(k)
+    return points[kept], scores[kept]

@@ -1,0 +1,159 @@
+"""CenDerNet as a BOP method: heatmaps -> 3D centres -> poses, for one scene at a time.
+
+``CenDerNet(models, config, predictor).estimate(scene)`` returns a :class:`SceneEstimate` (world-frame
+poses, one per detected object, BOP score = ``1 / (1 + cost)``: higher is better, so BOP's top-n
+ranking keeps the best-fitting estimates) with per-stage timings; :meth:`CenDerNet.run_scene` also
+returns what each stage produced (heatmaps, centres, placed objects) for figures and diagnostics.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from bop_cender.centers import Center3D, CenterConfig, detect_centers
+from bop_cender.data.types import ObjectModel, Scene
+from bop_cender.estimates import ObjectEstimate, SceneEstimate
+from bop_cender.net.heatmaps import Heatmaps
+from bop_cender.net.targets import TargetConfig
+from bop_cender.pose.optimize import PlacedObject, PoseConfig, PoseTarget, SceneCameras, optimise_scene
+from bop_cender.render.mesh import RenderMesh, prepare_mesh
+
+
+class HeatmapPredictor(Protocol):
+    """Anything that turns a scene's views into :class:`Heatmaps` (the network, the oracle)."""
+
+    name: str
+
+    def predict(self, scene: Scene) -> Heatmaps: ...
+
+
+@dataclass(frozen=True)
+class CenDerNetConfig:
+    """Every setting of the method (the paper's defaults; see each stage's config for what is ours).
+
+    Attributes:
+        targets: how GT heatmaps are made (the oracle; the network's training targets).
+        centers: stage 2.
+        poses: stage 3.
+        known_counts: prune the centres to the known number of objects per channel (paper: "if
+            information about the number of objects in the scene is available": DIMO ``scene_info``,
+            BOP's targets). The count comes from the scene's annotations of target objects.
+        known_object_ids: with one shared center channel, try only the object ids the scene is known to
+            hold (DIMO's compositions name the part type) instead of every target id of the dataset.
+    """
+
+    targets: TargetConfig = field(default_factory=TargetConfig)
+    centers: CenterConfig = field(default_factory=CenterConfig)
+    poses: PoseConfig = field(default_factory=PoseConfig)
+    known_counts: bool = True
+    known_object_ids: bool = True
+
+    @staticmethod
+    def for_dataset(name: str, **poses: object) -> CenDerNetConfig:
+        """The paper's settings for ``name`` (``dimo``; ``tless`` / ``bop``), stage-3 fields overridable."""
+        base = PoseConfig()
+        pose_config = PoseConfig(**{**asdict(base), **poses}) if poses else base
+        return CenDerNetConfig(targets=TargetConfig.for_dataset(name), poses=pose_config)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class SceneOutput:
+    """Everything one scene went through: the estimate and each stage's output."""
+
+    estimate: SceneEstimate
+    heatmaps: Heatmaps
+    centers: list[Center3D]
+    placed: list[PlacedObject]
+
+
+class CenDerNet:
+    """The three stages composed (design.md: ``CenDerNet.estimate(scene) -> SceneEstimate``)."""
+
+    def __init__(
+        self,
+        models: Mapping[int, ObjectModel],
+        config: CenDerNetConfig,
+        predictor: HeatmapPredictor,
+        meshes: MeshStore | None = None,
+    ) -> None:
+        self.models = models
+        self.config = config
+        self.predictor = predictor
+        self.meshes = meshes or MeshStore(models)
+
+    def estimate(self, scene: Scene) -> SceneEstimate:
+        return self.run_scene(scene).estimate
+
+    def run_scene(self, scene: Scene) -> SceneOutput:
+        """Run the three stages on ``scene`` and time each."""
+        t0 = time.perf_counter()
+        heatmaps = self.predictor.predict(scene)
+        t1 = time.perf_counter()
+        Ks = np.stack([v.K for v in scene.views])
+        T_cw = np.stack([v.T_cam_world for v in scene.views])
+        counts = self._known_counts(scene, heatmaps) if self.config.known_counts else None
+        centers = detect_centers(
+            heatmaps.center.detach().cpu().numpy(), Ks, T_cw, self.config.centers, heatmaps.channel_obj_ids, counts
+        )
+        t2 = time.perf_counter()
+        candidate_ids = self._candidate_ids(scene)
+        targets = [
+            PoseTarget(c.position, c.view_scores, (c.obj_id,) if c.obj_id is not None else candidate_ids)
+            for c in centers
+        ]
+        H, W = heatmaps.size
+        placed = (
+            optimise_scene(
+                targets,
+                heatmaps.curvature,
+                SceneCameras(Ks, T_cw, H, W),
+                self.meshes,
+                lambda obj_id: self.models[obj_id].center,
+                self.config.poses,
+            )
+            if targets and candidate_ids
+            else []
+        )
+        t3 = time.perf_counter()
+        objects = tuple(ObjectEstimate(p.obj_id, p.T_world_model, 1.0 / (1.0 + p.cost)) for p in placed)
+        timings = {"heatmaps": t1 - t0, "centers": t2 - t1, "poses": t3 - t2}
+        estimate = SceneEstimate(scene.key, scene.scene_id, objects, time_s=t3 - t0, timings=timings)
+        return SceneOutput(estimate, heatmaps, centers, placed)
+
+    def _known_counts(self, scene: Scene, heatmaps: Heatmaps) -> dict[int, int]:
+        counts = Counter(g.obj_id for g in scene.gt if g.obj_id in self.models and self.models[g.obj_id].is_target)
+        if heatmaps.channel_obj_ids is None:
+            return {0: sum(counts.values())}
+        return {c: counts.get(obj_id, 0) for c, obj_id in enumerate(heatmaps.channel_obj_ids)}
+
+    def _candidate_ids(self, scene: Scene) -> tuple[int, ...]:
+        targets = sorted(i for i, m in self.models.items() if m.is_target)
+        if self.config.known_object_ids:
+            known = sorted({g.obj_id for g in scene.gt if g.obj_id in targets})
+            if known:
+                return tuple(known)
+        return tuple(targets)
+
+
+class MeshStore:
+    """The renderer's mesh of each object id, prepared once (callable: ``store(obj_id) -> RenderMesh``)."""
+
+    def __init__(self, models: Mapping[int, ObjectModel], device: torch.device | str = "cpu") -> None:
+        self.models = models
+        self.device = torch.device(device)
+        self._meshes: dict[int, RenderMesh] = {}
+
+    def __call__(self, obj_id: int) -> RenderMesh:
+        if obj_id not in self._meshes:
+            self._meshes[obj_id] = prepare_mesh(self.models[obj_id].mesh, device=self.device)
+        return self._meshes[obj_id]

@@ -1,0 +1,62 @@
+"""The stage-1 -> stage-2/3 contract: per-view center and curvature heatmaps of one scene."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True, eq=False)
+class Heatmaps:
+    """Center and curvature heatmaps of a scene's V views, on the device that made them.
+
+    Attributes:
+        center: ``(V, C, H, W)`` float32 in [0, 1]: probability of an object centre per pixel; one
+            shared channel (DIMO, ``channel_obj_ids`` None) or one channel per object id (T-LESS).
+        curvature: ``(V, H, W)`` float32 in [0, 1]: ``clip(curvature / c, 0, 1)`` of the visible target
+            surfaces (see :mod:`bop_cender.net.targets`).
+        channel_obj_ids: object id of each center channel, or None for one channel shared by all objects.
+        im_ids: the image id of each view, in order.
+    """
+
+    center: torch.Tensor
+    curvature: torch.Tensor
+    channel_obj_ids: tuple[int, ...] | None
+    im_ids: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        if self.center.dim() != 4 or self.curvature.dim() != 3:
+            raise ValueError(
+                f"expected center (V, C, H, W) and curvature (V, H, W), got {tuple(self.center.shape)} and"
+                f" {tuple(self.curvature.shape)}"
+            )
+        V, C, H, W = self.center.shape
+        if tuple(self.curvature.shape) != (V, H, W):
+            raise ValueError(
+                f"curvature {tuple(self.curvature.shape)} does not match center {tuple(self.center.shape)}"
+            )
+        if len(self.im_ids) != V:
+            raise ValueError(f"{len(self.im_ids)} image ids for {V} views")
+        if self.channel_obj_ids is not None and len(self.channel_obj_ids) != C:
+            raise ValueError(f"{len(self.channel_obj_ids)} channel object ids for {C} center channels")
+        if self.channel_obj_ids is None and C != 1:
+            raise ValueError(f"a shared center channel was declared but there are {C} channels")
+
+    @property
+    def num_views(self) -> int:
+        return int(self.center.shape[0])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return int(self.center.shape[2]), int(self.center.shape[3])
+
+    def channel_of(self, obj_id: int) -> int:
+        """The center channel that holds ``obj_id`` (0 when the channel is shared)."""
+        if self.channel_obj_ids is None:
+            return 0
+        return self.channel_obj_ids.index(obj_id)
+
+    def to(self, device: torch.device | str) -> Heatmaps:
+        return Heatmaps(self.center.to(device), self.curvature.to(device), self.channel_obj_ids, self.im_ids)

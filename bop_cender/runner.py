@@ -1,0 +1,367 @@
+"""Run a method over a dataset split: per-scene shards, resume, worker processes, one BOP CSV at the end.
+
+Scenes are independent (design.md, "Scale"): each is estimated on its own and written as a small JSON
+shard into a work folder next to the output (``<out>.parts/``), atomically, so a run killed at any point
+leaves only whole shards. ``resume`` keeps the shards made with the same settings and runs the rest;
+when every scene has a shard, they are merged into the BOP results CSV (atomically) with its run
+sidecar, and the work folder is removed. Worker processes (``workers > 1``) each open the dataset and
+build the method themselves, with one torch thread each; every random draw is seeded per scene, so the
+rows are the same whatever the number of workers (only the measured ``time`` column differs, and
+``deterministic_time`` writes BOP's ``-1`` there).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field, replace
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bop_cender.data.bop_io import atomic_path
+from bop_cender.data.types import Dataset, Scene
+from bop_cender.errors import BopCenderError, ConfigError
+from bop_cender.estimates import ObjectEstimate, SceneEstimate
+from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
+from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
+from bop_cender.results.files import write_run_sidecar
+
+SHARD_FORMAT = "bop-cender-shard"
+HEATMAP_SOURCES = ("oracle", "net")
+SHARD_VERSION = 1
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What to run: the data, the heatmap source, the method's settings and where to write.
+
+    Attributes:
+        dataset, data_root, split, n_views, model_type: the data (as ``open_dataset`` takes them).
+        out: the BOP results CSV to write.
+        heatmaps: ``oracle`` (GT heatmaps rendered from the annotations) or ``net``.
+        weights: network weights (``net`` only).
+        seed: seed of the view grouping and of the method's random candidates.
+        config: the method's settings.
+        workers: processes; scenes are spread over them.
+        limit_scenes: only the first K scenes of the split (None: all).
+        resume: keep the shards of an earlier, interrupted run with the same settings.
+        deterministic_time: write ``-1`` as every row's time (reproducible files, for tests).
+        device: torch device of the heatmaps.
+    """
+
+    dataset: str
+    data_root: str | None
+    split: str
+    out: Path
+    n_views: int | None = None
+    model_type: str | None = None
+    heatmaps: str = "oracle"
+    weights: str | None = None
+    seed: int = 0
+    config: CenDerNetConfig = field(default_factory=CenDerNetConfig)
+    workers: int = 1
+    limit_scenes: int | None = None
+    resume: bool = False
+    deterministic_time: bool = False
+    device: str = "cpu"
+
+    def fingerprint(self) -> str:
+        """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume)."""
+        key = {
+            "dataset": self.dataset,
+            "data_root": str(Path(self.data_root).resolve()) if self.data_root else None,
+            "split": self.split,
+            "n_views": self.n_views,
+            "model_type": self.model_type,
+            "heatmaps": self.heatmaps,
+            "weights": self.weights,
+            "seed": self.seed,
+            "config": self.config.as_dict(),
+        }
+        return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class SceneOutcome:
+    """One scene's result as the runner keeps it (what a shard holds)."""
+
+    scene_key: str
+    estimate: SceneEstimate | None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What a run did: output files, scene counts, failures and time per stage."""
+
+    out: Path
+    sidecar: Path
+    scenes: int
+    resumed: int
+    rows: int
+    estimates: int
+    failed: dict[str, str]
+    empty: list[str]
+    stage_seconds: dict[str, float]
+    wall_seconds: float
+
+
+def open_run_dataset(request: RunRequest) -> Dataset:
+    from bop_cender.data.registry import DatasetRequest
+    from bop_cender.datasets import open_with_demo
+
+    data = DatasetRequest(
+        request.dataset, request.data_root, request.split, request.n_views, request.seed, request.model_type
+    )
+    return open_with_demo(data)  # no data root: the embedded demo, silently
+
+
+def build_method(request: RunRequest, dataset: Dataset) -> CenDerNet:
+    """The method for a request: oracle heatmaps, or the network (not shipped yet: a clear error)."""
+    meshes = MeshStore(dataset.models)
+    if request.heatmaps == "oracle":
+        from bop_cender.net.oracle import OraclePredictor
+
+        predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
+    else:
+        _check_request(request)  # raises: the source is not available
+        raise AssertionError(request.heatmaps)
+    return CenDerNet(dataset.models, request.config, predictor, meshes)
+
+
+def run(
+    request: RunRequest,
+    dataset: Dataset | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> RunSummary:
+    """Run the method over the split and write ``request.out`` (BOP CSV) and its sidecar.
+
+    Args:
+        request: see :class:`RunRequest`.
+        dataset: the already opened dataset (None: opened from the request).
+        progress: called with (scenes done, scenes, last scene key) as scenes finish.
+
+    Raises:
+        ConfigError: bad request (output name, workers, limit).
+        BopCenderError: the data cannot be opened.
+    """
+    start = time.perf_counter()
+    _check_request(request)
+    dataset = dataset or open_run_dataset(request)
+    keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
+    if not keys:
+        raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
+    work = work_dir(request.out)
+    fingerprint = request.fingerprint()
+    if work.exists() and not request.resume:
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        outcomes, resumed = _run_scenes(request, dataset, keys, work, fingerprint, progress)
+    except BaseException:
+        if not any(work.iterdir()):
+            work.rmdir()  # nothing done: leave nothing behind
+        raise
+    return _merge(request, dataset, keys, outcomes, resumed, work, start)
+
+
+def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[dict[str, SceneOutcome], int]:
+    """Shards of the same settings kept, the other scenes estimated and written as they finish."""
+    outcomes: dict[str, SceneOutcome] = {}
+    for key in keys:
+        shard = read_shard(shard_path(work, key), fingerprint)
+        if shard is not None:
+            outcomes[key] = shard
+    resumed = len(outcomes)
+    todo = [k for k in keys if k not in outcomes]
+    done = resumed
+    if progress is not None:
+        progress(done, len(keys), "")
+    for outcome in _execute(request, dataset, todo):
+        write_shard(shard_path(work, outcome.scene_key), outcome, fingerprint)
+        outcomes[outcome.scene_key] = outcome
+        done += 1
+        if progress is not None:
+            progress(done, len(keys), outcome.scene_key)
+    return outcomes, resumed
+
+
+def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary:
+    """All shards into one BOP CSV and its sidecar (atomic writes), then the work folder goes."""
+    rows = []
+    stage_seconds: dict[str, float] = {}
+    failed, empty = {}, []
+    n_estimates = 0
+    for key in keys:
+        outcome = outcomes[key]
+        if outcome.error is not None:
+            failed[key] = outcome.error
+            continue
+        est = outcome.estimate
+        assert est is not None
+        if not est.objects:
+            empty.append(key)
+        n_estimates += len(est.objects)
+        for stage, seconds in est.timings.items():
+            stage_seconds[stage] = stage_seconds.get(stage, 0.0) + seconds
+        scene = dataset.scene(key)
+        image_time = -1.0 if request.deterministic_time else est.time_s / len(scene.views)
+        rows.extend(scene_estimates_to_rows(scene, replace(est, time_s=image_time)))
+    write_bop_results(request.out, rows)
+    sidecar = write_run_sidecar(
+        request.out,
+        dataset.root,
+        request.dataset,
+        request.split,
+        {"n_views": request.n_views, "scenes": len(keys), "limit_scenes": request.limit_scenes},
+        request.seed,
+        extra={
+            "method": "cendernet",
+            "heatmaps": request.heatmaps,
+            "weights": request.weights,
+            "model_type": request.model_type,
+            "config": request.config.as_dict(),
+            "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
+        },
+    )
+    shutil.rmtree(work, ignore_errors=True)
+    return RunSummary(
+        out=request.out,
+        sidecar=sidecar,
+        scenes=len(keys),
+        resumed=resumed,
+        rows=len(rows),
+        estimates=n_estimates,
+        failed=failed,
+        empty=empty,
+        stage_seconds=stage_seconds,
+        wall_seconds=time.perf_counter() - start,
+    )
+
+
+def work_dir(out: Path) -> Path:
+    """The shard folder of an output CSV: ``<out>.parts`` beside it."""
+    out = Path(out)
+    return out.with_name(out.name + ".parts")
+
+
+def shard_path(work: Path, scene_key: str) -> Path:
+    """One shard per scene key (``/`` of a suffixed key becomes ``__``)."""
+    return work / (re.sub(r"[^A-Za-z0-9_.-]", "__", scene_key) + ".json")
+
+
+def estimate_scene(method: CenDerNet, scene: Scene) -> SceneOutcome:
+    """One scene, never raising for a problem of that scene: the error becomes the outcome."""
+    try:
+        return SceneOutcome(scene.key, method.estimate(scene))
+    except (BopCenderError, ValueError, RuntimeError) as e:
+        return SceneOutcome(scene.key, None, f"{type(e).__name__}: {e}")
+
+
+def write_shard(path: Path, outcome: SceneOutcome, fingerprint: str) -> None:
+    est = outcome.estimate
+    content: dict[str, Any] = {
+        "format": SHARD_FORMAT,
+        "version": SHARD_VERSION,
+        "fingerprint": fingerprint,
+        "scene_key": outcome.scene_key,
+        "error": outcome.error,
+    }
+    if est is not None:
+        content.update(
+            scene_id=est.scene_id,
+            time_s=est.time_s,
+            timings=dict(est.timings),
+            objects=[
+                {"obj_id": o.obj_id, "score": o.score, "T_world_model": np.asarray(o.T_world_model).tolist()}
+                for o in est.objects
+            ],
+        )
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(content, indent=1))
+
+
+def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
+    """A shard made with the same settings, or None (missing, other settings, or unreadable: it is redone)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("format") != SHARD_FORMAT or data.get("fingerprint") != fingerprint:
+        return None
+    try:
+        if data.get("error") is not None:
+            return SceneOutcome(data["scene_key"], None, str(data["error"]))
+        objects = tuple(ObjectEstimate(o["obj_id"], np.array(o["T_world_model"]), o["score"]) for o in data["objects"])
+        est = SceneEstimate(data["scene_key"], data["scene_id"], objects, data["time_s"], data["timings"])
+    except (KeyError, TypeError, ValueError, BopCenderError):
+        return None
+    return SceneOutcome(data["scene_key"], est)
+
+
+def _check_request(request: RunRequest) -> None:
+    from bop_cender.results.files import parse_result_filename
+
+    if request.heatmaps not in HEATMAP_SOURCES:
+        raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")
+    if request.heatmaps == "net":
+        raise ConfigError(
+            "network heatmaps are not available yet (stage 1 has no trained weights in this version);"
+            " use --heatmaps oracle",
+            field="--heatmaps",
+        )
+    if request.workers < 1:
+        raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
+    if request.limit_scenes is not None and request.limit_scenes < 1:
+        raise ConfigError(f"expected a positive number of scenes, got {request.limit_scenes}", field="--limit-scenes")
+    out = Path(request.out)
+    if out.is_dir():
+        raise ConfigError(f"{out} is a directory; expected a results CSV path", field="--out")
+    if out.suffix != ".csv":
+        raise ConfigError(f"expected a .csv file name, got {out.name!r}", field="--out")
+    parse_result_filename(out.name)
+
+
+def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
+    """Yield a :class:`SceneOutcome` per key as scenes finish (in order with one worker)."""
+    if not keys:
+        return
+    if request.workers == 1 or len(keys) == 1:
+        method = build_method(request, dataset)
+        for key in keys:
+            yield estimate_scene(method, dataset.scene(key))
+        return
+    build_method(request, dataset)  # a bad request fails here, once, before any process starts
+    ctx = get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(request.workers, len(keys)), mp_context=ctx) as pool:
+        futures = [pool.submit(_worker_scene, request, key) for key in keys]
+        for future in as_completed(futures):
+            yield future.result()
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_scene(request: RunRequest, key: str) -> SceneOutcome:
+    """One scene in a worker process (the dataset and the method are built once per process)."""
+    import torch
+
+    if _WORKER.get("request") != request:
+        torch.set_num_threads(1)
+        dataset = open_run_dataset(request)
+        _WORKER.update(request=request, dataset=dataset, method=build_method(request, dataset))
+    return estimate_scene(_WORKER["method"], _WORKER["dataset"].scene(key))
+
+
+def request_as_dict(request: RunRequest) -> dict[str, Any]:
+    d = asdict(request)
+    d["out"] = str(request.out)
+    return d

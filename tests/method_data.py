@@ -1,0 +1,68 @@
+"""A small scene for the method's tests: two asymmetric parts seen by a ring of cameras.
+
+Built with the DIMO test builder (``tests/data/dimo_builder.py``) so that the runner and ``score`` read
+it from disk like any DIMO download, and usable in memory for the stage tests.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).parent / "data"))
+import dimo_builder  # noqa: E402
+
+from bop_cender.synth.rigs import look_at  # noqa: E402
+
+WIDTH, HEIGHT = 160, 128
+VIEWPOINTS = (0, 2, 4, 6)
+
+
+def l_part(a: float, b: float, c: float) -> trimesh.Trimesh:
+    """An L-shaped part (no symmetry): a bar ``a x b x c`` with a post on one end, centred on its bbox."""
+    bar = trimesh.creation.box(extents=(a, b, c))
+    post = trimesh.creation.box(extents=(c, b, a / 2))
+    post.apply_translation((a / 2 - c / 2, 0, c / 2 + a / 4))
+    mesh = trimesh.util.concatenate([bar, post])
+    mesh.apply_translation(-(mesh.bounds[0] + mesh.bounds[1]) / 2)
+    return mesh
+
+
+MESHES = {3: l_part(44.0, 14.0, 10.0), 4: l_part(36.0, 20.0, 8.0)}
+
+
+def ring_camera(viewpoint: int, seed: int = 0) -> np.ndarray:
+    """``T_world_cam`` of viewpoint ``viewpoint``: a ring of cameras 350 mm out, 300 mm up, looking at the origin."""
+    a = 2 * np.pi * viewpoint / 8 + 0.3
+    eye = np.array([350 * np.cos(a), 350 * np.sin(a), 300.0])
+    return np.linalg.inv(look_at(eye, np.array([0.0, 0.0, 10.0])))
+
+
+def object_poses(seed: int = 0) -> list[np.ndarray]:
+    """World poses of parts 3 and 4 (random rotations, fixed places) and of the carrier 100."""
+    rng = np.random.default_rng(seed)
+    poses = []
+    for center in ((-30.0, 5.0, 20.0), (35.0, -10.0, 20.0)):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        T[:3, 3] = center
+        poses.append(T)
+    carrier = np.eye(4)
+    carrier[2, 3] = -5.0
+    return [*poses, carrier]
+
+
+def build(root: Path, n_scenes: int = 1, seed: int = 0) -> Path:
+    """A DIMO-layout dataset under ``root`` (split ``real``: carrier 2, composition 1, even viewpoints)."""
+    dimo_builder.write_models(root, (3, 4, 100), meshes=MESHES)
+    rng = np.random.default_rng(seed)
+    for s in range(n_scenes):
+        spec = dimo_builder.SceneSpec(
+            folder=f"{s:06d}", viewpoints=VIEWPOINTS, obj_ids=(3, 4, 100), image_size=(WIDTH, HEIGHT), focal_factor=2.0
+        )
+        dimo_builder.write_scene(root, spec, rng, seed, camera_pose=ring_camera, object_poses=object_poses(seed + s))
+    return root

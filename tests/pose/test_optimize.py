@@ -1,0 +1,137 @@
+"""Stage 3 on oracle curvature: the cost's shape, occlusion by placed objects, and the optimiser."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+import method_data  # noqa: E402
+
+from bop_cender.data.dimo import open_dimo  # noqa: E402
+from bop_cender.method import MeshStore  # noqa: E402
+from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
+from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
+from bop_cender.pose.optimize import (  # noqa: E402
+    PoseConfig,
+    PoseTarget,
+    SceneCameras,
+    _refine_lockstep,
+    _refine_scipy,
+    optimise_scene,
+    view_weights,
+)
+
+
+@pytest.fixture(scope="module")
+def mini(tmp_path_factory):
+    root = method_data.build(tmp_path_factory.mktemp("mini") / "dimo")
+    ds = open_dimo(root, "real")
+    scene = ds.scene(ds.scene_keys[0])
+    meshes = MeshStore(ds.models)
+    maps = scene_targets(scene, ds.models, meshes, TargetConfig.for_dataset("dimo"))
+    cams = SceneCameras(np.stack([v.K for v in scene.views]), np.stack([v.T_cam_world for v in scene.views]),
+                        method_data.HEIGHT, method_data.WIDTH)  # fmt: skip
+    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > 0.5))
+    return ds, scene, meshes, maps, cams, dist
+
+
+def gt_of(scene, obj_id):
+    return next(g for g in scene.gt if g.obj_id == obj_id)
+
+
+def cost_of(mesh, T_world_model, cams, dist, occ=None):
+    T = np.einsum("vij,njk->nvik", cams.T_cam_world, T_world_model)
+    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+    return candidate_costs(mesh, torch.as_tensor(T, dtype=torch.float32), cams.Ks, cams.height, cams.width, dist, w,
+                           occluder_depth=occ).numpy()  # fmt: skip
+
+
+def perturb(T, angle_deg, shift_mm, axis=(0.3, 0.5, 0.8)):
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    out = T.copy()
+    out[:3, :3] = Rotation.from_rotvec(np.radians(angle_deg) * axis).as_matrix() @ T[:3, :3]
+    out[:3, 3] += shift_mm * np.array([0.6, -0.8, 0.0])
+    return out
+
+
+def test_cost_is_smallest_at_gt_and_grows_with_the_perturbation(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (2, 1), (5, 3), (10, 6), (20, 12))])
+    costs = cost_of(meshes(3), poses, cams, dist)
+    assert costs[0] < 0.1
+    assert np.all(np.diff(costs) > 0), costs
+
+
+def test_occluders_hide_the_candidate_only_where_they_are_in_front(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    T = gt_of(scene, 4).T_world_model[None]
+    free = cost_of(meshes(4), T, cams, dist)
+    far = torch.full((len(cams.Ks), cams.height, cams.width), 1e5)
+    assert cost_of(meshes(4), T, cams, dist, far) == pytest.approx(free, abs=1e-6)
+    # a wall in front of the left half of every image hides part of the object: its curvature there is gone
+    wall = torch.zeros((len(cams.Ks), cams.height, cams.width))
+    wall[:, :, : cams.width // 2 + 10] = 1.0  # 1 mm from the camera: in front of everything
+    hidden = cost_of(meshes(4), T, cams, dist, wall)
+    assert hidden != pytest.approx(free, abs=1e-4)
+
+
+def test_symmetric_equivalent_poses_cost_the_same(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    import trimesh
+
+    from bop_cender.render.mesh import prepare_mesh
+
+    box = prepare_mesh(trimesh.creation.box(extents=(40.0, 20.0, 10.0)))
+    T = gt_of(scene, 4).T_world_model
+    flip = np.eye(4)
+    flip[:3, :3] = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    c = cost_of(box, np.stack([T, T @ flip]), cams, dist)
+    assert c[0] == pytest.approx(c[1], rel=1e-3, abs=1e-3)
+
+
+@pytest.mark.parametrize("refine", [_refine_lockstep, _refine_scipy])
+def test_refinement_recovers_a_perturbed_gt_pose(mini, refine):
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    center_model = ds.models[3].center
+    center3d = g.T_world_model[:3, :3] @ center_model + g.T_world_model[:3, 3]
+    start = perturb(g.T_world_model, 6.0, 3.0)
+    config = PoseConfig(nm_maxfev=300)
+    w = torch.full((len(cams.Ks),), 0.25)
+    T, c, fev = refine(start[None], center3d + 1.0, center_model, meshes(3), cams, dist, w, None, config)
+    R_err = np.degrees(Rotation.from_matrix(T[0, :3, :3] @ g.T_world_model[:3, :3].T).magnitude())
+    t_err = np.linalg.norm(T[0, :3, 3] - g.T_world_model[:3, 3])
+    assert R_err < 1.0 and t_err < 1.0, (R_err, t_err)
+    assert fev <= 300 + 8
+
+
+def test_scene_optimisation_places_every_object(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    targets = []
+    for g in scene.gt:
+        if ds.models[g.obj_id].is_target:
+            c = g.T_world_model[:3, :3] @ ds.models[g.obj_id].center + g.T_world_model[:3, 3]
+            targets.append(PoseTarget(c + np.array([1.5, -1.0, 0.5]), np.ones(len(cams.Ks)), (3, 4)))
+    done = []
+    placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
+                            PoseConfig(n_candidates=400, nm_maxfev=250), progress=lambda a, b: done.append(a))  # fmt: skip
+    assert done == [1, 2]
+    for p in placed:
+        g = gt_of(scene, p.obj_id)
+        assert np.linalg.norm(p.T_world_model[:3, 3] - g.T_world_model[:3, 3]) < 1.0
+    assert sorted(p.obj_id for p in placed) == [3, 4]
+
+
+def test_view_weights():
+    np.testing.assert_allclose(view_weights(np.array([1.0, 3.0, 0.0]), "center"), [0.25, 0.75, 0.0])
+    np.testing.assert_allclose(view_weights(np.array([1.0, 3.0]), "uniform"), [0.5, 0.5])
+    np.testing.assert_allclose(view_weights(np.zeros(4), "center"), 0.25)
+    with pytest.raises(ValueError):
+        view_weights(np.ones(2), "bogus")

@@ -1,0 +1,142 @@
+"""The runner and ``bop-cender run``: shards, resume after a kill, workers, the CSV that ``score`` reads alone."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+import method_data  # noqa: E402
+
+from bop_cender.cli import main  # noqa: E402
+from bop_cender.data.dimo import open_dimo  # noqa: E402
+from bop_cender.errors import ConfigError  # noqa: E402
+from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore  # noqa: E402
+from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
+from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
+from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
+
+#: Cheap settings: the rows are not precise, but every run with them must give the same rows.
+CHEAP = {"n_candidates": 48, "top_k": 2, "nm_maxfev": 40}
+
+
+@pytest.fixture(scope="module")
+def mini_root(tmp_path_factory) -> Path:
+    return method_data.build(tmp_path_factory.mktemp("runner") / "dimo", n_scenes=2)
+
+
+def request(root: Path, out: Path, **kw) -> RunRequest:
+    base = dict(dataset="dimo", data_root=str(root), split="real", out=out, deterministic_time=True,
+                config=CenDerNetConfig.for_dataset("dimo", **CHEAP))  # fmt: skip
+    base.update(kw)
+    return RunRequest(**base)
+
+
+@pytest.fixture(scope="module")
+def reference_csv(mini_root, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ref") / "cendernet-oracle_dimo-real.csv"
+    summary = run(request(mini_root, out))
+    assert summary.scenes == 2 and summary.rows == 2 * 2 * 4 and not summary.failed
+    return out
+
+
+def test_run_writes_csv_and_sidecar_and_no_work_folder(reference_csv):
+    rows = read_bop_results(reference_csv)
+    assert {r.obj_id for r in rows} <= {3, 4} and all(r.time == -1 for r in rows)
+    sidecar = json.loads(reference_csv.with_suffix(".json").read_text())
+    assert sidecar["dataset"] == "dimo" and sidecar["split"] == "real"
+    assert sidecar["extra"]["config"]["poses"]["n_candidates"] == 48
+    assert not work_dir(reference_csv).exists()
+
+
+def test_resume_after_a_kill_gives_the_same_rows(mini_root, reference_csv, tmp_path):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+
+    def kill_after_first(done, total, key):
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(request(mini_root, out), progress=kill_after_first)
+    assert not out.exists() and len(list(work_dir(out).glob("*.json"))) == 1
+    summary = run(request(mini_root, out, resume=True))
+    assert summary.resumed == 1
+    assert out.read_bytes() == reference_csv.read_bytes()
+
+
+def test_resume_ignores_shards_of_other_settings(mini_root, tmp_path):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    with pytest.raises(KeyboardInterrupt):
+        run(request(mini_root, out), progress=lambda d, t, k: (_ for _ in ()).throw(KeyboardInterrupt) if d else None)
+    other = CenDerNetConfig.for_dataset("dimo", **{**CHEAP, "n_candidates": 40})
+    assert run(request(mini_root, out, resume=True, config=other)).resumed == 0
+
+
+def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    run(request(mini_root, out, workers=2))
+    assert out.read_bytes() == reference_csv.read_bytes()
+
+
+def test_score_reads_the_run_with_no_flag(reference_csv, capsys):
+    assert main(["score", str(reference_csv), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "AR_MSSD<5%" in out and "dataset dimo split real" in out
+
+
+def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--split", "real", "--out", str(out),
+                 "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress", "--deterministic-time"])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert f"next: bop-cender score {out}" in printed and "1 scenes" in printed
+    assert len(read_bop_results(out)) == 4 * 2
+
+
+@pytest.mark.parametrize(
+    "argv, field",
+    [
+        (["--heatmaps", "net"], "--heatmaps"),
+        (["--workers", "0"], "--workers"),
+        (["--limit-scenes", "0"], "--limit-scenes"),
+        (["--candidates", "0"], "--candidates"),
+        (["--out", "bad name.txt"], "--out"),
+    ],
+)
+def test_bad_requests_are_one_line(mini_root, tmp_path, capsys, argv, field, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--no-progress", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert field in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_scene_without_centres_has_no_estimates(mini_root):
+    ds = open_dimo(mini_root, "real")
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    meshes = MeshStore(ds.models)
+    blind = OraclePredictor(ds.models, meshes, config.targets, degradation=Degradation(miss_prob=1.0))
+    est = CenDerNet(ds.models, config, blind, meshes).estimate(ds.scene(ds.scene_keys[0]))
+    assert est.objects == () and set(est.timings) == {"heatmaps", "centers", "poses"}
+
+
+def test_a_failing_scene_is_reported_not_raised(mini_root):
+    class Broken:
+        name = "broken"
+
+        def predict(self, scene):
+            raise ValueError("heatmaps of the wrong size")
+
+    ds = open_dimo(mini_root, "real")
+    outcome = estimate_scene(CenDerNet(ds.models, CenDerNetConfig(), Broken()), ds.scene(ds.scene_keys[0]))
+    assert outcome.estimate is None and "wrong size" in outcome.error
+
+
+def test_request_checks():
+    with pytest.raises(ConfigError):
+        run(RunRequest("dimo", None, "real", Path("x.csv"), workers=0))
