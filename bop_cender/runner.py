@@ -55,6 +55,9 @@ class RunRequest:
         resume: keep the shards of an earlier, interrupted run with the same settings.
         deterministic_time: write ``-1`` as every row's time (reproducible files, for tests).
         device: torch device of the heatmaps.
+        vis_dir: write a figure per scene there (:mod:`bop_cender.vis`); None: no figures.
+        max_views: estimate from the first K views of each scene only (an ablation); the rows are
+            still written for every view, so the scores compare with a run on all views.
     """
 
     dataset: str
@@ -72,6 +75,8 @@ class RunRequest:
     resume: bool = False
     deterministic_time: bool = False
     device: str = "cpu"
+    vis_dir: Path | None = None
+    max_views: int | None = None
 
     def fingerprint(self) -> str:
         """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume)."""
@@ -85,6 +90,7 @@ class RunRequest:
             "weights": self.weights,
             "seed": self.seed,
             "config": self.config.as_dict(),
+            "max_views": self.max_views,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -258,12 +264,30 @@ def shard_path(work: Path, scene_key: str) -> Path:
     return work / (re.sub(r"[^A-Za-z0-9_.-]", "__", scene_key) + ".json")
 
 
-def estimate_scene(method: CenDerNet, scene: Scene) -> SceneOutcome:
-    """One scene, never raising for a problem of that scene: the error becomes the outcome."""
+def estimate_scene(
+    method: CenDerNet, scene: Scene, vis_dir: Path | None = None, max_views: int | None = None
+) -> SceneOutcome:
+    """One scene, never raising for a problem of that scene: the error becomes the outcome.
+
+    With ``vis_dir``, the scene's figure is written there as ``<scene key>.png``; with ``max_views``
+    only the first K views are given to the method."""
+    if max_views is not None:
+        scene = replace(scene, views=scene.views[:max_views])
     try:
-        return SceneOutcome(scene.key, method.estimate(scene))
+        output = method.run_scene(scene)
     except (BopCenderError, ValueError, RuntimeError) as e:
         return SceneOutcome(scene.key, None, f"{type(e).__name__}: {e}")
+    if vis_dir is not None:
+        from bop_cender.vis import scene_figure
+
+        scene_figure(
+            output,
+            scene,
+            method.models,
+            method.meshes,
+            Path(vis_dir) / shard_path(Path(), scene.key).with_suffix(".png").name,
+        )
+    return SceneOutcome(scene.key, output.estimate)
 
 
 def write_shard(path: Path, outcome: SceneOutcome, fingerprint: str) -> None:
@@ -320,6 +344,8 @@ def _check_request(request: RunRequest) -> None:
         )
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
+    if request.max_views is not None and request.max_views < 1:
+        raise ConfigError(f"expected a positive number of views, got {request.max_views}", field="--max-views")
     if request.limit_scenes is not None and request.limit_scenes < 1:
         raise ConfigError(f"expected a positive number of scenes, got {request.limit_scenes}", field="--limit-scenes")
     out = Path(request.out)
@@ -337,7 +363,7 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
     if request.workers == 1 or len(keys) == 1:
         method = build_method(request, dataset)
         for key in keys:
-            yield estimate_scene(method, dataset.scene(key))
+            yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
         return
     build_method(request, dataset)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")
@@ -358,7 +384,7 @@ def _worker_scene(request: RunRequest, key: str) -> SceneOutcome:
         torch.set_num_threads(1)
         dataset = open_run_dataset(request)
         _WORKER.update(request=request, dataset=dataset, method=build_method(request, dataset))
-    return estimate_scene(_WORKER["method"], _WORKER["dataset"].scene(key))
+    return estimate_scene(_WORKER["method"], _WORKER["dataset"].scene(key), request.vis_dir, request.max_views)
 
 
 def request_as_dict(request: RunRequest) -> dict[str, Any]:

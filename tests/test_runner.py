@@ -90,11 +90,14 @@ def test_score_reads_the_run_with_no_flag(reference_csv, capsys):
 def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--split", "real", "--out", str(out),
-                 "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress", "--deterministic-time"])  # fmt: skip
+                 "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress", "--deterministic-time",
+                 "--vis", str(tmp_path / "vis")])  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out
     assert f"next: bop-cender score {out}" in printed and "1 scenes" in printed
     assert len(read_bop_results(out)) == 4 * 2
+    figure = tmp_path / "vis" / "000000.png"
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.parametrize(
@@ -104,6 +107,7 @@ def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
         (["--workers", "0"], "--workers"),
         (["--limit-scenes", "0"], "--limit-scenes"),
         (["--candidates", "0"], "--candidates"),
+        (["--max-views", "0"], "--max-views"),
         (["--out", "bad name.txt"], "--out"),
     ],
 )
@@ -140,3 +144,9 @@ def test_a_failing_scene_is_reported_not_raised(mini_root):
 def test_request_checks():
     with pytest.raises(ConfigError):
         run(RunRequest("dimo", None, "real", Path("x.csv"), workers=0))
+
+
+def test_one_view_gives_no_estimates_and_rows_stay_per_image(mini_root, tmp_path):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    summary = run(request(mini_root, out, max_views=1, limit_scenes=1))
+    assert summary.estimates == 0 and summary.empty == ["000000"] and summary.rows == 0

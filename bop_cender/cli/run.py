@@ -43,6 +43,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--deterministic-time", action="store_true", help="write -1 as every row's time (reproducible files)"
     )
+    p.add_argument(
+        "--vis", default=None, metavar="DIR", help="write a figure per scene (views, heatmaps, centres, contours)"
+    )
+    p.add_argument(
+        "--max-views", type=int, default=None, help="estimate from the first K views of each scene (ablation)"
+    )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
@@ -84,7 +90,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         dataset=args.dataset, data_root=args.data_root, split=split, out=out, n_views=args.n_views,
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
-        deterministic_time=args.deterministic_time, device=device,
+        deterministic_time=args.deterministic_time, device=device, vis_dir=Path(args.vis) if args.vis else None,
+        max_views=args.max_views,
     )  # fmt: skip
     bar = None
 

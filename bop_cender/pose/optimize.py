@@ -54,7 +54,7 @@ class PoseConfig:
         nm_initial_rotation_rad, nm_initial_translation_mm: size of the initial simplex (ours: 0.15 rad, 4 mm).
         nm_xatol: Nelder-Mead ``xatol`` in scaled units (~mm at the part's surface; ours: 0.05).
         nm_fatol: Nelder-Mead ``fatol`` in cost units (pixels; ours: 1e-3).
-        nm_maxfev: cost evaluations per Nelder-Mead run (ours: 400).
+        nm_maxfev: cost evaluations per Nelder-Mead run (ours: 300; on the test scene 120 and 200 gave the same poses to 0.05 mm and 0.1 degree).
         candidate_downscale: the random candidates are costed at 1/this resolution (intrinsics scaled,
             distance maps of the max-pooled binary curvature), Nelder-Mead at full resolution; ours: 2
             (4x fewer pixels for the 2,000 candidates; 1 = the paper's single resolution).
@@ -76,7 +76,7 @@ class PoseConfig:
     nm_initial_translation_mm: float = 4.0
     nm_xatol: float = 0.05
     nm_fatol: float = 1e-3
-    nm_maxfev: int = 400
+    nm_maxfev: int = 300
     candidate_downscale: int = 2
     refiner: str = "lockstep"
     occlusion: bool = True

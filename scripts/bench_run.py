@@ -1,0 +1,124 @@
+"""Benchmark the method: cost calls/s (batches of 2,000 and of 1) and seconds per scene by stage.
+
+1. Cost calls per second, one call = one pose over six 320x256 views (render + curvature + cost), the
+   workload of ``scripts/bench_render.py`` (the reference L-bracket, ~700 faces): a batch of 2,000 (the
+   candidates of one object) and a batch of 1 (one Nelder-Mead step of the scipy refiner). CPU, and
+   CUDA where present.
+2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
+   with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
+   embedded demo), one process, all threads.
+
+Prints a table and writes ``results/bench/run_<machine>.md``:
+
+    python scripts/bench_run.py --data-root DATA --split sim --scenes 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import bench_machine
+import bench_render
+import numpy as np
+import torch
+
+from bop_cender.pose.cost import candidate_costs
+from bop_cender.render.mesh import prepare_mesh
+from bop_cender.synth.reference_meshes import reference_bracket
+
+
+def cost_calls_per_second(device: torch.device, batch: int, seconds: float) -> tuple[float, float]:
+    """Median calls/s and ms per cost call of ``batch`` poses over six views."""
+    mesh = prepare_mesh(reference_bracket(), device=device)
+    T_cw, K = bench_render.make_rig()
+    dist = bench_render.target_distance_maps(mesh, T_cw, K).to(device)
+    rng = np.random.default_rng(0)
+    T = torch.as_tensor(bench_render.make_candidates(batch, rng, T_cw), dtype=torch.float32, device=device)
+    Ks = torch.as_tensor(K, dtype=torch.float32, device=device)
+    w = torch.full((len(K),), 1.0 / len(K), device=device)
+
+    def call() -> None:
+        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w)
+
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    call()
+    sync()
+    times = []
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end or len(times) < 3:
+        t = time.perf_counter()
+        call()
+        sync()
+        times.append(time.perf_counter() - t)
+    per_call = float(np.median(times))
+    return batch / per_call, per_call * 1000
+
+
+def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str) -> list[dict]:
+    from bop_cender.data.registry import DatasetRequest
+    from bop_cender.datasets import open_with_demo
+    from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
+    from bop_cender.net.oracle import OraclePredictor
+
+    ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
+    config = CenDerNetConfig.for_dataset("dimo")
+    meshes = MeshStore(ds.models, device="cpu")
+    method = CenDerNet(ds.models, config, OraclePredictor(ds.models, meshes, config.targets, device=device), meshes)
+    out = []
+    for key in ds.scene_keys[:n_scenes]:
+        scene = ds.scene(key)
+        t = time.perf_counter()
+        est = method.estimate(scene)
+        wall = time.perf_counter() - t
+        n_parts = sum(ds.models[g.obj_id].is_target for g in scene.gt)
+        out.append({"scene": key, "views": len(scene.views), "parts": n_parts, "objects": len(est.objects),
+                    "wall": wall, **est.timings})  # fmt: skip
+        print(f"scene {key}: {wall:.1f} s " + ", ".join(f"{k} {v:.1f}" for k, v in est.timings.items()), flush=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data-root", default=None, help="DIMO-layout dataset (default: the embedded demo)")
+    ap.add_argument("--split", default="sim")
+    ap.add_argument("--scenes", type=int, default=2)
+    ap.add_argument("--seconds", type=float, default=5.0, help="timing budget per cost measurement")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    load_before = os.getloadavg()
+    devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    cost_rows = []
+    for device in devices:
+        for batch in (2000, 1):
+            calls, ms = cost_calls_per_second(device, batch, args.seconds)
+            cost_rows.append((device.type, batch, calls, ms))
+            print(f"cost {device.type} batch {batch}: {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
+    scenes = scene_timings(args.data_root, args.split, args.scenes, "cuda" if torch.cuda.is_available() else "cpu")
+    load_after = os.getloadavg()
+    slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
+    path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"run_{slug}.md"
+    lines = ["# Method benchmark (`scripts/bench_run.py`)", "", f"Command: `python scripts/{Path(__file__).name} "
+             + " ".join(sys.argv[1:]) + "`", ""]  # fmt: skip
+    lines += bench_render.machine_description()
+    lines += [f"- load average before / after: {load_before[0]:.2f} / {load_after[0]:.2f}", "",
+              "## Cost calls per second (one call = one pose over six 320x256 views, reference bracket)", "",
+              "| device | batch | calls/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
+    lines += [f"| {d} | {b} | {c:,.0f} | {m:.2f} |" for d, b, c, m in cost_rows]
+    lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config)", "",
+              "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines += [f"| {s['scene']} | {s['views']} | {s['parts']} | {s['objects']} | {s['wall']:.1f} | {s['heatmaps']:.2f}"
+              f" | {s['centers']:.2f} | {s['poses']:.1f} |" for s in scenes]  # fmt: skip
+    if scenes:
+        lines += ["", f"Median wall time per scene: {np.median([s['wall'] for s in scenes]):.1f} s"]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
