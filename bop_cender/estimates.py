@@ -2,7 +2,7 @@
 
 A multi-view method estimates each object once per scene, in the world frame shared by all of the
 scene's views (design.md: ``SceneEstimate = [ObjectEstimate(obj_id, T_world_model, score)] +
-timings``). Turning these into BOP's per-image camera-frame rows is :mod:`bop_cender.results`'
+timings``). Turning these into BOP's per-image camera-frame rows is :mod:`bop_cender.results.bop_csv`'
 job, so nothing here knows about cameras or CSV files.
 
 Poses are validated where they enter (finite, last row ``(0, 0, 0, 1)``, orthonormal ``R`` with

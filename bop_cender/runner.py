@@ -31,7 +31,8 @@ from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
-from bop_cender.results import scene_estimates_to_rows, write_bop_results, write_run_sidecar
+from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
+from bop_cender.results.files import write_run_sidecar
 
 SHARD_FORMAT = "bop-cender-shard"
 HEATMAP_SOURCES = ("oracle", "net")
@@ -120,17 +121,13 @@ class RunSummary:
 
 
 def open_run_dataset(request: RunRequest) -> Dataset:
-    from bop_cender.data.registry import open_dataset
+    from bop_cender.data.registry import DatasetRequest
+    from bop_cender.datasets import open_with_demo
 
-    return open_dataset(
-        request.dataset,
-        request.data_root,
-        request.split,
-        n_views=request.n_views,
-        seed=request.seed,
-        model_type=request.model_type,
-        quiet=True,
+    data = DatasetRequest(
+        request.dataset, request.data_root, request.split, request.n_views, request.seed, request.model_type
     )
+    return open_with_demo(data)  # no data root: the embedded demo, silently
 
 
 def build_method(request: RunRequest, dataset: Dataset) -> CenDerNet:
@@ -348,7 +345,7 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
 
 
 def _check_request(request: RunRequest) -> None:
-    from bop_cender.results import parse_result_filename
+    from bop_cender.results.files import parse_result_filename
 
     if request.heatmaps not in HEATMAP_SOURCES:
         raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")

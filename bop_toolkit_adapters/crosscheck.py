@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from bop_cender.eval.report import SCORE_KEYS, ScoreReport
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.types import Dataset
+from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_toolkit_adapters.export import ToolkitExport, export_for_toolkit
 from bop_toolkit_adapters.runtime import (
     ToolkitScores,
@@ -130,7 +133,7 @@ def crosscheck(
         notes.append("VSD skipped: the dataset has no test depth")
     else:
         notes.append("VSD skipped on request")
-    vsd_delta = ours.metadata.get("vsd_delta")
+    vsd_delta = ours.metadata.vsd_delta
     export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
     clock = time.perf_counter()
     toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet, progress=progress)
@@ -253,10 +256,13 @@ def crosscheck_file(
     data_root: str | Path | None = None,
     split: str | None = None,
     n_views: int | None = None,
+    seed: int | None = None,
+    model_type: str | None = None,
     vsd_delta: float | None = None,
     with_vsd: bool = True,
     quiet: bool = True,
     progress: bool = True,
+    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
 ) -> Crosscheck:
     """Score ``results_csv`` as ``bop-cender score`` does (files written to ``out_dir``), then :func:`crosscheck` it.
 
@@ -270,8 +276,8 @@ def crosscheck_file(
     import_toolkit(toolkit_dir)
     out_dir = Path(out_dir)
     scored = score_file(
-        results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
-        out_dir=out_dir, progress=progress,
+        results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+        model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
     )  # fmt: skip
     return crosscheck(
         results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress

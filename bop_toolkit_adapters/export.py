@@ -27,15 +27,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bop_cender.data.bop_io import load_json, save_json
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
+from bop_cender.data.targets_file import write_targets
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
-from bop_cender.eval.ground_truth import split_folder as data_split_folder
-from bop_cender.eval.model_points import MeshCache
-from bop_cender.eval.targets import TARGETS_FILE, resolve_targets, write_targets
+from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
-from bop_cender.result_files import parse_result_filename, result_filename
+from bop_cender.meshes import MeshCache
+from bop_cender.results.files import parse_result_filename, result_filename
 
 #: Split folder the toolkit uses for (dataset, split) when no split type is given (dataset_params.py).
 TOOLKIT_DEFAULT_SPLIT_TYPE = {("tless", "test"): "primesense", ("tless", "train"): "primesense"}
@@ -101,9 +102,11 @@ def export_for_toolkit(
     gt = collect_ground_truth(dataset, progress)
     meshes = MeshCache(dataset.eval_models or dataset.models)
     targets = resolve_targets(
-        dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
+        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
-    split_folder = data_split_folder(gt, dataset)
+    # The toolkit knows no DIMO: it is registered with the user's split names (real, sim); BOP datasets keep their
+    # split folder, whose suffix is the split type (test_primesense).
+    split_folder = dataset.split if dataset.name == "dimo" else dataset.split_folder
     split, split_type = _toolkit_split(dataset.name, split_folder)
     method = method or _method(results_csv)
     name = result_filename(method, dataset.name, split, split_type)
@@ -151,20 +154,20 @@ def _export_scenes(gt: GroundTruth, split_dir: Path, visib: dict) -> list[int]:
         src = images[0].scene_dir
         if src is None:
             raise ValueError(f"scene {images[0].scene_id} has no folder on disk: cannot export it for the toolkit")
-        camera = load_json(src / "scene_camera.json", keys_to_int=True)
-        scene_gt = load_json(src / "scene_gt.json", keys_to_int=True)
-        info_path = src / "scene_gt_info.json"
+        camera = load_json(src / SCENE_CAMERA, keys_to_int=True)
+        scene_gt = load_json(src / SCENE_GT, keys_to_int=True)
+        info_path = src / SCENE_GT_INFO
         info = load_json(info_path, keys_to_int=True) if info_path.is_file() else None
         dst = split_dir / f"{scene_int:06d}"
         ims = sorted(im.im_id for im in images)
-        save_json(dst / "scene_camera.json", {im: camera[im] for im in ims})
-        save_json(dst / "scene_gt.json", {im: scene_gt[im] for im in ims})
+        save_json(dst / SCENE_CAMERA, {im: camera[im] for im in ims})
+        save_json(dst / SCENE_GT, {im: scene_gt[im] for im in ims})
         if info is not None:
-            save_json(dst / "scene_gt_info.json", {im: info[im] for im in ims})
+            save_json(dst / SCENE_GT_INFO, {im: info[im] for im in ims})
         else:
             fracts = {im.im_id: visib[im.key] for im in images}
             save_json(
-                dst / "scene_gt_info.json",
+                dst / SCENE_GT_INFO,
                 {im: [{"visib_fract": fracts[im].get(g, 0.0)} for g in range(len(scene_gt[im]))] for im in ims},
             )
         for image in images:

@@ -59,11 +59,12 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float) -> t
 
 
 def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str) -> list[dict]:
-    from bop_cender.data.registry import open_dataset
+    from bop_cender.data.registry import DatasetRequest
+    from bop_cender.datasets import open_with_demo
     from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
     from bop_cender.net.oracle import OraclePredictor
 
-    ds = open_dataset("dimo", data_root, split, quiet=True)
+    ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshStore(ds.models, device="cpu")
     method = CenDerNet(ds.models, config, OraclePredictor(ds.models, meshes, config.targets, device=device), meshes)

@@ -6,7 +6,7 @@ Usage:
 What is measured: the wall time of ``bop-cender score RESULTS.csv --data-root DATA`` in a fresh Python
 process (imports, dataset loading, MSSD, MSPD, VSD renders and VSD, matching, writing the scores JSON
 and errors CSV), limited to ``--threads`` CPU threads (torch, BLAS, OpenMP). The data: the regression
-fixture (``bop_cender.eval.regression_fixture``) at T-LESS size (720x540, fx ~ 1075 px) with
+fixture (``bop_cender.synth.regression_fixture``) at T-LESS size (720x540, fx ~ 1075 px) with
 T-LESS-like meshes and object mix (see BENCH_SPEC_ARGS: cylinders with a continuous symmetry and a half-turn,
 630 symmetry transforms; boxes with 4 discrete symmetries; asymmetric wedges), and estimates 1-4 degrees and 1-6 mm from
 their GT, so that no early-out skips the work. The median of the repeats is written, with the
@@ -45,8 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="report (default results/bench/score_<machine>.md)")
     args = parser.parse_args(argv)
 
-    from bop_cender.eval.regression_fixture import FixtureSpec, bench_estimates, build_fixture
-    from bop_cender.results import write_bop_results
+    from bop_cender.results.bop_csv import write_bop_results
+    from bop_cender.synth.regression_fixture import FixtureSpec, bench_estimates, build_fixture
 
     BENCH_SPEC = FixtureSpec(**BENCH_SPEC_ARGS)
 

@@ -33,7 +33,7 @@ from bop_cender.data.types import CameraView, GtObject, Scene
 from bop_cender.errors import ResultsError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.geometry.poses import make_pose
-from bop_cender.results import (
+from bop_cender.results.bop_csv import (
     BopEstimate,
     parse_result_filename,
     read_bop_results,

@@ -14,7 +14,8 @@ import argparse
 import numpy as np
 
 from bop_cender.centers import CenterConfig, detect_centers
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest
+from bop_cender.datasets import open_with_demo
 from bop_cender.method import CenDerNetConfig, MeshStore
 from bop_cender.net.oracle import OraclePredictor
 
@@ -32,7 +33,7 @@ def main() -> None:
     ap.add_argument("--split", default="sim")
     ap.add_argument("--scenes", type=int, default=None)
     args = ap.parse_args()
-    ds = open_dataset("dimo", args.data_root, args.split, quiet=True)
+    ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshStore(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets)

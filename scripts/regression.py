@@ -6,7 +6,7 @@ Usage:
     EGL_PLATFORM=surfaceless PYTHONPATH=<vispy, pypng> \\
     python scripts/regression.py --anchor TOOLKIT   # recompute toolkit_anchor_*.csv with the official toolkit
 
-The fixture, the tables and the tolerances are described in ``bop_cender/eval/regression.py``. The
+The fixture, the tables and the tolerances are described in ``bop_cender/regression.py``. The
 anchor is made by the toolkit's own ``eval_calc_errors.py`` / ``eval_calc_scores.py`` (run in-process on
 an export of the fixture, see ``bop_toolkit_adapters``); the toolkit is not part of this repository.
 """
@@ -18,15 +18,17 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bop_cender.eval.regression import (
+from bop_cender.regression import (
     RESULTS_NAME,
-    TABLES_DIR,
     anchor_tables,
     compare_tables,
     format_problems,
     run_regression,
     write_tables,
 )
+
+#: The committed tables, in the repository (the package does not read them).
+TABLES_DIR = Path(__file__).resolve().parents[1] / "results" / "regression"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
     from bop_cender.data.bop_io import write_text_atomic
-    from bop_cender.data.registry import open_dataset
+    from bop_cender.data.registry import DatasetRequest, open_dataset
     from bop_toolkit_adapters.export import export_for_toolkit
     from bop_toolkit_adapters.runtime import evaluate, import_toolkit, vsd_renderer_available
 
@@ -69,7 +71,7 @@ def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
     if why is not None:
         print(f"the toolkit's VSD renderer is not available ({why}): the anchor needs it", file=sys.stderr)
         return 2
-    dataset = open_dataset("tless", work / "tless", "test")
+    dataset = open_dataset(DatasetRequest("tless", work / "tless", "test"))
     export = export_for_toolkit(dataset, work / RESULTS_NAME, work / "toolkit", progress=False)
     scores = evaluate(export, scripts, with_vsd=True)
     for name, text in anchor_tables(scores.errors, scores.recalls, scores.average_recalls).items():

@@ -16,7 +16,7 @@ from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore  # noqa: E402
 from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
-from bop_cender.results import read_bop_results  # noqa: E402
+from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
 
 #: Cheap settings: the rows are not precise, but every run with them must give the same rows.

@@ -32,10 +32,10 @@ from bop_cender.data.bop_io import image_size as read_image_size
 from bop_cender.data.bop_scene import (
     IMAGE_SUFFIXES,
     RGB_FOLDERS,
-    SCENE_CAMERA,
     BopSceneLoader,
     ScenePlan,
 )
+from bop_cender.data.layout import SCENE_CAMERA, TARGETS_FILE
 from bop_cender.data.models import load_models
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import Dataset, ObjectModel
@@ -43,7 +43,6 @@ from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
 
 #: Views per multi-view group: the paper's 5 (CosyPose reported 4 and 8).
 DEFAULT_N_VIEWS = 5
-TARGETS_FILE = "test_targets_bop19.json"
 EVAL_MODELS_DIR = "models_eval"
 
 
@@ -175,6 +174,7 @@ def open_bop_split(
         residuals=residuals,
         image_size=size,
         has_depth=has_depth,
+        split_dir=split_dir,
     )
 
 

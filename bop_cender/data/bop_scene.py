@@ -36,13 +36,11 @@ from bop_cender.data.bop_io import (
     require_keys,
 )
 from bop_cender.data.consistency import FAIL_MM, ResidualTracker
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT, SCENE_GT_INFO
 from bop_cender.data.types import CameraView, GtObject, Scene, check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
 from bop_cender.geometry.poses import invert_pose, pose_from_bop
 
-SCENE_CAMERA = "scene_camera.json"
-SCENE_GT = "scene_gt.json"
-SCENE_GT_INFO = "scene_gt_info.json"
 #: Colour (or grey) image folders, in order of preference, and the image suffixes looked for.
 RGB_FOLDERS = ("rgb", "gray")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif")
@@ -355,6 +353,7 @@ def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, trac
             T_world_model=inst.T_world_model,
             gt_ids=inst.gt_ids,
             visib_fract={} if folder.visib is None else {im: folder.visib[im][g] for im, g in inst.gt_ids.items()},
+            T_cam_model={im: folder.gt[im][g].T_cam_model for im, g in inst.gt_ids.items()},
             source=source,
         )
         for inst in instances

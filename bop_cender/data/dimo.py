@@ -166,7 +166,8 @@ def open_dimo(root: str | Path, split: str, selection: DimoSelection = PAPER_SEL
     if not root.is_dir():
         raise DatasetError("DIMO root folder not found", file=root)
     models = load_models(root / "models", is_target=lambda obj_id: obj_id < CARRIER_MIN_ID)
-    folders, notes = list_dimo_scenes(root / _camera_folder(split, selection.camera), split, selection)
+    camera_dir = root / _camera_folder(split, selection.camera)
+    folders, notes = list_dimo_scenes(camera_dir, split, selection)
     targets = [i for i, m in models.items() if m.is_target]
     carriers = [i for i, m in models.items() if not m.is_target]
     notes.append(
@@ -188,6 +189,7 @@ def open_dimo(root: str | Path, split: str, selection: DimoSelection = PAPER_SEL
         residuals=residuals,
         image_size=_first_image_size(folders),
         has_depth=False,
+        split_dir=camera_dir,
     )
 
 
@@ -274,7 +276,7 @@ def load_dimo_scene(
     info = read_scene_info(paths[INFO_FILE])
     scene_gt = load_image_dict(paths[GT_FILE])
     check_same_image_ids({paths[CAMERA_FILE]: cameras, paths[GT_FILE]: scene_gt, paths[INFO_FILE]: info})
-    check_scene_gt(paths[GT_FILE], scene_gt, world, cameras, gt_tracker)
+    stored = check_scene_gt(paths[GT_FILE], scene_gt, world, cameras, gt_tracker)
     cam_tracker.report(f"{paths[CAMERA_FILE]}: cam_*_w2c vs inverted cam_*_c2w")
     gt_tracker.report(f"{paths[GT_FILE]} vs {CAMERA_FILE} and {GT_WORLD_FILE}")
     if residuals is not None:
@@ -303,7 +305,13 @@ def load_dimo_scene(
             )
         )
     gt = tuple(
-        GtObject(obj.obj_id, obj.T_world_model, gt_ids={i: k for i in selected}, source=str(paths[GT_WORLD_FILE]))
+        GtObject(
+            obj.obj_id,
+            obj.T_world_model,
+            gt_ids={i: k for i in selected},
+            T_cam_model={i: stored[i][k] for i in selected},
+            source=str(paths[GT_WORLD_FILE]),
+        )  # fmt: skip
         for k, obj in enumerate(world)
     )
     m = re.match(r"^\d+_(\d{2})$", scene_dir.name)

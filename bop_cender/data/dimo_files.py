@@ -19,12 +19,13 @@ import numpy as np
 
 from bop_cender.data.bop_io import as_int, load_image_dict, load_json, require_keys
 from bop_cender.data.consistency import ResidualTracker
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
 from bop_cender.data.types import check_intrinsics, check_matrix, check_pose
 from bop_cender.errors import DatasetError
 from bop_cender.geometry.poses import c2w_to_w2c, make_pose
 
-CAMERA_FILE = "scene_camera.json"
-GT_FILE = "scene_gt.json"
+CAMERA_FILE = SCENE_CAMERA
+GT_FILE = SCENE_GT
 GT_WORLD_FILE = "scene_gt_world.json"
 INFO_FILE = "scene_info.json"
 
@@ -156,7 +157,7 @@ def check_scene_gt(
     world: list[WorldObject],
     cameras: Mapping[int, DimoCamera],
     tracker: ResidualTracker,
-) -> None:
+) -> dict[int, list[np.ndarray]]:
     """Check every image's ``scene_gt`` list against ``scene_gt_world.json`` and the cameras.
 
     As the official loader assumes, each image lists every instance of ``world``, in the same
@@ -166,7 +167,11 @@ def check_scene_gt(
     Args:
         scene_gt: ``scene_gt.json`` as loaded by :func:`~bop_cender.data.bop_io.load_image_dict`; its image ids must
             already be known to equal those of ``cameras``.
+
+    Returns:
+        Per image id, the stored ``T_cam_model (4, 4)`` of each entry (float64 as read), in ``world`` order.
     """
+    poses: dict[int, list[np.ndarray]] = {}
     relation = f"{CAMERA_FILE} and {GT_WORLD_FILE} (T_cam_world @ T_world_model)"
     for im_id, entries in scene_gt.items():
         if not isinstance(entries, list):
@@ -191,6 +196,8 @@ def check_scene_gt(
                 )
             T_cam_model = read_pose(entry, "cam_R_m2c", "cam_t_m2c", path, where)
             tracker.check(T_cam_world @ obj.T_world_model, T_cam_model, path, where, relation)
+            poses.setdefault(im_id, []).append(T_cam_model)
+    return poses
 
 
 def read_pose(entry: Mapping, r_key: str, t_key: str, path: Path, where: str) -> np.ndarray | None:

@@ -1,68 +1,83 @@
-"""Open a dataset split by name: ``dimo``, ``tless`` or any BOP-layout dataset (``bop``).
+"""Open a dataset split: one request value, one function.
 
-This is the single entry point the CLI and the runner use; with no data root it falls back
-to the embedded synthetic demo dataset of the requested layout.
+:class:`DatasetRequest` names what to open (``dimo``, ``tless``, ``bop`` or any BOP dataset name, its root,
+split and loader settings); :func:`open_dataset` opens it. This is the single entry point the CLI, the
+scorer and the runner use. It needs a data root: the embedded demo (no ``--data-root``) is resolved one
+level above, by :func:`bop_cender.datasets.resolve_data_root`, so that the data layer never imports the
+synthetic generator.
 """
 
 from __future__ import annotations
 
-import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError
 
+#: The names the command line offers; any other BOP dataset name opens with the generic BOP loader.
 DATASETS = ("dimo", "tless", "bop")
 DEFAULT_SPLIT = {"dimo": "real", "tless": "test", "bop": "test"}
 
 
-def open_dataset(
-    name: str,
-    data_root: str | Path | None = None,
-    split: str | None = None,
-    *,
-    n_views: int | None = None,
-    seed: int = 0,
-    model_type: str | None = None,
-    quiet: bool = False,
-) -> Dataset:
-    """Open ``name``'s ``split`` under ``data_root`` (or the embedded demo when it is None).
+@dataclass(frozen=True)
+class DatasetRequest:
+    """Which dataset split to open, and how.
 
-    Args:
-        name: ``dimo``, ``tless`` or ``bop``.
-        data_root: dataset root; None uses the cached synthetic demo (generated on first use).
-        split: split name; defaults per dataset (dimo: real, tless/bop: test).
-        n_views: views per multi-view group for BOP-layout test splits (default 5, the paper's).
-        seed: seed of the view grouping shuffle.
+    Attributes:
+        dataset: ``dimo``, ``tless``, ``bop`` (a BOP-layout folder, named after it) or a BOP dataset name
+            (``lmo``, ``itodd``: the generic BOP loader under that name).
+        root: dataset root folder; None = not given (see :func:`bop_cender.datasets.resolve_data_root`).
+        split: split name; None = the dataset's default (dimo: real, others: test).
+        n_views: views per multi-view group of BOP-layout test splits (default 5, the paper's).
+        seed: seed of the view-grouping shuffle.
         model_type: BOP models folder variant (``cad``, ``eval``, ``reconst``; T-LESS default cad).
-        quiet: do not announce the demo dataset on stderr.
+        split_type: BOP split type (``primesense``, ``kinect``), as result file names carry it.
+    """
+
+    dataset: str
+    root: Path | None = None
+    split: str | None = None
+    n_views: int | None = None
+    seed: int = 0
+    model_type: str | None = None
+    split_type: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.root is not None:
+            object.__setattr__(self, "root", Path(self.root))
+
+    @property
+    def loader(self) -> str:
+        """``dimo``, ``tless`` or ``bop`` (the generic BOP loader)."""
+        return self.dataset if self.dataset in ("dimo", "tless") else "bop"
+
+
+def open_dataset(request: DatasetRequest) -> Dataset:
+    """Open the split ``request`` names.
 
     Raises:
-        ConfigError: unknown dataset name or split.
+        ConfigError: unknown split, split type or model type, or no data root.
         DatasetError: the data on disk is missing or inconsistent.
     """
-    if name not in DATASETS:
-        raise ConfigError(f"unknown dataset {name!r}; expected one of {', '.join(DATASETS)}", field="--dataset")
-    split = split or DEFAULT_SPLIT[name]
-    if data_root is None:
-        if name == "bop":
-            raise ConfigError("--dataset bop needs --data-root DIR (a folder in the BOP layout)", field="--data-root")
-        from bop_cender.data.demo import ensure_demo
-
-        data_root = ensure_demo(name)
-        if not quiet:
-            print(
-                f"[bop-cender] no --data-root: using the embedded synthetic {name} demo at {data_root}", file=sys.stderr
-            )
-    root = Path(data_root)
-    if name == "dimo":
+    loader = request.loader
+    split = request.split or DEFAULT_SPLIT[loader]
+    if request.root is None:
+        raise ConfigError(f"--dataset {request.dataset} needs --data-root DIR", field="--data-root")
+    root = request.root
+    if loader == "dimo":
         from bop_cender.data.dimo import open_dimo
 
         return open_dimo(root, split)
-    if name == "tless":
+    if loader == "tless":
         from bop_cender.data.tless import open_tless
 
-        return open_tless(root, split, n_views=n_views, seed=seed, model_type=model_type)
+        if split == "test" and request.split_type not in (None, "primesense"):
+            split = f"test_{request.split_type}"
+        return open_tless(root, split, n_views=request.n_views, seed=request.seed, model_type=request.model_type)
     from bop_cender.data.bop import open_bop
 
-    return open_bop(root, split, n_views=n_views, seed=seed, model_type=model_type)
+    return open_bop(
+        root, split, name=None if request.dataset == "bop" else request.dataset, n_views=request.n_views,
+        seed=request.seed, model_type=request.model_type, split_type=request.split_type,
+    )  # fmt: skip

@@ -28,6 +28,8 @@ from bop_cender.geometry.symmetry import (
 if TYPE_CHECKING:
     import trimesh
 
+    from bop_cender.data.targets_file import Target
+
 #: A rotation whose ``R R^T - I`` has an entry above this is not accepted (BOP files are rounded
 #: to ~6 digits, so real rotations sit around 1e-6).
 ROTATION_TOLERANCE = 1e-2
@@ -186,12 +188,17 @@ class GtObject:
         T_world_model: ``(4, 4)`` model-to-world transform, mm.
         gt_ids: per image id, this instance's index in that image's ``scene_gt`` list.
         visib_fract: per image id, visible fraction from ``scene_gt_info.json`` when known.
+        T_cam_model: per image id, the ``(4, 4)`` model-to-camera pose STORED in that image's ``scene_gt``
+            entry, float64 exactly as read (empty for scenes held only in memory). Evaluation scores against
+            these, as the toolkit does: ``T_cam_world @ T_world_model`` differs from them by the files'
+            rounding (T-LESS: R to 6 decimals, t to 0.01 mm), enough to change errors in their last digits.
     """
 
     obj_id: int
     T_world_model: np.ndarray
     gt_ids: Mapping[int, int] = field(default_factory=dict)
     visib_fract: Mapping[int, float] = field(default_factory=dict)
+    T_cam_model: Mapping[int, np.ndarray] = field(default_factory=dict)
     source: str | None = None
 
     def __post_init__(self) -> None:
@@ -259,6 +266,8 @@ class Dataset:
         residuals: largest pose-consistency residuals seen while loading (mm, rad).
         image_size: (width, height) of the split's images.
         has_depth: whether test depth images exist (VSD needs them).
+        split_dir: the folder holding the split's scene folders (``test_primesense/``, DIMO ``real_jaigo/``);
+            None for data held only in memory.
     """
 
     root: Path
@@ -272,7 +281,10 @@ class Dataset:
     residuals: dict[str, float] = field(default_factory=dict)
     image_size: tuple[int, int] | None = None
     has_depth: bool = False
+    split_dir: Path | None = None
     _cache: dict[str, Scene] = field(default_factory=dict, repr=False)
+    _on_disk: dict[str, frozenset[int] | None] = field(default_factory=dict, repr=False)
+    _files: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def scene(self, key: str) -> Scene:
         """Load (once) and return the scene with this key."""
@@ -291,6 +303,47 @@ class Dataset:
         """All scenes of the split in order, loaded lazily."""
         for key in self.scene_keys:
             yield self.scene(key)
+
+    @property
+    def split_folder(self) -> str:
+        """The split folder's name (``test_primesense``: its suffix is the BOP split type); the split name without one."""
+        return self.split_dir.name if self.split_dir is not None else self.split
+
+    def bop19_targets(self) -> list[Target] | None:
+        """The dataset's ``test_targets_bop19.json`` (at its root), read once; None without one.
+
+        Raises:
+            DatasetError: the file is malformed (every entry needs integer ids and ``inst_count`` >= 1).
+        """
+        if "targets" not in self._files:
+            from bop_cender.data.layout import TARGETS_FILE
+            from bop_cender.data.targets_file import read_targets
+
+            path = self.root / TARGETS_FILE
+            self._files["targets"] = read_targets(path) if path.is_file() else None
+        return self._files["targets"]
+
+    def scene_on_disk(self, scene_id: str) -> bool:
+        """Whether the split has a folder for this scene id (selected or not)."""
+        from bop_cender.data.layout import SCENE_CAMERA
+
+        return self.split_dir is not None and (self.split_dir / scene_id / SCENE_CAMERA).is_file()
+
+    def image_ids_on_disk(self, scene_id: str) -> frozenset[int] | None:
+        """Image ids of a scene folder of the split, selected or not (its ``scene_camera.json``); None without one."""
+        if self.split_dir is None:
+            return None
+        if scene_id not in self._on_disk:
+            from bop_cender.data.bop_io import load_json
+            from bop_cender.data.layout import SCENE_CAMERA
+
+            path = self.split_dir / scene_id / SCENE_CAMERA
+            ids = None
+            if path.is_file():
+                content = load_json(path, keys_to_int=True)
+                ids = frozenset(k for k in content if isinstance(k, int)) if isinstance(content, dict) else None
+            self._on_disk[scene_id] = ids
+        return self._on_disk[scene_id]
 
     @property
     def target_obj_ids(self) -> list[int]:

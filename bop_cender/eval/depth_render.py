@@ -1,8 +1,8 @@
 """The evaluation's seam to the one batched renderer (:mod:`bop_cender.render`): depth and instance maps.
 
-VSD needs the depth of a model in the estimated and in the GT pose; DIMO's targets need which object is
-in front at each pixel of the whole pile. Both come from our renderer (no OpenGL), through the few
-functions here, so that a change of the renderer's API touches only this file.
+VSD needs the depth of a model in the estimated and in the GT pose; it comes from our renderer (no OpenGL),
+through the few functions here, so that a change of the renderer's API touches only this file. (DIMO's
+targets need which object is in front at each pixel of the whole pile: :mod:`bop_cender.visibility`.)
 
 Renders for VSD are cut right away to the bounding box of their silhouette inside the image
 (:class:`~bop_cender.eval.render_crops.DepthCrops`): VSD only looks at pixels where either render is non-zero, so a crop loses
@@ -14,7 +14,7 @@ poses whose bounding sphere reaches the near plane are rendered full-frame.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
@@ -24,7 +24,7 @@ from bop_cender.eval.render_crops import DepthCrops
 from bop_cender.render.depth_crops import crop_to_silhouette, tight_depth_crops
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR
-from bop_cender.render.rasterizer import render_candidates, render_objects_separately, render_scene
+from bop_cender.render.rasterizer import render_objects_separately
 
 #: Poses rendered per renderer call (bounded memory; measured fastest on 2 cores).
 CHUNK = 48
@@ -32,8 +32,6 @@ CHUNK = 48
 __all__ = [
     "CHUNK",
     "render_depth_crops",
-    "render_pile_instances",
-    "silhouette_areas",
     "single_threaded_torch",
 ]
 
@@ -83,34 +81,3 @@ def render_depth_crops(
         for k, e in enumerate(idx):
             crops[e], origin[e] = crop_to_silhouette(depth[k], np.zeros(2, np.int64))
     return DepthCrops(crops, origin)
-
-
-def render_pile_instances(
-    meshes: Sequence[RenderMesh], T_cam_model: np.ndarray, K: np.ndarray, height: int, width: int
-) -> np.ndarray:
-    """Which object is in front at each pixel: ``(V, H, W)`` int64 index into ``meshes``, -1 background.
-
-    Args:
-        meshes: M meshes, one per object instance (repeat a mesh for repeated objects).
-        T_cam_model: ``(V, M, 4, 4)`` poses of every object in every view.
-        K: ``(V, 3, 3)`` intrinsics.
-    """
-    with torch.no_grad():
-        r = render_scene(list(meshes), np.asarray(T_cam_model, np.float64), np.asarray(K, np.float64), height, width)
-    return r.instance.cpu().numpy()
-
-
-def silhouette_areas(mesh: RenderMesh, T_cam_model: np.ndarray, K: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Pixel count ``(E,)`` of the whole silhouette of each pose, parts beyond the image border included.
-
-    The toolkit's ``calc_gt_info.py`` counts ``px_count_all`` on a larger canvas for the same reason:
-    a truncated object's visible fraction is its visible pixels over its whole silhouette.
-    """
-    T = np.asarray(T_cam_model, dtype=np.float64).reshape(-1, 4, 4)
-    Ks = np.broadcast_to(np.asarray(K, dtype=np.float64), (len(T), 3, 3))
-    out = np.zeros(len(T), dtype=np.int64)
-    for start in range(0, len(T), CHUNK):
-        idx = np.arange(start, min(len(T), start + CHUNK))
-        r = render_candidates(mesh, T[None, idx], Ks[idx], height, width, depth=False)
-        out[idx] = r.mask[0].reshape(len(idx), -1).sum(dim=1).cpu().numpy()
-    return out

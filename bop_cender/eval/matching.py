@@ -3,7 +3,7 @@
 Follows ``shared/reference/bop_metrics.md`` sections 3-4 (toolkit ``eval_calc_errors.py``,
 ``eval_calc_scores.py``, ``pose_matching.match_poses``, ``score.calc_localization_scores``,
 ``eval_bop19_pose.py``). Nothing here loads files: a scorer loads the dataset and the results CSV,
-calls :func:`select_top_n`, computes errors (``errors.py``, ``vsd.py``) for the kept estimates
+calls :func:`select_top_n`, computes errors (``pose_errors.py``, ``vsd.py``) for the kept estimates
 against every GT of the same object in the image, normalises them with :func:`normalize_by_diameter`
 / :func:`normalize_by_image_width`, and then calls :func:`valid_gts`, :func:`match`, :func:`recall`
 and :func:`average_recalls`.
@@ -21,6 +21,8 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
+from bop_cender.data.targets_file import SceneId, Target
+
 #: Thresholds of correctness, with np.arange's float noise (0.15000000000000002) kept on purpose.
 VSD_THRESHOLDS: np.ndarray = np.arange(0.05, 0.51, 0.05)
 MSSD_THRESHOLDS: np.ndarray = np.arange(0.05, 0.51, 0.05)
@@ -28,19 +30,8 @@ MSPD_THRESHOLDS: np.ndarray = np.arange(5, 51, 5)
 #: MSPD is normalised to a 640 px wide image (error * 640 / width).
 MSPD_REFERENCE_WIDTH = 640.0
 
-SceneId = int | str
 #: ``(scene_id, im_id, gt_id)``; gt_id is the index in the image's ``scene_gt`` list.
 GtKey = tuple[SceneId, int, int]
-
-
-@dataclass(frozen=True)
-class Target:
-    """One line of ``test_targets_bop19.json``: ``inst_count`` instances of ``obj_id`` to find in an image."""
-
-    scene_id: SceneId
-    im_id: int
-    obj_id: int
-    inst_count: int
 
 
 @dataclass(frozen=True)

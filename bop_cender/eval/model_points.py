@@ -1,5 +1,5 @@
 """Model geometry for evaluation: vertices for MSSD / MSPD exactly as the BOP toolkit reads them from
-``models_eval`` PLY files, and triangle meshes for the VSD renders (:class:`MeshCache`).
+``models_eval`` PLY files (the meshes for the VSD renders: :class:`bop_cender.meshes.MeshCache`).
 
 The toolkit's ``inout.load_ply`` turns the text of an ASCII PLY into float64 with Python's
 ``float()``; trimesh (our mesh loader) reads an ASCII ``property float`` as float32 first. The two
@@ -10,127 +10,19 @@ does; binary PLYs hold float32/float64 values that both loaders read alike.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bop_cender.data.ply_ascii import ascii_vertices
 from bop_cender.data.types import ObjectModel
-from bop_cender.errors import DatasetError
-
-if TYPE_CHECKING:
-    from bop_cender.render.mesh import RenderMesh
 
 
 def eval_vertices(model: ObjectModel) -> np.ndarray:
     """``(N, 3)`` float64 vertices of ``model`` as the toolkit's ``load_ply`` returns them (read-only)."""
-    ascii_pts = _ascii_vertices(str(Path(model.path).resolve()))
+    ascii_pts = ascii_vertices(str(Path(model.path).resolve()))
     if ascii_pts is not None:
         return ascii_pts
     pts = np.array(model.mesh.vertices, dtype=np.float64)
     pts.setflags(write=False)
     return pts
-
-
-@dataclass(frozen=True)
-class MeshArrays:
-    """A triangle mesh as plain arrays: ``vertices (N, 3)`` float64 (mm) and ``faces (F, 3)`` int64."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-
-
-def ascii_mesh(path: str | Path) -> MeshArrays | None:
-    """Vertices and triangles of an ASCII PLY without trimesh (its import alone costs ~0.4 s of a cold
-    ``score``); None for a binary PLY or one this reader does not handle (then use trimesh)."""
-    parsed = _ascii_ply(str(Path(path).resolve()))
-    if parsed is None or parsed[1] is None:
-        return None
-    return MeshArrays(parsed[0], parsed[1])
-
-
-@dataclass
-class MeshCache:
-    """Meshes of a dataset's models, read once per object id on first use.
-
-    Reading needs no torch (:meth:`arrays`), so a scorer that renders in another process
-    (:mod:`bop_cender.eval.render_process`) never imports it; :meth:`__call__` prepares the renderer's
-    mesh (torch) on first use.
-    """
-
-    models: Mapping[int, ObjectModel]
-    _arrays: dict[int, MeshArrays] = field(default_factory=dict, repr=False)
-    _meshes: dict[int, RenderMesh] = field(default_factory=dict, repr=False)
-
-    def arrays(self, obj_id: int) -> MeshArrays:
-        """Vertices and triangles of object ``obj_id``: an ASCII PLY without trimesh (faster cold start), else trimesh."""
-        if obj_id not in self._arrays:
-            model = self.models[obj_id]
-            mesh = ascii_mesh(model.path)
-            if mesh is None:
-                mesh = MeshArrays(np.asarray(model.mesh.vertices, np.float64), np.asarray(model.mesh.faces, np.int64))
-            self._arrays[obj_id] = mesh
-        return self._arrays[obj_id]
-
-    def __call__(self, obj_id: int) -> RenderMesh:
-        """The renderer's mesh of object ``obj_id`` (CPU), prepared once."""
-        if obj_id not in self._meshes:
-            from bop_cender.render.mesh import prepare_mesh
-
-            self._meshes[obj_id] = prepare_mesh(self.arrays(obj_id))
-        return self._meshes[obj_id]
-
-
-def _ascii_vertices(path: str) -> np.ndarray | None:
-    parsed = _ascii_ply(path)
-    return None if parsed is None else parsed[0]
-
-
-@lru_cache(maxsize=64)
-def _ascii_ply(path: str) -> tuple[np.ndarray, np.ndarray | None] | None:
-    """``(vertices, faces)`` of an ASCII PLY, vertices parsed with ``float()``; None for a binary PLY.
-
-    ``faces`` is None when the file has no triangle list right after the vertices (other layouts are
-    left to trimesh).
-    """
-    with open(path, "rb") as f:
-        header = []
-        while True:
-            line = f.readline()
-            if not line:
-                raise DatasetError("PLY header has no end_header", file=path)
-            text = line.decode("utf8", errors="replace").strip()
-            header.append(text)
-            if text == "end_header":
-                break
-        if not any(h.startswith("format ascii") for h in header):
-            return None
-        elements = [h.split() for h in header if h.startswith("element")]
-        n_pts, props, in_vertex = 0, [], False
-        for h in header:
-            if h.startswith("element"):
-                in_vertex = h.startswith("element vertex")
-                if in_vertex:
-                    n_pts = int(h.split()[-1])
-            elif h.startswith("property") and in_vertex:
-                props.append(h.split()[-1])
-        try:
-            cols = [props.index(a) for a in ("x", "y", "z")]
-        except ValueError:
-            raise DatasetError("PLY vertices have no x, y, z properties", file=path) from None
-        pts = np.empty((n_pts, 3), dtype=np.float64)
-        for i in range(n_pts):
-            fields = f.readline().split()
-            pts[i] = [float(fields[c]) for c in cols]
-        pts.setflags(write=False)
-        faces = None
-        names = [e[1] for e in elements]
-        if names[:2] == ["vertex", "face"]:
-            n_faces = int(elements[1][2])
-            rows = [f.readline().split() for _ in range(n_faces)]
-            if all(len(r) >= 4 and r[0] == b"3" for r in rows):
-                faces = np.array([r[1:4] for r in rows], dtype=np.int64).reshape(-1, 3)
-    return pts, faces

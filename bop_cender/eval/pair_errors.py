@@ -5,7 +5,7 @@ call per VSD pair. Here the pairs are batched per object:
 
 - MSSD over the convex-hull vertices of the ``models_eval`` PLY, read as the toolkit reads it
   (:mod:`bop_cender.eval.model_points`; same maximum as all vertices, see
-  :func:`bop_cender.eval.errors.hull_vertices`), ``inf`` when ``||t_e - t_g|| >= diameter``;
+  :func:`bop_cender.eval.pose_errors.hull_vertices`), ``inf`` when ``||t_e - t_g|| >= diameter``;
 - MSPD over all vertices (no early-out, as the toolkit);
 - VSD (:mod:`bop_cender.eval.pair_vsd`): each distinct pose rendered once, by worker threads or by a
   render process started before torch was imported (:mod:`bop_cender.eval.render_process`), and
@@ -23,12 +23,13 @@ import numpy as np
 from tqdm import tqdm
 
 from bop_cender.data.types import ObjectModel
-from bop_cender.eval.errors import hull_vertices, mspd, mssd
 from bop_cender.eval.ground_truth import ImageGt
-from bop_cender.eval.model_points import MeshCache, eval_vertices
+from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pair_vsd import pair_vsd
+from bop_cender.eval.pose_errors import hull_vertices, mspd, mssd
 from bop_cender.eval.render_process import DepthRenderer, ThreadRenderer
 from bop_cender.eval.vsd import VSD_TAUS
+from bop_cender.meshes import MeshCache
 
 #: Worker threads (the benchmark target is two cores).
 WORKERS = 2

@@ -25,10 +25,10 @@ from bop_cender.data.bop_io import load_depth
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
 from bop_cender.eval.ground_truth import ImageGt
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.render_crops import DepthCrops, paste, union_window
 from bop_cender.eval.render_process import DepthRenderer, RenderJob
 from bop_cender.eval.vsd import overlapping_sphere_projections, vsd
+from bop_cender.meshes import MeshCache
 
 if TYPE_CHECKING:
     from bop_cender.eval.pair_errors import Pairs

@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 if TYPE_CHECKING:  # only the standard library at import: the CLI forks the child before heavier imports
     import numpy as np
 
-    from bop_cender.eval.model_points import MeshCache
     from bop_cender.eval.render_crops import DepthCrops
+    from bop_cender.meshes import MeshCache
     from bop_cender.render.mesh import RenderMesh
 
 __all__ = ["AHEAD", "RenderJob", "DepthRenderer", "ThreadRenderer", "RenderProcess", "render_process_useful"]
@@ -47,7 +47,7 @@ class RenderJob:
     """n poses of one object to render as depth crops in images of one size.
 
     Attributes:
-        obj_id: the object (a key of the :class:`~bop_cender.eval.model_points.MeshCache`).
+        obj_id: the object (a key of the :class:`~bop_cender.meshes.MeshCache`).
         T_cam_model: ``(n, 4, 4)`` float64 model-to-camera poses (mm).
         K: ``(n, 3, 3)`` float64 intrinsics, one per pose.
         height, width: image size (pixels beyond it are dropped).
@@ -293,7 +293,7 @@ class _Mesh(NamedTuple):
 
 @dataclass
 class _PreparedMeshes:
-    """Render meshes already prepared, called like :class:`~bop_cender.eval.model_points.MeshCache`."""
+    """Render meshes already prepared, called like :class:`~bop_cender.meshes.MeshCache`."""
 
     meshes: dict[int, RenderMesh]
 

@@ -3,11 +3,12 @@
 Where the data comes from, first found wins for each setting:
 
 1. the options given (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``);
-2. the run sidecar beside the CSV (``<stem>.json``, :func:`bop_cender.result_files.read_run_sidecar`):
+2. the run sidecar beside the CSV (``<stem>.json``, :func:`bop_cender.results.files.read_run_sidecar`):
    data root, dataset, split, seed and ``n_views`` from its selection;
 3. the BOP file name ``{method}_{dataset}-{split}[-{split_type}]...csv``: ``dimo`` and ``tless`` map
    to our loaders, any other name to the generic BOP loader (which then needs a data root);
-4. no data root at all for ``dimo`` / ``tless``: the embedded demo dataset.
+4. no data root at all for ``dimo`` / ``tless``: what ``open_data`` does with a request without a root
+   (the CLI's: the embedded demo dataset, :func:`bop_cender.datasets.open_with_demo`).
 
 A sidecar that names another dataset than the file name is refused, and rows naming scenes, images or
 objects that are not in the data are refused by the scorer (each bad line listed).
@@ -16,22 +17,20 @@ objects that are not in the data are refused by the scorer (each bad line listed
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.render_process import RenderProcess, render_process_useful
-from bop_cender.eval.report import ScoreReport, write_errors_csv, write_scores_json
+from bop_cender.eval.score_report import ScoreReport, write_errors_csv, write_scores_json
 from bop_cender.eval.scoring import score_results
-from bop_cender.result_files import ResultName, parse_result_filename, read_run_sidecar
-from bop_cender.results import read_bop_results
-
-#: Our loader for a BOP dataset name; every other name uses the generic BOP loader.
-LOADERS = {"dimo": "dimo", "tless": "tless"}
+from bop_cender.results.bop_csv import read_bop_results
+from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar
 
 
 @dataclass(frozen=True)
@@ -39,18 +38,11 @@ class DataChoice:
     """The dataset a results file is scored on, and where each setting came from.
 
     Attributes:
-        loader: ``dimo``, ``tless`` or ``bop``. name: the dataset name (BOP's, e.g. ``lmo``).
-        data_root: None = the embedded demo. split, split_type, n_views, seed: loader settings.
+        request: what to open (its root None = not given: the caller's ``open_data`` decides, e.g. the demo).
         origin: one line saying where the settings came from.
     """
 
-    loader: str
-    name: str
-    data_root: Path | None
-    split: str
-    split_type: str | None
-    n_views: int | None
-    seed: int
+    request: DatasetRequest
     origin: str
 
 
@@ -73,6 +65,7 @@ def choose_data(
     split: str | None = None,
     n_views: int | None = None,
     seed: int | None = None,
+    model_type: str | None = None,
 ) -> DataChoice:
     """Decide which dataset split ``csv_path`` is scored on (see the module docstring).
 
@@ -98,7 +91,6 @@ def choose_data(
         )
     if name == "bop" and parsed is not None:
         name = parsed.dataset
-    loader = LOADERS.get(name, "bop")
     if sidecar is not None:
         origin.append(f"run sidecar {csv_path.with_suffix('.json').name}")
     root = data_root if data_root is not None else (sidecar or {}).get("data_root")
@@ -107,38 +99,17 @@ def choose_data(
     selection: dict[str, Any] = (sidecar or {}).get("selection", {})
     views = n_views if n_views is not None else selection.get("n_views")
     seed_value = seed if seed is not None else int((sidecar or {}).get("seed", 0))
-    if root is None and loader == "bop":
+    request = DatasetRequest(
+        dataset=name, root=None if root is None else Path(root), split=chosen_split or None,
+        n_views=None if views is None else int(views), seed=seed_value, model_type=model_type, split_type=split_type,
+    )  # fmt: skip
+    if root is None and request.loader == "bop":
         raise ConfigError(f"dataset {name!r} needs --data-root DIR (a folder in the BOP layout)", field="--data-root")
     if parsed is not None:
         origin.append(f"file name ({parsed.dataset}-{parsed.split}{'-' + split_type if split_type else ''})")
     if dataset or data_root or split:
         origin.insert(0, "options")
-    return DataChoice(
-        loader=loader,
-        name=name,
-        data_root=None if root is None else Path(root),
-        split=chosen_split or "",
-        split_type=split_type,
-        n_views=None if views is None else int(views),
-        seed=seed_value,
-        origin=", ".join(origin) or "defaults",
-    )
-
-
-def open_choice(choice: DataChoice) -> Dataset:
-    """Open the dataset split a :class:`DataChoice` names."""
-    split = choice.split or None
-    if choice.loader == "tless" and split == "test" and choice.split_type not in (None, "primesense"):
-        split = f"test_{choice.split_type}"
-    if choice.loader == "bop":
-        from bop_cender.data.bop import open_bop
-
-        assert choice.data_root is not None
-        return open_bop(
-            choice.data_root, split or "test", name=choice.name, n_views=choice.n_views, seed=choice.seed,
-            split_type=choice.split_type,
-        )  # fmt: skip
-    return open_dataset(choice.loader, choice.data_root, split, n_views=choice.n_views, seed=choice.seed)
+    return DataChoice(request, ", ".join(origin) or "defaults")
 
 
 def score_file(
@@ -149,21 +120,25 @@ def score_file(
     split: str | None = None,
     n_views: int | None = None,
     seed: int | None = None,
+    model_type: str | None = None,
     vsd_delta: float | None = None,
     out_dir: str | Path | None = None,
     progress: bool = True,
     render_process: RenderProcess | bool | None = None,
+    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
 ) -> ScoredFile:
     """Score one BOP results CSV and write ``scores_<stem>.json`` and ``errors_<stem>.csv`` into ``out_dir``.
 
     Args:
         csv_path: the results file.
-        dataset, data_root, split, n_views, seed: override what the sidecar / file name say.
+        dataset, data_root, split, n_views, seed, model_type: override what the sidecar / file name say.
         vsd_delta: VSD delta (mm); default the toolkit's.
         out_dir: where to write (default: beside the CSV).
         render_process: render VSD depth in a forked process (:mod:`bop_cender.eval.render_process`):
             one already started (left open), True to start one, False for threads of this process;
             None = start one where it helps: ``fork`` exists and torch is not imported yet (a cold start).
+        open_data: opens the chosen request (default :func:`~bop_cender.data.registry.open_dataset`, which
+            needs a data root; the CLI passes :func:`bop_cender.datasets.open_with_demo`).
     """
     csv_path = Path(csv_path)
     if not csv_path.is_file():  # before the data is opened (the demo may have to be generated first)
@@ -177,15 +152,17 @@ def score_file(
     else:
         process = nullcontext()
     with process as renderer:
-        choice = choose_data(csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed)
-        ds = open_choice(choice)
+        choice = choose_data(
+            csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+            model_type=model_type,
+        )  # fmt: skip
+        ds = open_data(choice.request)
         opened = time.perf_counter()
         rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
         read = time.perf_counter()
         report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path, renderer=renderer)
     report.timings.update(open_dataset=opened - clock, read_results=read - opened)
-    report.metadata["data_origin"] = choice.origin
-    report.metadata["method"] = method_name(csv_path)
+    report = replace(report, metadata=replace(report.metadata, data_origin=choice.origin, method=method_name(csv_path)))
     out = Path(out_dir) if out_dir is not None else csv_path.parent
     stem = csv_path.name.split(".")[0]
     scores_path, errors_path = out / f"scores_{stem}.json", out / f"errors_{stem}.csv"

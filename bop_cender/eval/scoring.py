@@ -21,15 +21,14 @@ Without test depth (DIMO) VSD, AR_VSD and AR are None (not available); MSSD and 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import few_ids
-from bop_cender.data.types import Dataset
-from bop_cender.errors import ResultsError
-from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth, split_folder
+from bop_cender.data.types import Dataset, ObjectModel
+from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
     MSPD_THRESHOLDS,
     MSSD_THRESHOLDS,
@@ -37,7 +36,7 @@ from bop_cender.eval.matching import (
     EstimateErrors,
     GtInstance,
     Matches,
-    Target,
+    SelectedEstimate,
     bop19_scores,
     match,
     normalize_by_image_width,
@@ -45,15 +44,16 @@ from bop_cender.eval.matching import (
     select_top_n,
     valid_gts,
 )
-from bop_cender.eval.model_points import MeshCache
-from bop_cender.eval.pair_errors import Pairs, pair_errors
+from bop_cender.eval.pair_errors import PairErrors, Pairs, pair_errors
 from bop_cender.eval.render_process import DepthRenderer
-from bop_cender.eval.report import EstimateRecord, ScoreReport
+from bop_cender.eval.score_report import ScoreCounts, ScoreMetadata, ScoreReport
+from bop_cender.eval.score_rows import check_rows, count_not_target, estimate_records
 from bop_cender.eval.targets import TargetSet, resolve_targets
-from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
+from bop_cender.eval.toolkit_constants import Choice, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
 from bop_cender.eval.vsd import VSD_TAUS
-from bop_cender.results import BopEstimate
+from bop_cender.meshes import MeshCache
+from bop_cender.results.bop_csv import BopEstimate
 
 
 def score_results(
@@ -68,8 +68,12 @@ def score_results(
 ) -> ScoreReport:
     """Score BOP results rows on a dataset split with the BOP'19 localisation protocol.
 
+    The steps, each a function with a typed value between them: :func:`gather` (ground truth, row checks,
+    targets) -> :func:`pair_up` (top-n, pairs) -> :func:`compute_errors` (raw and normalised errors) ->
+    :func:`match_errors` (valid GTs, greedy matching) -> :func:`build_report` (recalls, scores, records).
+
     Args:
-        rows: the results (:func:`bop_cender.results.read_bop_results`), any order.
+        rows: the results (:func:`bop_cender.results.bop_csv.read_bop_results`), any order.
         dataset: the split the rows were estimated on.
         vsd_delta: VSD tolerance (mm); default the toolkit's (15, ITODD 5).
         n_top: estimates kept per target: -1 = ``inst_count`` (BOP'19), 0 = all, n > 0 = n.
@@ -83,77 +87,186 @@ def score_results(
         DatasetError: the dataset's files are missing or inconsistent.
     """
     timings: dict[str, float] = {}
+    gathered = gather(rows, dataset, progress=progress, source=source, timings=timings)
+    paired = pair_up(rows, gathered, n_top)
+    errors = compute_errors(paired, gathered, dataset, vsd_delta, progress=progress, renderer=renderer, timings=timings)
+    clock = time.perf_counter()
+    matched = match_errors(paired, errors, gathered, n_top)
+    report = build_report(rows, dataset, gathered, paired, errors, matched, n_top, source, timings)
+    timings["matching"] = time.perf_counter() - clock
+    return report
+
+
+@dataclass(frozen=True, eq=False)
+class Gathered:
+    """Step 1: the split's ground truth, the rows checked against it, the targets.
+
+    Attributes:
+        gt: every selected image. unselected: rows for images on disk the split did not select (ignored).
+        models: the evaluation models. meshes: their meshes, read once. targets: the BOP'19 targets.
+    """
+
+    gt: GroundTruth
+    unselected: int
+    models: Mapping[int, ObjectModel]
+    meshes: MeshCache
+    targets: TargetSet
+
+
+@dataclass(frozen=True, eq=False)
+class Paired:
+    """Step 2: the estimates kept by the top-n cut and every (kept estimate, GT of its object) pair."""
+
+    kept: list[SelectedEstimate[BopEstimate]]
+    pairs: Pairs
+
+
+@dataclass(frozen=True, eq=False)
+class Errors:
+    """Step 3: raw and normalised errors of every pair.
+
+    Attributes:
+        raw: MSSD (mm), MSPD (px), VSD ``(P, taus)`` or None. mssd, mspd: ``(P,)`` normalised (MSSD /
+        diameter, MSPD x 640 / width). width: the MSPD width and its source. delta: VSD's delta, None without depth.
+    """
+
+    raw: PairErrors
+    mssd: np.ndarray
+    mspd: np.ndarray
+    width: Choice
+    delta: Choice | None
+
+
+@dataclass(frozen=True, eq=False)
+class Matched:
+    """Step 4: greedy matches per threshold over the valid GTs, and recall's denominator."""
+
+    mssd: Matches
+    mspd: Matches
+    vsd: Matches | None
+    n_targets: int
+
+
+def gather(
+    rows: Sequence[BopEstimate],
+    dataset: Dataset,
+    *,
+    progress: bool = True,
+    source: str | Path | None = None,
+    timings: dict[str, float] | None = None,
+) -> Gathered:
+    """Ground truth per image, every row checked against the split, the targets (file, scene_gt_info, rendered)."""
+    timings = {} if timings is None else timings
     clock = time.perf_counter()
     gt = collect_ground_truth(dataset, progress)
     timings["ground_truth"] = time.perf_counter() - clock
-    ignored = _check_rows(rows, gt, dataset, source)
+    unselected = check_rows(rows, gt, dataset, source)
     models = dataset.eval_models or dataset.models
     meshes = MeshCache(models)
-
     clock = time.perf_counter()
     targets = resolve_targets(
-        dataset.root, gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
+        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
     )
     timings["targets"] = time.perf_counter() - clock
+    return Gathered(gt, unselected, models, meshes, targets)
 
-    kept = select_top_n(list(rows), targets.targets, n_top)
-    pairs = _pairs(kept, gt)
-    width = mspd_width(dataset.name, split_folder(gt, dataset), _image_width(gt, dataset))
+
+def pair_up(rows: Sequence[BopEstimate], gathered: Gathered, n_top: int = -1) -> Paired:
+    """The top-n estimates per target and their pairs with the GTs of their object in their image."""
+    kept = select_top_n(list(rows), gathered.targets.targets, n_top)
+    return Paired(kept, _pairs(kept, gathered.gt))
+
+
+def compute_errors(
+    paired: Paired,
+    gathered: Gathered,
+    dataset: Dataset,
+    vsd_delta: float | None = None,
+    *,
+    progress: bool = True,
+    renderer: DepthRenderer | None = None,
+    timings: dict[str, float] | None = None,
+) -> Errors:
+    """MSSD, MSPD and (with test depth) VSD of every pair, and their normalisation."""
+    timings = {} if timings is None else timings
+    gt, models, pairs = gathered.gt, gathered.models, paired.pairs
+    width = mspd_width(dataset.name, dataset.split_folder, _image_width(gt, dataset))
     has_depth = bool(gt.images) and all(im.depth_path is not None for im in gt)
     delta = vsd_delta_for(dataset.name, vsd_delta) if has_depth else None
-
     clock = time.perf_counter()
-    raw = pair_errors(pairs, models, meshes, None if delta is None else delta.value, VSD_TAUS, progress, renderer)
+    raw = pair_errors(
+        pairs, models, gathered.meshes, None if delta is None else delta.value, VSD_TAUS, progress, renderer
+    )
     timings["errors"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
     diameters = np.array([models[int(o)].diameter for o in pairs.obj_id.tolist()], dtype=np.float64)
     mssd_n = raw.mssd / diameters  # the toolkit's e / diameter, per pair (normalize_by_diameter, vectorised)
     mspd_n = normalize_by_image_width(raw.mspd, width.value)
-    valid = valid_gts(_gt_instances(gt, targets), targets.targets)
-    per_est = _estimate_errors(kept, pairs, {"mssd": mssd_n, "mspd": mspd_n, "vsd": raw.vsd})
+    return Errors(raw, mssd_n, mspd_n, width, delta)
+
+
+def match_errors(paired: Paired, errors: Errors, gathered: Gathered, n_top: int = -1) -> Matched:
+    """Valid GTs (the most visible instances of each target) and the greedy matching per metric and threshold."""
+    targets = gathered.targets
+    valid = valid_gts(_gt_instances(gathered.gt, targets), targets.targets)
+    per_est = _estimate_errors(
+        paired.kept, paired.pairs, {"mssd": errors.mssd, "mspd": errors.mspd, "vsd": errors.raw.vsd}
+    )
     m_mssd = match(per_est["mssd"], valid, MSSD_THRESHOLDS)
     m_mspd = match(per_est["mspd"], valid, MSPD_THRESHOLDS)
-    m_vsd = None if raw.vsd is None else match(per_est["vsd"], valid, VSD_THRESHOLDS)
-    n_targets = _targets_count(valid, n_top)
-    r_mssd = recall(m_mssd, n_targets)[0]
-    r_mspd = recall(m_mspd, n_targets)[0]
-    r_vsd = None if m_vsd is None else recall(m_vsd, n_targets)
-    timings["matching"] = time.perf_counter() - clock
+    m_vsd = None if errors.raw.vsd is None else match(per_est["vsd"], valid, VSD_THRESHOLDS)
+    return Matched(m_mssd, m_mspd, m_vsd, _targets_count(valid, n_top))
 
+
+def build_report(
+    rows: Sequence[BopEstimate],
+    dataset: Dataset,
+    gathered: Gathered,
+    paired: Paired,
+    errors: Errors,
+    matched: Matched,
+    n_top: int,
+    source: str | Path | None = None,
+    timings: dict[str, float] | None = None,
+) -> ScoreReport:
+    """Recalls pooled over the dataset, the BOP'19 scores, one record per evaluated estimate, the metadata."""
+    r_mssd = recall(matched.mssd, matched.n_targets)[0]
+    r_mspd = recall(matched.mspd, matched.n_targets)[0]
+    r_vsd = None if matched.vsd is None else recall(matched.vsd, matched.n_targets)
     scores = bop19_scores(r_vsd, r_mssd, r_mspd)
-    not_target = _count_not_target(rows, targets.targets)
-    records = _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd)
+    gt, targets, kept, pairs, raw = gathered.gt, gathered.targets, paired.kept, paired.pairs, errors.raw
+    not_target = count_not_target(rows, targets.targets)
+    records = estimate_records(kept, pairs, raw, errors.mssd, errors.mspd, matched.mssd, matched.mspd, matched.vsd)
     notes = [f"GT poses: {gt.pose_source}"]
-    if delta is None:
+    if errors.delta is None:
         notes.append("no test depth: VSD, AR_VSD and AR are not available; MSSD and MSPD stand alone")
-    metadata = {
-        "dataset": dataset.name,
-        "split": dataset.split,
-        "root": str(dataset.root),
-        "results": None if source is None else str(source),
-        "n_top": n_top,
-        "mspd_width": width.value,
-        "mspd_width_source": width.source,
-        "vsd_delta": None if delta is None else delta.value,
-        "vsd_delta_source": None if delta is None else delta.source,
-        "vsd_renders": raw.vsd_renders,
-        "targets_source": targets.source,
-        "targets_note": targets.note,
-        "gt_pose_source": gt.pose_source,
-        "counts": {
-            "rows": len(rows),
-            "not_target": not_target,
-            "unselected_images": ignored,
-            "evaluated": len(kept),
-            "beyond_top_n": len(rows) - len(kept) - not_target,
-            "pairs": len(pairs),
-            "targets": len(targets.targets),
-            "target_instances": n_targets,
-            "target_images": len({(t.scene_id, t.im_id) for t in targets.targets}),
-        },
-        "time_per_image": average_time_per_image(rows),
-    }
+    counts = ScoreCounts(
+        rows=len(rows),
+        not_target=not_target,
+        unselected_images=gathered.unselected,
+        evaluated=len(kept),
+        beyond_top_n=len(rows) - len(kept) - not_target,
+        pairs=len(pairs),
+        targets=len(targets.targets),
+        target_instances=matched.n_targets,
+        target_images=len({(t.scene_id, t.im_id) for t in targets.targets}),
+    )
+    metadata = ScoreMetadata(
+        dataset=dataset.name,
+        split=dataset.split,
+        root=str(dataset.root),
+        results=None if source is None else str(source),
+        n_top=n_top,
+        mspd_width=errors.width.value,
+        mspd_width_source=errors.width.source,
+        vsd_delta=None if errors.delta is None else errors.delta.value,
+        vsd_delta_source=None if errors.delta is None else errors.delta.source,
+        vsd_renders=raw.vsd_renders,
+        targets_source=targets.source,
+        targets_note=targets.note,
+        gt_pose_source=gt.pose_source,
+        counts=counts,
+        time_per_image=average_time_per_image(rows),
+    )
     return ScoreReport(
         scores=scores,
         mssd_thresholds=np.asarray(MSSD_THRESHOLDS, np.float64),
@@ -166,7 +279,7 @@ def score_results(
         metadata=metadata,
         notes=notes,
         records=records,
-        timings=timings,
+        timings={} if timings is None else timings,
     )
 
 
@@ -181,47 +294,6 @@ def average_time_per_image(rows: Sequence[BopEstimate]) -> float | None:
 
 
 # --------------------------------------------------------------------------------------------- helpers
-
-
-def _check_rows(rows: Sequence[BopEstimate], gt: GroundTruth, dataset: Dataset, source: str | Path | None) -> int:
-    """Raise one ResultsError listing every row with an unknown object, scene or image; count ignored rows.
-
-    Returns:
-        rows for images that exist in the split but were not selected (ignored, as the toolkit does).
-    """
-    problems: list[str] = []
-    ignored = 0
-    known: dict[tuple[int, int], bool] = {}
-    for k, row in enumerate(rows):
-        where = f"line {row.line}" if row.line is not None else f"row {k}"
-        if row.obj_id not in dataset.models:
-            problems.append(f"{where}: obj_id: unknown object {row.obj_id} (known: {few_ids(sorted(dataset.models))})")
-            continue
-        key = (row.scene_id, row.im_id)
-        if key in gt.images:
-            continue
-        if key not in known:
-            known[key] = gt.image_on_disk(*key)
-        if known[key]:
-            ignored += 1
-        elif not gt.scene_on_disk(row.scene_id):
-            problems.append(f"{where}: scene_id: no scene {row.scene_id} in {dataset.name} {dataset.split}")
-        else:
-            problems.append(f"{where}: im_id: scene {row.scene_id} has no image {row.im_id}")
-    if problems:
-        raise ResultsError(
-            f"{len(problems)} row(s) name data that is not in {dataset.name} {dataset.split} at {dataset.root}"
-            " (were the results made on other data?)",
-            file=source,
-            problems=problems,
-        )
-    return ignored
-
-
-def _count_not_target(rows: Sequence[BopEstimate], targets: list[Target]) -> int:
-    """Rows whose (image, object) is not a target (ignored without penalty)."""
-    keys = {(t.scene_id, t.im_id, t.obj_id) for t in targets}
-    return sum(1 for r in rows if (r.scene_id, r.im_id, r.obj_id) not in keys)
 
 
 def _pairs(kept: list, gt: GroundTruth) -> Pairs:
@@ -282,51 +354,6 @@ def _targets_count(valid: list[GtInstance], n_top: int) -> int:
         key = (g.scene_id, g.im_id, g.obj_id)
         counts[key] = counts.get(key, 0) + 1
     return int(sum(min(n_top, c) for c in counts.values()))
-
-
-def _records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd) -> list[EstimateRecord]:
-    """One EstimateRecord per kept estimate, with the gt_id it matched per threshold."""
-    group_of = {(s.estimate.scene_id, s.estimate.im_id, s.estimate.obj_id, s.est_id): k for k, s in enumerate(kept)}
-    matched = {name: _matched_gt(m, group_of, len(kept)) for name, m in (("mssd", m_mssd), ("mspd", m_mspd))}
-    vsd_matched = None if m_vsd is None else _matched_gt(m_vsd, group_of, len(kept))
-    rows_of: list[list[int]] = [[] for _ in kept]
-    for p in range(len(pairs)):
-        rows_of[int(pairs.est[p])].append(p)
-    records = []
-    for k, sel in enumerate(kept):
-        r = np.asarray(rows_of[k], dtype=np.int64)
-        row = sel.estimate
-        records.append(
-            EstimateRecord(
-                scene_id=row.scene_id,
-                im_id=row.im_id,
-                obj_id=row.obj_id,
-                est_id=sel.est_id,
-                score=row.score,
-                line=row.line,
-                gt_ids=pairs.gt_id[r],
-                mssd_mm=raw.mssd[r],
-                mssd=mssd_n[r],
-                mspd_px=raw.mspd[r],
-                mspd=mspd_n[r],
-                vsd=None if raw.vsd is None else raw.vsd[r],
-                mssd_match=matched["mssd"][k, 0],
-                mspd_match=matched["mspd"][k, 0],
-                vsd_match=None if vsd_matched is None else vsd_matched[k],
-            )
-        )
-    return records
-
-
-def _matched_gt(m: Matches, group_of: dict[tuple, int], n: int) -> np.ndarray:
-    """``(n, V, K)`` gt_id each kept estimate is matched to per (variant, threshold), -1 if none."""
-    V, K, _ = m.est_ids.shape
-    out = np.full((n, V, K), -1, dtype=np.int64)
-    v, k, j = np.nonzero(m.est_ids >= 0)
-    for vv, kk, jj in zip(v.tolist(), k.tolist(), j.tolist(), strict=True):
-        g = m.gts[jj]
-        out[group_of[(g.scene_id, g.im_id, g.obj_id, int(m.est_ids[vv, kk, jj]))], vv, kk] = g.gt_id
-    return out
 
 
 def _image_width(gt: GroundTruth, dataset: Dataset) -> int:

@@ -2,8 +2,8 @@
 
 Three sources, in this order (:func:`resolve_targets`):
 
-1. ``test_targets_bop19.json`` at the dataset root (BOP datasets, T-LESS): read as it is, cut to the
-   images of the split the scorer loaded.
+1. ``test_targets_bop19.json`` at the dataset root (BOP datasets, T-LESS), as the loader read it
+   (:meth:`~bop_cender.data.types.Dataset.bop19_targets`), cut to the images of the split the scorer loaded.
 2. No file, but every GT instance has a ``visib_fract`` (``scene_gt_info.json``): the rule of the
    toolkit's ``scripts/enumerate_test_targets.py``: per image and object, ``inst_count`` = number of
    instances with ``visib_fract >= 0.1``; the pair is a target when that count is positive.
@@ -15,16 +15,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
-from bop_cender.data.bop_io import load_json, save_json
-from bop_cender.errors import DatasetError
+from bop_cender.data.layout import MIN_VISIB_FRACT, TARGETS_FILE
+from bop_cender.data.targets_file import Target
 from bop_cender.eval.ground_truth import GroundTruth, ImageGt
-from bop_cender.eval.matching import Target
-
-TARGETS_FILE = "test_targets_bop19.json"
-#: The toolkit's ``min_visib_fract`` for BOP'19 targets.
-MIN_VISIB_FRACT = 0.1
 
 SOURCE_FILE = "file"
 SOURCE_GT_INFO = "scene_gt_info"
@@ -53,7 +47,7 @@ class TargetSet:
 
 
 def resolve_targets(
-    root: Path,
+    file_targets: list[Target] | None,
     gt: GroundTruth,
     target_obj_ids: Iterable[int],
     render_visib: Callable[[], VisibFracts],
@@ -61,16 +55,15 @@ def resolve_targets(
     """Targets of the loaded images: from the targets file, else by the visibility rule (see module doc).
 
     Args:
-        root: dataset root (where ``test_targets_bop19.json`` would be).
+        file_targets: the dataset's ``test_targets_bop19.json`` (:meth:`Dataset.bop19_targets`), None without one.
         gt: the loaded images.
         target_obj_ids: objects that can be targets (DIMO carriers are not).
         render_visib: computes rendered visible fractions; called only when nothing else is available.
     """
     targetable = set(target_obj_ids)
     stored = stored_visib(gt)
-    path = Path(root) / TARGETS_FILE
-    if path.is_file():
-        targets = [t for t in read_targets(path) if (t.scene_id, t.im_id) in gt.images]
+    if file_targets is not None:
+        targets = [t for t in file_targets if (t.scene_id, t.im_id) in gt.images]
         visib = stored if stored is not None else render_visib()  # valid GTs are the most visible ones
         return TargetSet(targets, SOURCE_FILE, f"targets from {TARGETS_FILE}: {_count(targets)}", visib)
     if stored is not None:
@@ -115,37 +108,6 @@ def targets_from_visibility(
                 counts[g.obj_id] = counts.get(g.obj_id, 0) + 1
         targets.extend(Target(image.scene_int, image.im_id, obj_id, n) for obj_id, n in counts.items())
     return targets
-
-
-def read_targets(path: str | Path) -> list[Target]:
-    """``test_targets_bop19.json`` as Targets (scene ids as ints); every entry needs ``inst_count`` >= 1.
-
-    Raises:
-        DatasetError: not a list of objects with integer scene_id, im_id, obj_id, inst_count.
-    """
-    path = Path(path)
-    entries = load_json(path)
-    if not isinstance(entries, list):
-        raise DatasetError(f"expected a list of targets, got {type(entries).__name__}", file=path)
-    targets = []
-    for i, entry in enumerate(entries):
-        values = []
-        for key in ("scene_id", "im_id", "obj_id", "inst_count"):
-            value = entry.get(key) if isinstance(entry, dict) else None
-            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "inst_count" else 0):
-                what = "a positive integer" if key == "inst_count" else "a non-negative integer"
-                raise DatasetError(f"expected {what}, got {value!r}", file=path, field=f"[{i}].{key}")
-            values.append(value)
-        targets.append(Target(*values))
-    return targets
-
-
-def write_targets(path: str | Path, targets: Iterable[Target]) -> None:
-    """Write targets as ``test_targets_bop19.json`` (the toolkit's key order and layout), atomically."""
-    save_json(
-        path,
-        [{"im_id": t.im_id, "inst_count": t.inst_count, "obj_id": t.obj_id, "scene_id": t.scene_id} for t in targets],
-    )
 
 
 def _count(targets: list[Target]) -> str:

@@ -2,13 +2,9 @@
 
 DIMO ships no ``scene_gt_info.json`` and no test depth, so BOP's targets (objects with
 ``visib_fract >= 0.1``) must come from rendering. For each image the whole pile is rendered at once
-(every GT instance: target parts and the carrier, ids >= 100, which occludes them) and
-
-    visib_fract = (pixels where the instance is in front, inside the image)
-                  / (pixels of the instance rendered alone, its whole silhouette, beyond the border too)
-
-as the toolkit's ``calc_gt_info.py`` divides ``px_count_visib`` by ``px_count_all`` counted on a larger
-canvas. Without test depth there is no sensor depth test: the front-most surface is what is visible.
+(every GT instance: target parts and the carrier, ids >= 100, which occludes them) and the visible
+fraction computed as everywhere else (:func:`bop_cender.visibility.pile_visibility`). Without test depth
+there is no sensor depth test: the front-most surface is what is visible.
 """
 
 from __future__ import annotations
@@ -19,8 +15,8 @@ import numpy as np
 from tqdm import tqdm
 
 from bop_cender.eval.ground_truth import ImageGt
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.targets import VisibFracts
+from bop_cender.meshes import MeshCache
 
 
 def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress: bool = True) -> VisibFracts:
@@ -30,7 +26,7 @@ def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress
     """
     # The renderer (torch) is imported here, not at the top: scoring a dataset with a targets file never
     # needs it in this process (its VSD renders may run in another, see bop_cender.eval.render_process).
-    from bop_cender.eval.depth_render import render_pile_instances, silhouette_areas
+    from bop_cender.visibility import pile_visibility
 
     groups: dict[tuple, list[ImageGt]] = {}
     for image in images:
@@ -47,12 +43,7 @@ def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress
         obj_ids = [g.obj_id for g in first.instances]
         T = np.stack([np.stack([g.T_cam_model for g in im.instances]) for im in group])  # (V, M, 4, 4)
         K = np.stack([im.K for im in group])  # (V, 3, 3)
-        instance = render_pile_instances([meshes(o) for o in obj_ids], T, K, first.height, first.width)
-        visible = np.stack([(instance == m).reshape(len(group), -1).sum(axis=1) for m in range(len(obj_ids))], axis=1)
-        total = np.zeros_like(visible)  # (V, M)
-        for m, obj_id in enumerate(obj_ids):
-            total[:, m] = silhouette_areas(meshes(obj_id), T[:, m], K, first.height, first.width)
-        fract = np.where(total > 0, visible / np.maximum(total, 1), 0.0)
+        fract = pile_visibility([meshes(o) for o in obj_ids], T, K, first.height, first.width).fract  # (V, M)
         for v, im in enumerate(group):
             out[im.key] = {g.gt_id: float(fract[v, m]) for m, g in enumerate(im.instances)}
         bar.update(len(group))

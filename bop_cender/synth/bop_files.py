@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.geometry.poses import invert_pose
-from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.synth.parts import Part
-from bop_cender.synth.piles import build_pile
+from bop_cender.synth.piles import PileGeometryCache, build_pile
 
 
 def flat(a: np.ndarray) -> list[float]:
@@ -91,25 +90,15 @@ def make_pile(
     composition: str | list[int],
     rng: np.random.Generator,
     support_in_gt: bool,
+    cache: PileGeometryCache | None = None,
 ) -> Pile:
-    """Drop ``n_parts`` of ``part_ids`` on the support (carrier or table) centred at the origin."""
+    """Drop ``n_parts`` of ``part_ids`` on the support (carrier or table) centred at the origin.
+
+    ``cache``: the per-mesh drop data kept between piles (one per generating process).
+    """
     meshes = [models[i].mesh for i in part_ids]
-    placements = build_pile(meshes, support.mesh, np.eye(4), n_parts, rng, composition=composition)
+    placements = build_pile(meshes, support.mesh, np.eye(4), n_parts, rng, composition=composition, cache=cache)
     obj_ids = [support_id] + [part_ids[p.part_index] for p in placements]
     T = np.stack([np.eye(4)] + [p.T_world_model for p in placements])
     gt = list(range(len(obj_ids))) if support_in_gt else list(range(1, len(obj_ids)))
     return Pile(obj_ids=obj_ids, T_world_model=T, gt_indices=gt)
-
-
-class MeshCache:
-    """Render meshes prepared once per model id (a worker process keeps its own)."""
-
-    def __init__(self, models: dict[int, Part]):
-        self._models = models
-        self._cache: dict[int, RenderMesh] = {}
-
-    def __call__(self, obj_ids: list[int]) -> list[RenderMesh]:
-        for i in obj_ids:
-            if i not in self._cache:
-                self._cache[i] = prepare_mesh(self._models[i].mesh)
-        return [self._cache[i] for i in obj_ids]

@@ -3,6 +3,10 @@
 Deterministic per seed (every scene derives its generator from ``(seed, scene)``, so the output
 does not depend on the number of workers or on the order of completion), resumable (scene folders
 are written atomically and complete ones are skipped), with a progress bar on stderr.
+
+What differs between layouts is one small protocol, :class:`SynthLayout` (models, jobs, scenes, what is
+written once at the end); :data:`LAYOUTS` holds its two implementations. A worker process keeps its
+models and meshes in one explicit :class:`_Worker`, set by the pool's initializer.
 """
 
 from __future__ import annotations
@@ -11,14 +15,92 @@ import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import torch
 from tqdm import tqdm
 
+from bop_cender.meshes import MeshCache
 from bop_cender.synth import write_dimo, write_tless
-from bop_cender.synth.bop_files import MeshCache
+from bop_cender.synth.parts import Part
+from bop_cender.synth.piles import PileGeometryCache
 
-LAYOUTS = {"dimo": write_dimo, "tless": write_tless}
+
+class SynthLayout(Protocol):
+    """How one dataset layout is generated; ``spec`` is the layout's spec (DimoSpec, TlessSpec)."""
+
+    name: str
+
+    def models(self, spec: Any) -> dict[int, Part]:
+        """The layout's fixed object catalogue (parts and supports), by obj_id."""
+
+    def write_models(self, root: Path, spec: Any) -> None:
+        """Write ``models*/`` (and whatever else is written once before the scenes)."""
+
+    def scene_jobs(self, spec: Any) -> list:
+        """The independent units of work."""
+
+    def write_scene(
+        self, root: Path, spec: Any, job: Any, models: dict[int, Part], meshes: MeshCache, piles: PileGeometryCache
+    ) -> int:
+        """Write one job's scene folders (skipping complete ones); the number written."""
+
+    def folders_per_job(self, spec: Any) -> int:
+        """Scene folders one job writes."""
+
+    def finish(self, root: Path, spec: Any) -> int | None:
+        """Write what needs every scene (T-LESS: the BOP'19 targets); the number of targets, None if none."""
+
+
+class DimoLayout:
+    """DIMO: each job is a scene number, written as its real folder and its sim variants."""
+
+    name = "dimo"
+
+    def models(self, spec: write_dimo.DimoSpec) -> dict[int, Part]:
+        return write_dimo.dimo_models(spec.seed)
+
+    def write_models(self, root: Path, spec: write_dimo.DimoSpec) -> None:
+        write_dimo.write_models(root, spec)
+
+    def scene_jobs(self, spec: write_dimo.DimoSpec) -> list:
+        return write_dimo.scene_jobs(spec)
+
+    def write_scene(self, root, spec, job, models, meshes, piles) -> int:
+        return write_dimo.write_scene(root, spec, job, models, meshes, piles)
+
+    def folders_per_job(self, spec: write_dimo.DimoSpec) -> int:
+        return int(spec.write_real) + len(spec.variants)
+
+    def finish(self, root: Path, spec: write_dimo.DimoSpec) -> int | None:
+        return None  # DIMO has no targets file
+
+
+class TlessLayout:
+    """T-LESS (BOP): each job is one test or train_pbr scene folder; the BOP'19 targets are written last."""
+
+    name = "tless"
+
+    def models(self, spec: write_tless.TlessSpec) -> dict[int, Part]:
+        return write_tless.tless_models(spec)
+
+    def write_models(self, root: Path, spec: write_tless.TlessSpec) -> None:
+        write_tless.write_models(root, spec)
+
+    def scene_jobs(self, spec: write_tless.TlessSpec) -> list:
+        return write_tless.scene_jobs(spec)
+
+    def write_scene(self, root, spec, job, models, meshes, piles) -> int:
+        return write_tless.write_scene(root, spec, job, models, meshes, piles)
+
+    def folders_per_job(self, spec: write_tless.TlessSpec) -> int:
+        return 1
+
+    def finish(self, root: Path, spec: write_tless.TlessSpec) -> int | None:
+        return write_tless.write_targets(root) if spec.n_scenes > 0 else None
+
+
+LAYOUTS: dict[str, SynthLayout] = {"dimo": DimoLayout(), "tless": TlessLayout()}
 
 
 @dataclass
@@ -33,19 +115,36 @@ class GenerationReport:
     targets: int | None = None
 
 
-_worker_state: dict = {}
+@dataclass
+class _Worker:
+    """What a generating process keeps between its jobs: the layout, its spec, the models, their render meshes
+    and the piles' per-mesh drop data."""
+
+    layout: SynthLayout
+    spec: Any
+    models: dict[int, Part]
+    meshes: MeshCache
+    piles: PileGeometryCache
+
+    def run(self, root: str, job) -> int:
+        return self.layout.write_scene(Path(root), self.spec, job, self.models, self.meshes, self.piles)
+
+
+#: This process's worker (set by :func:`_init_worker`: a pool's initializer, or :func:`generate` itself).
+_WORKER: _Worker | None = None
 
 
 def _init_worker(layout: str, spec, threads: int) -> None:
+    global _WORKER
     torch.set_num_threads(threads)
-    module = LAYOUTS[layout]
-    models = module.dimo_models(spec.seed) if layout == "dimo" else module.tless_models(spec)
-    _worker_state.update(layout=layout, spec=spec, models=models, meshes=MeshCache(models))
+    impl = LAYOUTS[layout]
+    models = impl.models(spec)
+    _WORKER = _Worker(impl, spec, models, MeshCache(models), PileGeometryCache())
 
 
 def _run_job(root: str, job) -> int:
-    st = _worker_state
-    return LAYOUTS[st["layout"]].write_scene(Path(root), st["spec"], job, st["models"], st["meshes"])
+    assert _WORKER is not None, "_init_worker runs first"
+    return _WORKER.run(root, job)
 
 
 def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bool = True) -> GenerationReport:
@@ -60,11 +159,11 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
     """
     if layout not in LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; expected one of {sorted(LAYOUTS)}")
-    module = LAYOUTS[layout]
+    impl = LAYOUTS[layout]
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    module.write_models(root, spec)
-    jobs = module.scene_jobs(spec)
+    impl.write_models(root, spec)
+    jobs = impl.scene_jobs(spec)
     written = 0
     bar = tqdm(total=len(jobs), desc=f"synth {layout}", unit="scene", disable=not progress)
     if workers <= 1:
@@ -80,7 +179,6 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
                 written += f.result()
                 bar.update()
     bar.close()
-    per_job = (int(spec.write_real) + len(spec.variants)) if layout == "dimo" else 1
-    folders = len(jobs) * per_job
-    targets = write_tless.write_targets(root) if layout == "tless" and spec.n_scenes > 0 else None
+    folders = len(jobs) * impl.folders_per_job(spec)
+    targets = impl.finish(root, spec)
     return GenerationReport(root, layout, len(jobs), written, folders - written, targets)

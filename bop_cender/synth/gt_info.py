@@ -20,9 +20,6 @@ import numpy as np
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_objects_separately
 
-#: The toolkit's min visible fraction for BOP'19 targets (enumerate_test_targets.py).
-MIN_VISIB_FRACT = 0.1
-
 
 @dataclass
 class ObjectVisibility:

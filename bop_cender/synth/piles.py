@@ -34,9 +34,6 @@ logger = logging.getLogger(__name__)
 
 #: Height above the highest placed point at which a part starts its drop (mm).
 _DROP_CLEARANCE_MM = 5.0
-#: Per-mesh derived data (stable poses, contact points, check samples), keyed by geometry hash.
-_MESH_CACHE: dict[tuple[str, float], _MeshData] = {}
-_MESH_CACHE_MAX = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +69,7 @@ def build_pile(
     max_tries: int = 12,
     candidates: int = 3,
     edge_spacing_mm: float = 1.0,
+    cache: PileGeometryCache | None = None,
 ) -> list[Placement]:
     """Drop ``n_parts`` parts one by one onto the carrier and onto each other.
 
@@ -98,6 +96,8 @@ def build_pile(
         candidates: valid drops tried per part; the one that comes to rest lowest is kept, so parts
             fill gaps instead of balancing on top of the pile (1: first valid drop, tallest piles).
         edge_spacing_mm: spacing of contact points along edges (edge-edge contact accuracy).
+        cache: per-mesh derived data kept between piles (a generator keeps one per process); None = a
+            fresh one (stable poses are then computed again for this pile).
 
     Returns:
         The placed parts in drop order; fewer than ``n_parts`` when some could not be placed
@@ -108,7 +108,8 @@ def build_pile(
             f"need n_parts >= 0, candidates >= 1 and a mesh; got {n_parts}, {candidates}, {len(meshes)} meshes"
         )
     types = choose_part_indices(len(meshes), n_parts, composition, rng)
-    data = [_mesh_data(m, edge_spacing_mm) for m in meshes]
+    cache = PileGeometryCache() if cache is None else cache
+    data = [cache.get(m, edge_spacing_mm) for m in meshes]
     if spread is None:
         footprints = [float(np.prod(np.sort(data[i].extents)[1:])) for i in types] or [1.0]
         spread = 0.5 * float(np.sqrt(max(n_parts, 1) * np.mean(footprints)))
@@ -161,12 +162,12 @@ def choose_part_indices(
     return allowed[rng.integers(allowed.size, size=n_parts)]
 
 
-def stable_poses(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+def stable_poses(mesh: trimesh.Trimesh, cache: PileGeometryCache | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Resting poses ``(P, 4, 4)`` (model to a frame where the part lies on z = 0) and probabilities ``(P,)``.
 
-    Cached per geometry, since ``compute_stable_poses`` takes tens of ms per mesh.
+    ``compute_stable_poses`` takes tens of ms per mesh: pass a ``cache`` to compute them once per geometry.
     """
-    d = _mesh_data(mesh, 1.0)
+    d = (PileGeometryCache() if cache is None else cache).get(mesh, 1.0)
     return d.rest_poses.copy(), d.rest_probs.copy()
 
 
@@ -200,25 +201,40 @@ class _MeshData:
     centre: np.ndarray  # (3,) bbox centre
 
 
+class PileGeometryCache:
+    """Per-mesh values every drop reuses (stable poses, contact points, check samples), computed once per geometry.
+
+    Keyed by the mesh's geometry hash and the edge spacing; holds at most ``max_entries`` meshes (cleared when
+    full). The values depend only on the geometry, so a cache changes speed, never a pile.
+    """
+
+    def __init__(self, max_entries: int = 256) -> None:
+        self.max_entries = max_entries
+        self._data: dict[tuple[str, float], _MeshData] = {}
+
+    def get(self, mesh: trimesh.Trimesh, edge_spacing_mm: float) -> _MeshData:
+        key = (mesh.identifier_hash, float(edge_spacing_mm))
+        if key not in self._data:
+            if len(self._data) >= self.max_entries:
+                self._data.clear()
+            self._data[key] = _mesh_data(mesh, edge_spacing_mm)
+        return self._data[key]
+
+
 def _mesh_data(mesh: trimesh.Trimesh, edge_spacing_mm: float) -> _MeshData:
-    key = (mesh.identifier_hash, float(edge_spacing_mm))
-    if key not in _MESH_CACHE:
-        if len(_MESH_CACHE) >= _MESH_CACHE_MAX:
-            _MESH_CACHE.clear()
-        poses, probs = trimesh.poses.compute_stable_poses(mesh)
-        contact = _contact_points(mesh, edge_spacing_mm)
-        n_area = int(np.clip(mesh.area / 4.0, 200, 4000))  # about one sample per 2x2 mm, bounded
-        area = trimesh.sample.sample_surface(mesh, n_area, seed=0)[0]
-        _MESH_CACHE[key] = _MeshData(
-            mesh=mesh.copy(),
-            rest_poses=np.asarray(poses, dtype=np.float64),
-            rest_probs=np.asarray(probs, dtype=np.float64) / np.sum(probs),
-            contact_points=contact,
-            check_points=np.concatenate([contact, area]),
-            extents=np.asarray(mesh.extents, dtype=np.float64),
-            centre=np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0),
-        )
-    return _MESH_CACHE[key]
+    poses, probs = trimesh.poses.compute_stable_poses(mesh)
+    contact = _contact_points(mesh, edge_spacing_mm)
+    n_area = int(np.clip(mesh.area / 4.0, 200, 4000))  # about one sample per 2x2 mm, bounded
+    area = trimesh.sample.sample_surface(mesh, n_area, seed=0)[0]
+    return _MeshData(
+        mesh=mesh.copy(),
+        rest_poses=np.asarray(poses, dtype=np.float64),
+        rest_probs=np.asarray(probs, dtype=np.float64) / np.sum(probs),
+        contact_points=contact,
+        check_points=np.concatenate([contact, area]),
+        extents=np.asarray(mesh.extents, dtype=np.float64),
+        centre=np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0),
+    )
 
 
 def _contact_points(mesh: trimesh.Trimesh, spacing: float) -> np.ndarray:

@@ -24,11 +24,14 @@ import numpy as np
 
 from bop_cender.data.bop_io import save_json, write_image
 from bop_cender.data.dimo import CARRIER_MIN_ID
-from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
+from bop_cender.meshes import MeshCache
+from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import dimo_rig
 from bop_cender.synth.styles import make_style
 
@@ -100,7 +103,14 @@ def scene_jobs(spec: DimoSpec) -> list[int]:
     return list(range(spec.n_scenes))
 
 
-def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], meshes: MeshCache) -> int:
+def write_scene(
+    root: Path,
+    spec: DimoSpec,
+    s: int,
+    models: dict[int, Part],
+    meshes: MeshCache,
+    piles: PileGeometryCache | None = None,
+) -> int:
     """Write the real scene ``s`` and its sim variants; skip folders that exist. Returns folders written."""
     rng = np.random.default_rng([spec.seed, s])
     composition = spec.compositions[s % len(spec.compositions)]
@@ -114,7 +124,7 @@ def write_scene(root: Path, spec: DimoSpec, s: int, models: dict[int, Part], mes
         comp = [type_index] if composition in SAME_TYPE else "mixed"
         n = int(pile_rng.integers(lo, hi + 1))
         cid = CARRIER_MIN_ID + carrier
-        return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True)
+        return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True, cache=piles)
 
     real_pile = new_pile(np.random.default_rng([spec.seed, s, 1000]))
     info = {"carrier": carrier, "parts": composition}
@@ -146,7 +156,9 @@ def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: 
         cams = [(K, T) for _, K, T in rig]
         centre = pile.T_world_model[:, :3, 3].mean(axis=0)
         style = make_style(folder_rng, domain, len(pile.obj_ids), centre, light_id=light_id, carrier_index=0)
-        views = render_views(meshes(pile.obj_ids), pile.T_world_model, cams, spec.height, spec.width, style, folder_rng)
+        views = render_views(
+            meshes.many(pile.obj_ids), pile.T_world_model, cams, spec.height, spec.width, style, folder_rng
+        )
         scene_camera, scene_gt, scene_info = {}, {}, {}
         for (vid, K, T_cw), view in zip(rig, views, strict=True):
             write_image(tmp / "rgb" / f"{vid:06d}.png", view.rgb)
@@ -161,8 +173,8 @@ def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: 
             }
             for i in pile.gt_indices
         ]
-        save_json(tmp / "scene_camera.json", scene_camera)
-        save_json(tmp / "scene_gt.json", scene_gt)
+        save_json(tmp / SCENE_CAMERA, scene_camera)
+        save_json(tmp / SCENE_GT, scene_gt)
         save_json(tmp / "scene_gt_world.json", world)
         save_json(tmp / "scene_info.json", scene_info)
         if spec.contact_sheets:

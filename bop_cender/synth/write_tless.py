@@ -17,12 +17,15 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
-from bop_cender.synth.bop_files import MeshCache, Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
+from bop_cender.meshes import MeshCache
+from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
-from bop_cender.synth.gt_info import MIN_VISIB_FRACT, object_visibility
+from bop_cender.synth.gt_info import object_visibility
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
 from bop_cender.synth.styles import make_style
 
@@ -85,7 +88,14 @@ def scene_jobs(spec: TlessSpec) -> list[tuple[str, int]]:
     return [("test", s + 1) for s in range(spec.n_scenes)] + [("pbr", s) for s in range(spec.pbr_scenes)]
 
 
-def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[int, Part], meshes: MeshCache) -> int:
+def write_scene(
+    root: Path,
+    spec: TlessSpec,
+    job: tuple[str, int],
+    models: dict[int, Part],
+    meshes: MeshCache,
+    piles: PileGeometryCache | None = None,
+) -> int:
     """Write one test or PBR scene folder (skipped if it exists). Returns folders written."""
     kind, s = job
     split = "test_primesense" if kind == "test" else "train_pbr"
@@ -102,7 +112,9 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
         for start in range(0, n_images, step):
             lo, hi = spec.objects_per_scene
             n = int(rng.integers(lo, hi + 1))
-            pile = make_pile(models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False)
+            pile = make_pile(
+                models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=piles
+            )
             ids = range(start, min(start + step, n_images))
             views = _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)
             sheet += views[: max(0, SHEET_VIEWS - len(sheet))]  # keep only what the contact sheet shows
@@ -115,7 +127,7 @@ def write_scene(root: Path, spec: TlessSpec, job: tuple[str, int], models: dict[
 
 def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec, rng, meshes, records) -> list:
     domain = "tless" if kind == "test" else "pbr"
-    mesh_list = meshes(pile.obj_ids)
+    mesh_list = meshes.many(pile.obj_ids)
     centre = pile.T_world_model[:, :3, 3].mean(axis=0)
     style = make_style(rng, domain, len(pile.obj_ids), centre, carrier_index=0)
     views = render_views(mesh_list, pile.T_world_model, cameras, spec.height, spec.width, style, rng)
@@ -147,8 +159,8 @@ def write_targets(root: Path) -> int:
     targets = []
     test_dir = Path(root) / "test_primesense"
     for scene_dir in sorted(p for p in test_dir.iterdir() if p.is_dir() and p.name.isdigit()):
-        gt = load_json(scene_dir / "scene_gt.json", keys_to_int=True)
-        info = load_json(scene_dir / "scene_gt_info.json", keys_to_int=True)
+        gt = load_json(scene_dir / SCENE_GT, keys_to_int=True)
+        info = load_json(scene_dir / SCENE_GT_INFO, keys_to_int=True)
         for im_id in sorted(gt):
             counts: dict[int, int] = {}
             for g, i in zip(gt[im_id], info[im_id], strict=True):
@@ -158,5 +170,5 @@ def write_targets(root: Path) -> int:
                 {"im_id": im_id, "inst_count": c, "obj_id": o, "scene_id": int(scene_dir.name)}
                 for o, c in sorted(counts.items())
             ]
-    save_json(Path(root) / "test_targets_bop19.json", targets)
+    save_json(Path(root) / TARGETS_FILE, targets)
     return len(targets)

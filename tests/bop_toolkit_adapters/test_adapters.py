@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 
 from bop_cender.cli import main
-from bop_cender.data.registry import open_dataset
-from bop_cender.eval.targets import read_targets
-from bop_cender.results import write_bop_results
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.targets_file import read_targets
+from bop_cender.results.bop_csv import write_bop_results
 from bop_toolkit_adapters.export import export_for_toolkit
 from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
 from tests.eval.scoring_data import gt_rows, row
@@ -52,7 +52,7 @@ def test_export_tless_in_the_toolkit_layout(small_fixture, small_dataset, tmp_pa
 
 
 def test_export_dimo_registers_what_the_toolkit_lacks(small_fixture, dimo_copy, tmp_path: Path) -> None:
-    ds = open_dataset("dimo", dimo_copy, "real")
+    ds = open_dataset(DatasetRequest("dimo", dimo_copy, "real"))
     csv = tmp_path / "cendernet_dimo-real.csv"
     write_bop_results(
         csv, [row(0, r.im_id, r.obj_id, 1.0, r.T_cam_model) for r in gt_rows(small_fixture) if r.scene_id == 1]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bop_cender.data.bop import group_views, open_bop
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
 from bop_cender.geometry.poses import pose_from_bop, pose_residual
 
@@ -83,9 +83,9 @@ def test_models_folder_choice(tmp_path):
 
 
 def test_registry_opens_bop(built):
-    ds = open_dataset("bop", built.root, "test")
+    ds = open_dataset(DatasetRequest("bop", built.root, "test"))
     assert ds.scene_keys == open_bop(built.root, "test").scene_keys
-    assert open_dataset("bop", built.root).split == "test"
+    assert open_dataset(DatasetRequest("bop", built.root)).split == "test"
 
 
 @pytest.mark.parametrize("n_views", [0, -1, 2.5])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bop_cender.data.dimo import PAPER_SELECTION, DimoSelection, open_dimo
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
 
 try:
@@ -109,7 +109,7 @@ def test_hand_train_split_has_no_folders():
 
 
 def test_registry_opens_dimo():
-    ds = open_dataset("dimo", HAND, "real")
+    ds = open_dataset(DatasetRequest("dimo", HAND, "real"))
     assert ds.scene_keys == ["000000"] and ds.name == "dimo"
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.tless import SPLITS, open_tless
 from bop_cender.errors import ConfigError, DatasetWarning
 from bop_cender.geometry.poses import make_pose, pose_from_bop
@@ -115,9 +115,9 @@ def test_hand_fixture_without_targets_uses_every_image(tmp_path):
 
 
 def test_registry_and_split_names():
-    ds = open_dataset("tless", HAND, "test")
+    ds = open_dataset(DatasetRequest("tless", HAND, "test"))
     assert ds.name == "tless" and ds.scene_keys == ["000001/g00"]
-    assert open_dataset("tless", HAND).split == "test"
+    assert open_dataset(DatasetRequest("tless", HAND)).split == "test"
     assert open_tless(HAND, "test_primesense").scene_keys == ds.scene_keys
 
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from bop_cender.data.registry import open_dataset
-from bop_cender.eval.regression_fixture import BuiltFixture, build_fixture
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.synth.regression_fixture import BuiltFixture, build_fixture
 from tests.eval.scoring_data import SMALL, write_dimo_copy
 
 
@@ -19,7 +19,7 @@ def small_fixture(tmp_path_factory: pytest.TempPathFactory) -> BuiltFixture:
 
 @pytest.fixture()
 def small_dataset(small_fixture: BuiltFixture):
-    return open_dataset("tless", small_fixture.root, "test")
+    return open_dataset(DatasetRequest("tless", small_fixture.root, "test"))
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,7 @@
 """Test data for the scorer: small regression fixtures, estimate rows, and the same scene in DIMO layout.
 
 Importable as ``tests.eval.scoring_data`` (the repository root is on ``sys.path`` in the pytest settings).
-The BOP fixture is :mod:`bop_cender.eval.regression_fixture` at 240x180 (intrinsics scaled with it);
+The BOP fixture is :mod:`bop_cender.synth.regression_fixture` at 240x180 (intrinsics scaled with it);
 :func:`write_dimo_copy` writes the same objects, cameras and occluders as a DIMO scene, with the table
 and the plate as carriers (ids 100, 101), independently of the project's writers (plain json).
 """
@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 import trimesh
 
-from bop_cender.eval.regression_fixture import PLATE_EXTENTS, TABLE_EXTENTS, BuiltFixture, FixtureSpec, perturb
-from bop_cender.eval.targets import MIN_VISIB_FRACT
-from bop_cender.results import BopEstimate
+from bop_cender.data.layout import MIN_VISIB_FRACT
+from bop_cender.results.bop_csv import BopEstimate
+from bop_cender.synth.regression_fixture import PLATE_EXTENTS, TABLE_EXTENTS, BuiltFixture, FixtureSpec, perturb
 
 SMALL = FixtureSpec(seed=5, n_scenes=2, n_images=3, image_size=(240, 180), target_fraction=0.6)
 CARRIERS = {100: TABLE_EXTENTS, 101: PLATE_EXTENTS}

@@ -10,12 +10,12 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from bop_cender.data.targets_file import read_targets, write_targets
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
 from bop_cender.eval.depth_render import render_depth_crops
 from bop_cender.eval.matching import Target
 from bop_cender.eval.model_points import eval_vertices
-from bop_cender.eval.targets import read_targets, write_targets
 from bop_cender.eval.toolkit_constants import mspd_width, vsd_delta_for
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.render.rasterizer import render_objects_separately
@@ -83,7 +83,7 @@ def test_depth_crops_hold_the_whole_silhouette_inside_the_image() -> None:
 def test_mspd_hot_vertex_prune_is_exact_for_near_gt_estimates(monkeypatch) -> None:
     """Estimates a few degrees off a cylinder's GT: many symmetries nearly tie, the second prune must keep the
     minimum (bit for bit the exhaustive result)."""
-    from bop_cender.eval import errors
+    from bop_cender.eval import pose_errors as errors
     from bop_cender.geometry.symmetry import ContinuousSymmetry, symmetry_transforms
 
     pts = np.asarray(trimesh.creation.cylinder(radius=30.0, height=80.0, sections=48).subdivide().vertices)

@@ -2,7 +2,7 @@ import numpy as np
 import trimesh
 
 from bop_cender.data.bop_io import load_ply, save_ply
-from bop_cender.eval.model_points import ascii_mesh
+from bop_cender.data.ply_ascii import ascii_mesh
 
 
 def test_ascii_mesh_equals_trimesh(tmp_path):

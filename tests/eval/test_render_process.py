@@ -20,15 +20,15 @@ from bop_cender.data.bop_io import load_depth
 from bop_cender.eval import render_process
 from bop_cender.eval.ground_truth import collect_ground_truth
 from bop_cender.eval.matching import select_top_n
-from bop_cender.eval.model_points import MeshCache
 from bop_cender.eval.pair_vsd import pair_vsd, plan_renders
 from bop_cender.eval.render_process import RenderJob, RenderProcess, ThreadRenderer, render_job
 from bop_cender.eval.score_file import score_file
 from bop_cender.eval.scoring import _pairs
 from bop_cender.eval.targets import resolve_targets
 from bop_cender.eval.vsd import VSD_TAUS, vsd
+from bop_cender.meshes import MeshCache
 from bop_cender.render.rasterizer import render_objects_separately
-from bop_cender.results import write_bop_results
+from bop_cender.results.bop_csv import write_bop_results
 from tests.eval.scoring_data import gt_rows, row
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,7 +39,7 @@ def scene_pairs(small_fixture, small_dataset):
     """Pairs of the small fixture's estimates (GT poses perturbed, so VSD is neither 0 nor 1), and the meshes."""
     rows = gt_rows(small_fixture, {o: "rot_5deg" for o in small_fixture.models}, seed=2)
     gt = collect_ground_truth(small_dataset, False)
-    targets = resolve_targets(small_dataset.root, gt, small_dataset.target_obj_ids, None)
+    targets = resolve_targets(small_dataset.bop19_targets(), gt, small_dataset.target_obj_ids, None)
     pairs = _pairs(select_top_n(rows, targets.targets, -1), gt)
     models = small_dataset.eval_models or small_dataset.models
     return pairs, models, MeshCache(models)
@@ -217,7 +217,7 @@ def test_a_cold_start_score_renders_in_a_process_with_the_same_numbers(small_fix
     env = {**os.environ, "BOP_CENDER_ALLOCATOR": "system"}
     subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=ROOT, env=env)
     here = score_file(csv_path, data_root=small_fixture.root, out_dir=warm, progress=False, render_process=False)
-    assert here.report.metadata["vsd_renders"] == "threads of the scoring process"
+    assert here.report.metadata.vsd_renders == "threads of the scoring process"
     forked = json.loads((cold / "scores_cold_tless-test.json").read_text())
     threaded = json.loads((warm / "scores_cold_tless-test.json").read_text())
     assert forked["metadata"]["vsd_renders"] == "a forked render process"

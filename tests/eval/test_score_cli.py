@@ -10,10 +10,10 @@ import pytest
 
 from bop_cender.cli import main
 from bop_cender.errors import ConfigError
-from bop_cender.eval.report import SCORE_KEYS
 from bop_cender.eval.score_file import choose_data
-from bop_cender.result_files import write_run_sidecar
-from bop_cender.results import write_bop_results
+from bop_cender.eval.score_report import SCORE_KEYS
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.results.files import write_run_sidecar
 from tests.eval.scoring_data import gt_rows, row
 
 
@@ -52,7 +52,8 @@ def test_score_reads_the_data_root_from_the_run_sidecar(small_fixture, results_d
     write_bop_results(csv_path, gt_rows(small_fixture))
     write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {"n_views": 3}, seed=4)
     choice = choose_data(csv_path)
-    assert choice.data_root == small_fixture.root.resolve() and (choice.n_views, choice.seed) == (3, 4)
+    request = choice.request
+    assert request.root == small_fixture.root.resolve() and (request.n_views, request.seed) == (3, 4)
     assert "sidecar" in choice.origin
     assert main(["score", str(csv_path), "--no-progress"]) == 0
     assert "run sidecar" in capsys.readouterr().out
@@ -96,8 +97,8 @@ def test_other_bop_datasets_need_a_data_root(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="cannot tell the dataset"):
         choose_data(tmp_path / "results.csv")
     choice = choose_data(tmp_path / "method_lmo-test.csv", data_root=tmp_path)
-    assert (choice.loader, choice.name, choice.split) == ("bop", "lmo", "test")
-    assert choose_data(tmp_path / "cosypose1-eccv2020_tless-test-primesense.csv").split_type == "primesense"
+    assert (choice.request.loader, choice.request.dataset, choice.request.split) == ("bop", "lmo", "test")
+    assert choose_data(tmp_path / "cosypose1-eccv2020_tless-test-primesense.csv").request.split_type == "primesense"
 
 
 def test_file_system_errors_and_missing_results_are_one_line(small_fixture, results_dir, capsys) -> None:

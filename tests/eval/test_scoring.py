@@ -5,15 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bop_cender.data.registry import open_dataset
+from bop_cender.data.layout import MIN_VISIB_FRACT
+from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.ground_truth import collect_ground_truth
-from bop_cender.eval.model_points import MeshCache
-from bop_cender.eval.regression_fixture import BuiltFixture
 from bop_cender.eval.scoring import average_time_per_image, score_results
-from bop_cender.eval.targets import MIN_VISIB_FRACT, SOURCE_FILE, SOURCE_RENDERED, resolve_targets
+from bop_cender.eval.targets import SOURCE_FILE, SOURCE_RENDERED, resolve_targets
 from bop_cender.eval.visibility import rendered_visib_fracts
-from bop_cender.results import write_bop_results
+from bop_cender.meshes import MeshCache
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.synth.regression_fixture import BuiltFixture
 from tests.eval.scoring_data import gt_rows, row, target_instances
 
 WEDGE, CYLINDER, BOX = 3, 1, 2
@@ -28,12 +29,12 @@ def test_gt_poses_give_every_recall_one(small_fixture: BuiltFixture, small_datas
     report = score_results(rows, small_dataset, progress=False)
     assert np.all(_all_recalls(report) == 1.0)
     assert report.scores == {k: 1.0 for k in report.scores}
-    counts = report.metadata["counts"]
-    assert counts["evaluated"] == len(rows) == counts["target_instances"]
-    assert counts["not_target"] == counts["beyond_top_n"] == 0
-    assert report.metadata["targets_source"] == SOURCE_FILE
-    assert report.metadata["mspd_width"] == 720  # the toolkit's T-LESS constant, not the 240 px of the images
-    assert report.metadata["time_per_image"] == 0.5
+    counts = report.metadata.counts
+    assert counts.evaluated == len(rows) == counts.target_instances
+    assert counts.not_target == counts.beyond_top_n == 0
+    assert report.metadata.targets_source == SOURCE_FILE
+    assert report.metadata.mspd_width == 720  # the toolkit's T-LESS constant, not the 240 px of the images
+    assert report.metadata.time_per_image == 0.5
     for r in report.records:  # each estimate matched its own GT at every threshold, with zero error
         assert np.all(r.mssd_match == r.mssd_match[0]) and r.mssd_match[0] >= 0
         j = int(np.flatnonzero(r.gt_ids == r.mssd_match[0])[0])
@@ -83,10 +84,10 @@ def test_duplicates_and_non_target_estimates_are_ignored(small_fixture, small_da
     extra.append(row(s, i, 4, 0.99, T, 0.5))  # object 4 has a model but no instance: never a target
     report = score_results(base + extra, small_dataset, progress=False)
     assert report.scores == reference
-    counts = report.metadata["counts"]
-    assert counts["beyond_top_n"] == 4
-    assert counts["not_target"] == len(non_target_images) + 1
-    assert counts["unselected_images"] == len(non_target_images)
+    counts = report.metadata.counts
+    assert counts.beyond_top_n == 4
+    assert counts.not_target == len(non_target_images) + 1
+    assert counts.unselected_images == len(non_target_images)
 
 
 def test_a_better_ranked_duplicate_replaces_the_estimate(small_fixture, small_dataset) -> None:
@@ -97,7 +98,7 @@ def test_a_better_ranked_duplicate_replaces_the_estimate(small_fixture, small_da
     s, i, _g, o, T = singles[0]
     report = score_results([*base, row(s, i, o, 2.0, T @ _shift(200.0), 0.5)], small_dataset, progress=False)
     assert report.mssd_recalls[-1] == pytest.approx((len(base) - 1) / len(base), abs=0)
-    assert report.metadata["counts"]["beyond_top_n"] == 1
+    assert report.metadata.counts.beyond_top_n == 1
 
 
 def test_unknown_scene_image_or_object_is_an_error_naming_the_line(small_fixture, results_dir) -> None:
@@ -121,7 +122,7 @@ def test_n_top_zero_evaluates_every_estimate(small_fixture, small_dataset) -> No
     base = gt_rows(small_fixture)
     s, i, _g, o, T = target_instances(small_fixture)[0]
     report = score_results([*base, row(s, i, o, 0.1, T @ _shift(300.0), 0.5)], small_dataset, n_top=0, progress=False)
-    assert report.metadata["counts"]["evaluated"] == len(base) + 1
+    assert report.metadata.counts.evaluated == len(base) + 1
     assert np.all(report.mssd_recalls == 1.0)  # the extra estimate matches nothing and costs nothing
 
 
@@ -134,10 +135,10 @@ def test_average_time_per_image() -> None:
 
 def test_dimo_layout_without_depth_has_no_vsd_and_computes_targets(small_fixture, dimo_copy) -> None:
     """The same scene in DIMO layout: targets from rendered visibility equal the fixture's 0.1 rule; no VSD, no AR."""
-    ds = open_dataset("dimo", dimo_copy, "real")
+    ds = open_dataset(DatasetRequest("dimo", dimo_copy, "real"))
     gt = collect_ground_truth(ds, progress=False)
     targets = resolve_targets(
-        ds.root, gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
+        ds.bop19_targets(), gt, ds.target_obj_ids, lambda: rendered_visib_fracts(list(gt), MeshCache(ds.models), False)
     )
     assert targets.source == SOURCE_RENDERED
     expected = set()
@@ -160,8 +161,8 @@ def test_dimo_layout_without_depth_has_no_vsd_and_computes_targets(small_fixture
     report = score_results(rows, ds, progress=False)
     assert report.scores["AR"] is None and report.scores["AR_VSD"] is None and report.vsd_recalls is None
     assert report.scores["AR_MSSD"] == 1.0 and report.scores["AR_MSPD"] == 1.0
-    assert report.metadata["vsd_delta"] is None and report.metadata["time_per_image"] is None
-    assert report.metadata["mspd_width"] == 240  # DIMO is unknown to the toolkit: the images' width
+    assert report.metadata.vsd_delta is None and report.metadata.time_per_image is None
+    assert report.metadata.mspd_width == 240  # DIMO is unknown to the toolkit: the images' width
     assert any("no test depth" in n for n in report.notes)
 
 
@@ -181,4 +182,21 @@ def test_mspd_width_follows_the_split_type_of_the_folder(small_fixture, tmp_path
     (root / "test_primesense").rename(root / "test_kinect")  # HB's Kinect split: the toolkit's width is 1920
     ds = open_bop(root, "test", name="hb", split_type="kinect", model_type="cad")
     report = score_results(gt_rows(small_fixture), ds, progress=False)
-    assert report.metadata["mspd_width"] == 1920, report.metadata["mspd_width_source"]
+    assert report.metadata.mspd_width == 1920, report.metadata.mspd_width_source
+
+
+def test_ground_truth_is_what_the_loader_read(small_dataset) -> None:
+    """Per-image GT poses are the stored scene_gt.json values, bit for bit, read once by the loader."""
+    import json
+
+    from bop_cender.eval.ground_truth import POSES_STORED, collect_ground_truth
+    from bop_cender.geometry.poses import pose_from_bop
+
+    gt = collect_ground_truth(small_dataset, progress=False)
+    assert gt.pose_source == POSES_STORED and small_dataset.split_folder == "test_primesense"
+    for scene in small_dataset.scenes():
+        stored = json.loads((small_dataset.split_dir / scene.scene_id / "scene_gt.json").read_text())
+        for obj in scene.gt:
+            for im, g in obj.gt_ids.items():
+                entry = stored[str(im)][g]
+                assert np.array_equal(obj.T_cam_model[im], pose_from_bop(entry["cam_R_m2c"], entry["cam_t_m2c"]))

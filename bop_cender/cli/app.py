@@ -1,4 +1,6 @@
-"""The ``bop-cender`` command line. Thin: it parses, calls one library function, prints.
+"""The ``bop-cender`` command: the parser of every sub-command (:data:`COMMANDS`) and the error handling.
+
+Thin: each sub-command parses, calls one library function, prints.
 
 Errors from the library (:class:`BopCenderError`) are printed as one line (file: field: message)
 with exit code 2; ``--debug`` shows the traceback instead.
@@ -12,36 +14,21 @@ import sys
 import warnings
 from collections.abc import Sequence
 
+from bop_cender.cli.info import EPILOG
 from bop_cender.errors import BopCenderError
 
-EPILOG = """examples:
-  bop-cender info --dataset dimo                      # the embedded synthetic DIMO demo, split real
-  bop-cender info --dataset dimo --data-root ~/dimo --split sim
-  bop-cender info --dataset tless --data-root ~/bop/tless --split test --n-views 8
-  bop-cender info --dataset bop --data-root ~/bop/lmo --split test
-"""
-
-
-def _add_dataset_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True, help="dataset layout")
-    p.add_argument(
-        "--data-root", default=None, help="dataset root folder (default: the embedded synthetic demo, generated once)"
-    )
-    p.add_argument("--split", default=None, help="dimo: real | sim | train; tless/bop: test | train_pbr | <folder>")
-    p.add_argument("--n-views", type=int, default=None, help="views per multi-view group for test splits (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the view-grouping shuffle (default 0)")
-    p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
-
-
-def cmd_info(args: argparse.Namespace) -> int:
-    from bop_cender.data.describe import describe
-    from bop_cender.data.registry import open_dataset
-
-    ds = open_dataset(
-        args.dataset, args.data_root, args.split, n_views=args.n_views, seed=args.seed, model_type=args.model_type
-    )
-    print(describe(ds))
-    return 0
+#: The sub-command modules, in ``--help`` order: each has a ``register(subparsers)`` function that adds its
+#: sub-command(s). They import only argparse at the top, so ``--help`` stays fast. A new sub-command is a
+#: new module in this package and its name here.
+COMMANDS = (
+    "bop_cender.cli.info",
+    "bop_cender.cli.synth",
+    "bop_cender.cli.score",
+    "bop_cender.cli.compare",
+    "bop_cender.cli.convert_pvnet",
+    "bop_cender.cli.run",
+    "bop_cender.cli.crosscheck",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,27 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    p = sub.add_parser(
-        "info",
-        help="describe a dataset split: scenes, views, objects, symmetries, what the split selected and why",
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    _add_dataset_args(p)
-    p.set_defaults(func=cmd_info)
-    for name in COMMAND_MODULES:
+    for name in COMMANDS:
         importlib.import_module(name).register(sub)
     return parser
-
-
-#: Modules with a ``register(subparsers)`` function that adds their sub-commands (synth, score, ...); they
-#: import only argparse at the top, so ``--help`` stays fast.
-COMMAND_MODULES = (
-    "bop_cender.synth.cli_commands",
-    "bop_cender.eval.cli_commands",
-    "bop_cender.run_cli",
-    "bop_toolkit_adapters.cli_commands",
-)
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
@@ -111,7 +80,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""What scoring produces (:class:`ScoreReport`) and how it is written: scores JSON, errors CSV, AR table.
+"""What scoring produces (:class:`ScoreReport`) and how it is written: scores JSON, errors CSV.
 
 ``scores_<stem>.json`` has at its top level the six scores under exactly these names (``null`` where
 not available, e.g. VSD and AR without test depth), then ``recalls`` (per threshold) and
@@ -12,7 +12,7 @@ import csv
 import io
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +62,73 @@ class EstimateRecord:
         return int(np.lexsort((self.gt_ids, self.mspd, self.mssd))[0])
 
 
+@dataclass(frozen=True)
+class ScoreCounts:
+    """How many of each the scorer saw (the scores JSON's ``metadata.counts``).
+
+    Attributes:
+        rows: rows of the results. not_target: rows for non-target images/objects (ignored, no penalty).
+        unselected_images: rows for images on disk that the split did not select (ignored, as the toolkit does).
+        evaluated: rows kept by the top-n cut. beyond_top_n: rows of targets beyond their top-n.
+        pairs: (estimate, GT) pairs scored. targets: (image, object) targets. target_instances: recall's
+        denominator. target_images: images with a target.
+    """
+
+    rows: int
+    not_target: int
+    unselected_images: int
+    evaluated: int
+    beyond_top_n: int
+    pairs: int
+    targets: int
+    target_instances: int
+    target_images: int
+
+
+@dataclass(frozen=True)
+class ScoreMetadata:
+    """What a score was computed on and how (the scores JSON's ``metadata``, in this order).
+
+    Attributes:
+        dataset, split, root: the dataset split. results: the results file (None for in-memory rows).
+        n_top: the top-n rule. mspd_width, mspd_width_source: the width MSPD is normalised by, and why.
+        vsd_delta, vsd_delta_source: VSD's delta (mm) and why; None without test depth.
+        vsd_renders: who rendered VSD's depth. targets_source, targets_note: where the targets came from.
+        gt_pose_source: where the GT poses came from. counts: :class:`ScoreCounts`.
+        time_per_image: the BOP average time per image (s), None if a row has time < 0.
+        data_origin: where the data settings came from (set by :func:`~bop_cender.eval.score_file.score_file`).
+        method: the method's name (likewise).
+    """
+
+    dataset: str
+    split: str
+    root: str
+    results: str | None
+    n_top: int
+    mspd_width: float
+    mspd_width_source: str
+    vsd_delta: float | None
+    vsd_delta_source: str | None
+    vsd_renders: str | None
+    targets_source: str
+    targets_note: str
+    gt_pose_source: str
+    counts: ScoreCounts
+    time_per_image: float | None
+    data_origin: str | None = None
+    method: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready values, keys in field order (``data_origin`` and ``method`` only when set)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None and f.name in ("data_origin", "method"):
+                continue
+            out[f.name] = asdict(value) if f.name == "counts" else value
+        return out
+
+
 @dataclass(frozen=True, eq=False)
 class ScoreReport:
     """BOP'19 localisation scores of one results file on one dataset split, with everything behind them.
@@ -70,8 +137,7 @@ class ScoreReport:
         scores: the six scores by :data:`SCORE_KEYS` name; None where not available.
         mssd_thresholds, mspd_thresholds: ``(K,)``; vsd_taus, vsd_thresholds: ``(T,)``, ``(K,)``.
         mssd_recalls, mspd_recalls: ``(K,)``; vsd_recalls: ``(T, K)`` or None.
-        metadata: dataset, split, root, MSPD width and its source, VSD delta, targets source and
-            note, GT pose source, counts, time per image (JSON-ready values).
+        metadata: what the scores were computed on and how (:class:`ScoreMetadata`).
         notes: human-readable lines on what was done and why.
         records: one per evaluated estimate.
         timings: seconds per stage.
@@ -85,7 +151,7 @@ class ScoreReport:
     mssd_recalls: np.ndarray
     mspd_recalls: np.ndarray
     vsd_recalls: np.ndarray | None
-    metadata: dict[str, Any]
+    metadata: ScoreMetadata
     notes: list[str] = field(default_factory=list)
     records: list[EstimateRecord] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
@@ -103,7 +169,12 @@ class ScoreReport:
                 "recall": self.vsd_recalls.tolist(),
             },
         }
-        meta = {"format": SCORES_FORMAT, **self.metadata, "notes": list(self.notes), "timings": dict(self.timings)}
+        meta = {
+            "format": SCORES_FORMAT,
+            **self.metadata.to_json(),
+            "notes": list(self.notes),
+            "timings": dict(self.timings),
+        }
         return {**{k: self.scores.get(k) for k in SCORE_KEYS}, "recalls": recalls, "metadata": meta}
 
 
@@ -167,37 +238,6 @@ def errors_csv_text(report: ScoreReport) -> str:
 def write_errors_csv(path: str | Path, report: ScoreReport) -> None:
     """Write :func:`errors_csv_text` atomically."""
     write_text_atomic(path, errors_csv_text(report))
-
-
-def format_scores(rows: list[tuple[str, dict[str, float | None]]], digits: int = 3) -> str:
-    """A plain-text table, one row per (name, scores), one column per score; ``n/a`` where None."""
-    header = ["method", *SCORE_KEYS]
-    body = [[name] + [_fmt(s.get(k), digits) for k in SCORE_KEYS] for name, s in rows]
-    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
-    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))
-             for r in [header, *body]]  # fmt: skip
-    return "\n".join(lines)
-
-
-def summary_lines(report: ScoreReport) -> list[str]:
-    """Metadata lines printed under the AR table."""
-    m = report.metadata
-    lines = [
-        f"dataset {m['dataset']} split {m['split']} ({m['root']})",
-        f"targets: {m['targets_note']}",
-        f"estimates: {m['counts']['rows']} rows, {m['counts']['evaluated']} evaluated (top-n per target),"
-        f" {m['counts']['not_target']} for non-target images/objects ignored, {m['counts']['beyond_top_n']} beyond"
-        " the top-n cut",
-        f"MSPD width {m['mspd_width']} px ({m['mspd_width_source']}); VSD delta "
-        + ("n/a" if m["vsd_delta"] is None else f"{m['vsd_delta']:g} mm ({m['vsd_delta_source']})"),
-        "time per image: "
-        + ("n/a (a row has time < 0)" if m["time_per_image"] is None else f"{m['time_per_image']:.3f} s"),
-    ]
-    return lines + [f"note: {n}" for n in report.notes]
-
-
-def _fmt(value: float | None, digits: int) -> str:
-    return "n/a" if value is None else f"{value:.{digits}f}"
 
 
 def _num(value: float) -> str:

@@ -4,10 +4,10 @@ Inputs, any mix:
 
 - a BOP results CSV (ours, CosyPose's published files such as
   ``cosypose114533-eccv2020_tless-test-primesense.csv``, PVNet outputs converted by
-  :mod:`bop_cender.eval.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
+  :mod:`bop_cender.results.convert_pvnet`): scored with :func:`bop_cender.eval.score_file.score_file`
   (its scores JSON and errors CSV are written too);
 - a ``scores_*.json`` already written by ``bop-cender score``;
-- ``reference="paper"``: the numbers the CenDerNet paper reports, from ``results/reference/paper_tables.csv``,
+- ``reference="paper"``: the numbers the CenDerNet paper reports, from the package's ``paper_tables.csv`` (``results/reference/``),
   filtered to the table's dataset and split (one row per method, its tables merged).
 
 Outputs: a markdown table (returned and written), a CSV and a bar chart PNG (matplotlib, Agg) of the scores.
@@ -17,16 +17,22 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from bop_cender.data.bop_io import atomic_path, write_text_atomic
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
-from bop_cender.eval.report import SCORE_KEYS, read_scores_json
 from bop_cender.eval.score_file import method_name, score_file
+from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
 
-#: The paper's reported numbers (dataset, split, method, source, metric, value).
-PAPER_TABLES = Path(__file__).resolve().parents[2] / "results" / "reference" / "paper_tables.csv"
+#: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
+#: installed package finds them (a copy of results/reference/paper_tables.csv, kept equal by a test).
+PAPER_TABLES = resources.files("bop_cender.report").joinpath("paper_tables.csv")
 
 
 @dataclass(frozen=True)
@@ -81,16 +87,20 @@ def compare(
     data_root: str | Path | None = None,
     split: str | None = None,
     n_views: int | None = None,
+    seed: int | None = None,
+    model_type: str | None = None,
     vsd_delta: float | None = None,
     out_dir: str | Path = ".",
     progress: bool = True,
+    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
 ) -> Comparison:
     """Build, write and return the comparison of ``inputs`` (see the module docstring).
 
     Args:
         inputs: results CSVs and/or scores JSONs, one row each, in this order.
         reference: ``"paper"`` (or a CSV in the paper tables' format) to add reference rows.
-        dataset, data_root, split, n_views, vsd_delta: passed to the scoring of CSV inputs (default: their
+        dataset, data_root, split, n_views, seed, model_type, vsd_delta, open_data: passed to the scoring of CSV inputs
+            (:func:`~bop_cender.eval.score_file.score_file`) (default: their
             file names / sidecars, the toolkit's delta).
         out_dir: where the scores of CSV inputs and the comparison files are written.
 
@@ -104,14 +114,12 @@ def compare(
         path = Path(item)
         if path.suffix == ".csv":
             scored = score_file(
-                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, vsd_delta=vsd_delta,
-                out_dir=out_dir, progress=progress,
+                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+                model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
             )  # fmt: skip
             meta = scored.report.metadata
             rows.append(
-                MethodRow(
-                    method_name(path), f"scored {path.name}", scored.report.scores, meta["dataset"], meta["split"]
-                )
+                MethodRow(method_name(path), f"scored {path.name}", scored.report.scores, meta.dataset, meta.split)
             )
         elif path.suffix == ".json":
             data = read_scores_json(path)
@@ -146,7 +154,7 @@ def compare(
     return comparison
 
 
-def reference_rows(path: Path, dataset: str | None, split: str | None) -> list[MethodRow]:
+def reference_rows(path: Path | Traversable, dataset: str | None, split: str | None) -> list[MethodRow]:
     """Rows of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are comments)
     for ``dataset`` / ``split`` (None: any), one per method, its tables merged.
 
@@ -154,7 +162,9 @@ def reference_rows(path: Path, dataset: str | None, split: str | None) -> list[M
         ConfigError: the file is missing or malformed.
     """
     if not path.is_file():
-        raise ConfigError("reference table not found (expected results/reference/paper_tables.csv)", field=str(path))
+        raise ConfigError(
+            "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
+        )
     lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
     merged: dict[tuple[str, str, str], dict[str, float]] = {}
     sources: dict[tuple[str, str, str], list[str]] = {}

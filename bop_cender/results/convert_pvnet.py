@@ -37,7 +37,7 @@ import numpy as np
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.errors import ResultsError
-from bop_cender.results import BopEstimate, write_bop_results
+from bop_cender.results.bop_csv import BopEstimate, write_bop_results
 
 METRES_TO_MM = 1000.0
 _FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bop_cender import results
 from bop_cender.data.scene_ids import int_to_scene_folder
 from bop_cender.data.types import CameraView, GtObject, Scene
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.geometry.poses import invert_pose, make_pose
-from bop_cender.results import (
+from bop_cender.results import bop_csv as results
+from bop_cender.results.bop_csv import (
     HEADER,
     BopEstimate,
     ResultName,
@@ -30,7 +30,7 @@ from bop_cender.results import (
     write_run_sidecar,
 )
 
-SAMPLES = Path(__file__).parents[1].parent / "shared/reference/bop_results_samples"
+SAMPLES = Path(__file__).parents[2].parent / "shared/reference/bop_results_samples"
 R30 = "0.8660254037844387 -0.5 0.0 0.5 0.8660254037844387 0.0 0.0 0.0 1.0"  # 30 degrees about z
 GOOD = f"1,0,2,0.93,{R30},12.3 -45.6 720.1,0.31"
 

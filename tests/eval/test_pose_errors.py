@@ -1,4 +1,4 @@
-"""Tests for bop_cender.eval.errors: hand-computed cases, symmetries, early-outs, exact shortcuts, toolkit numbers."""
+"""Tests for bop_cender.eval.pose_errors: hand-computed cases, symmetries, early-outs, exact shortcuts, toolkit numbers."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from bop_cender.eval import errors
-from bop_cender.eval.errors import add, adi, hull_vertices, mspd, mssd, re, spheres_overlap, te
+from bop_cender.eval import pose_errors as errors
+from bop_cender.eval.pose_errors import add, adi, hull_vertices, mspd, mssd, re, spheres_overlap, te
 from bop_cender.geometry.symmetry import ContinuousSymmetry, symmetry_transforms
 
 FIXTURE = Path(__file__).parent / "fixtures" / "toolkit_reference.json"

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bop_cender.cli.options import add_data_options
+
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, oracle heatmaps
   bop-cender run --dataset dimo --split sim --data-root ~/dimo --workers 2 --out cendernet-oracle_dimo-sim.csv
@@ -15,15 +17,14 @@ Heatmaps: --heatmaps oracle renders them from the ground truth (stages 2 and 3 a
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from bop_cender.cli import _add_dataset_args
-
+    """Add ``run`` to ``bop-cender``'s subparsers."""
     p = sub.add_parser(
         "run",
         help="estimate poses (heatmaps -> 3D centres -> render-and-compare) over a split; write a BOP results CSV",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    _add_dataset_args(p)
+    add_data_options(p)
     p.add_argument(
         "--heatmaps",
         choices=("oracle", "net"),
@@ -120,8 +121,8 @@ def cmd_run(args: argparse.Namespace) -> int:
           f" {summary.wall_seconds:.1f} s ({stages})")  # fmt: skip
     print(f"wrote {summary.out} and {summary.sidecar}")
     if args.score:
-        from bop_cender.eval.report import format_scores, summary_lines
         from bop_cender.eval.score_file import method_name, score_file
+        from bop_cender.report.summary import format_scores, summary_lines
 
         scored = score_file(summary.out, progress=not args.no_progress)
         print(format_scores([(method_name(summary.out), scored.report.scores)]))

@@ -12,12 +12,12 @@ import pytest
 
 from bop_cender.cli import main
 from bop_cender.errors import ConfigError, ResultsError
-from bop_cender.eval.convert_pvnet import convert_pvnet
-from bop_cender.eval.regression_fixture import perturb
-from bop_cender.eval.report import SCORE_KEYS
 from bop_cender.eval.score_file import score_file
-from bop_cender.eval.tables import PAPER_TABLES, compare, reference_rows
-from bop_cender.results import write_bop_results
+from bop_cender.eval.score_report import SCORE_KEYS
+from bop_cender.report.tables import PAPER_TABLES, compare, reference_rows
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.results.convert_pvnet import convert_pvnet
+from bop_cender.synth.regression_fixture import perturb
 from tests.eval.scoring_data import gt_rows, row, target_instances
 
 COSYPOSE = "cosypose114533-eccv2020_tless-test-primesense.csv"

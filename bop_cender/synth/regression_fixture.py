@@ -32,10 +32,10 @@ from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
 from bop_cender.data.bop_io import save_depth, save_json, save_ply
-from bop_cender.eval.depth_render import render_pile_instances, silhouette_areas
-from bop_cender.eval.targets import MIN_VISIB_FRACT, TARGETS_FILE
+from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_CAMERA, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
 from bop_cender.render.mesh import prepare_mesh
-from bop_cender.results import BopEstimate
+from bop_cender.results.bop_csv import BopEstimate
+from bop_cender.visibility import pile_visibility
 
 SPLIT_FOLDER = "test_primesense"
 #: The non-annotated occluders: the table everything stands on, and the plate over the last object.
@@ -214,11 +214,8 @@ def _write_scene(built: BuiltFixture, scene: int, rng: np.random.Generator, rend
     depth = depth + rng.normal(0.0, 0.4, depth.shape) * (depth > 0)
     depth[rng.random(depth.shape) < spec.dropout] = 0.0
     pile = np.concatenate([T_cm, T_occ[:, 1:]], axis=1)  # the objects and the plate (the table hides nothing)
-    instance = render_pile_instances([*objs, *occluders], pile, Ks, height, width)
-    visible = np.stack([(instance == m).reshape(spec.n_images, -1).sum(axis=1) for m in range(len(objs))], axis=1)
-    total = np.stack(
-        [silhouette_areas(objs[m], T_cm[:, m], Ks, height, width) for m in range(len(objs))], axis=1
-    )  # (V, M)
+    counts = pile_visibility([*objs, *occluders], pile, Ks, height, width, counted=len(objs))
+    visible, total, fract = counts.visible, counts.total, counts.fract  # (V, M)
     cameras, gts, infos = {}, {}, {}
     for v in range(spec.n_images):
         cameras[v] = {"cam_K": Ks[v].ravel().tolist(), "cam_R_w2c": T_cw[v, :3, :3].ravel().tolist(),
@@ -227,7 +224,7 @@ def _write_scene(built: BuiltFixture, scene: int, rng: np.random.Generator, rend
             {"cam_R_m2c": T_cm[v, m, :3, :3].ravel().tolist(), "cam_t_m2c": T_cm[v, m, :3, 3].tolist(), "obj_id": o}
             for m, o in enumerate(spec.objects)
         ]
-        fracts = [float(visible[v, m] / total[v, m]) if total[v, m] else 0.0 for m in range(len(objs))]
+        fracts = [float(fract[v, m]) for m in range(len(objs))]
         infos[v] = [
             {"px_count_all": int(total[v, m]), "px_count_visib": int(visible[v, m]), "visib_fract": fracts[m]}
             for m in range(len(objs))
@@ -239,9 +236,9 @@ def _write_scene(built: BuiltFixture, scene: int, rng: np.random.Generator, rend
         built.T_cam_world[(scene, v)] = T_cw[v]
     built.world[scene] = list(zip(spec.objects, T_world, strict=True))
     built.occluders[scene] = list(zip(("table", "plate"), T_occluders, strict=False))
-    save_json(scene_dir / "scene_camera.json", cameras)
-    save_json(scene_dir / "scene_gt.json", gts)
-    save_json(scene_dir / "scene_gt_info.json", infos)
+    save_json(scene_dir / SCENE_CAMERA, cameras)
+    save_json(scene_dir / SCENE_GT, gts)
+    save_json(scene_dir / SCENE_GT_INFO, infos)
     n_targets = max(1, math.ceil(spec.target_fraction * spec.n_images))
     for v in sorted(rng.choice(spec.n_images, size=n_targets, replace=False).tolist()):
         counts: dict[int, int] = {}

@@ -11,8 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from bop_cender.cli import main
 from bop_cender.errors import ResultsError
-from bop_cender.eval.convert_pvnet import convert_pvnet, read_pvnet_folder, read_pvnet_json
-from bop_cender.results import read_bop_results
+from bop_cender.results.bop_csv import read_bop_results
+from bop_cender.results.convert_pvnet import convert_pvnet, read_pvnet_folder, read_pvnet_json
 
 R = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_matrix()
 

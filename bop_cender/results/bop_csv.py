@@ -28,7 +28,7 @@ from bop_cender.errors import ResultsError, ResultsWarning
 from bop_cender.estimates import SceneEstimate
 from bop_cender.geometry.poses import compose, make_pose
 from bop_cender.geometry.rotations import orthonormality_error
-from bop_cender.result_files import (  # noqa: F401  (re-exported: one import site for users)
+from bop_cender.results.files import (  # noqa: F401  (re-exported: one import site for users)
     ResultName,
     parse_result_filename,
     read_run_sidecar,

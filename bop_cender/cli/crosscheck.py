@@ -1,7 +1,6 @@
 """``bop-cender crosscheck``: score a results file with bop-cender and with the official BOP toolkit.
 
-Registered by ``bop_cender.cli`` when this package is importable. The toolkit itself is optional:
-without it the command says so and exits 0.
+The toolkit itself is optional (:mod:`bop_toolkit_adapters`): without it the command says so and exits 0.
 """
 
 from __future__ import annotations
@@ -10,7 +9,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bop_cender.eval.cli_commands import data_args
+from bop_cender.cli.options import add_data_options, add_scoring_options, data_overrides
 
 CROSSCHECK_EPILOG = """examples:
   bop-cender crosscheck cendernet_tless-test.csv --data-root ~/bop/tless --toolkit ~/src/bop_toolkit
@@ -25,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        epilog=CROSSCHECK_EPILOG, formatter_class=fmt)  # fmt: skip
     p.add_argument("results", type=Path, help="BOP results CSV")
     p.add_argument("--toolkit", type=Path, default=None, help="BOP toolkit checkout (bop_toolkit_lib/ + scripts/)")
-    data_args(p)
+    add_data_options(p, from_results=True)
+    add_scoring_options(p)
     p.add_argument("--out", type=Path, default=None, help="output folder (default: crosscheck_<stem>/ beside the CSV)")
     p.add_argument("--no-vsd", action="store_true", help="skip VSD on the toolkit side (no renderer needed)")
     p.add_argument("--verbose", action="store_true", help="show the toolkit's own log")
@@ -43,8 +43,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     out = args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}"
     try:
         check = crosscheck_file(
-            args.results, out, args.toolkit, dataset=args.dataset, data_root=args.data_root, split=args.split,
-            n_views=args.n_views, vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,
+            args.results, out, args.toolkit, **data_overrides(args), vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,
             progress=not args.no_progress,
         )  # fmt: skip
     except ToolkitUnavailable as e:

@@ -1,6 +1,7 @@
-"""The regression check: a fixed, seeded evaluation whose every number is committed under ``results/regression/``.
+"""The regression check: a fixed, seeded evaluation whose every number is committed under ``results/regression/``
+(a folder of the repository, not of the package: callers pass it, ``scripts/regression.py`` by default).
 
-:func:`run_regression` builds the fixture of :mod:`bop_cender.eval.regression_fixture` (T-LESS layout,
+:func:`run_regression` builds the fixture of :mod:`bop_cender.synth.regression_fixture` (T-LESS layout,
 720x540, rendered depth; results with perturbations straddling the thresholds, symmetric, occluded,
 duplicate and non-target estimates), scores it with the real scorer and turns the report into tables:
 
@@ -27,13 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.registry import open_dataset
-from bop_cender.eval.regression_fixture import FixtureSpec, build_fixture, regression_estimates
-from bop_cender.eval.report import SCORE_KEYS, ScoreReport
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_cender.eval.scoring import score_results
-from bop_cender.results import write_bop_results
+from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.synth.regression_fixture import FixtureSpec, build_fixture, regression_estimates
 
-TABLES_DIR = Path(__file__).resolve().parents[2] / "results" / "regression"
 RESULTS_NAME = "regression_tless-test.csv"
 #: Digits written for errors and recalls; compared within TOLERANCE (half a unit of the last digit, plus slack).
 DIGITS = 9
@@ -61,7 +61,7 @@ def run_regression(work_dir: str | Path | None = None, progress: bool = False) -
         built = build_fixture(work / "tless", FixtureSpec())
         rows = regression_estimates(built)
         write_bop_results(work / RESULTS_NAME, rows, sort=False)
-        report = score_results(rows, open_dataset("tless", work / "tless", "test"), progress=progress)
+        report = score_results(rows, open_dataset(DatasetRequest("tless", work / "tless", "test")), progress=progress)
     return RegressionRun(report, report_tables(report))
 
 
@@ -106,7 +106,7 @@ def matches_table(report: ScoreReport) -> str:
     return _csv(rows)
 
 
-def compare_tables(run: RegressionRun, tables_dir: str | Path = TABLES_DIR) -> list[str]:
+def compare_tables(run: RegressionRun, tables_dir: str | Path) -> list[str]:
     """Every difference between ``run`` and the committed tables and the toolkit anchor, one line each."""
     tables_dir = Path(tables_dir)
     problems: list[str] = []
@@ -127,7 +127,7 @@ def compare_tables(run: RegressionRun, tables_dir: str | Path = TABLES_DIR) -> l
     return problems
 
 
-def write_tables(run: RegressionRun, tables_dir: str | Path = TABLES_DIR) -> list[Path]:
+def write_tables(run: RegressionRun, tables_dir: str | Path) -> list[Path]:
     """Write our tables (not the anchor) into ``tables_dir``."""
     from bop_cender.data.bop_io import write_text_atomic
 

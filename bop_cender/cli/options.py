@@ -1,0 +1,71 @@
+"""Options and messages shared by the sub-commands: the data options, the announcements on stderr."""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bop_cender.data.registry import DatasetRequest
+
+
+def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) -> None:
+    """Add the dataset options (``--dataset``, ``--data-root``, ``--split``, ``--n-views``, ``--seed``,
+    ``--model-type``) to a sub-command; read them back with :func:`data_request`.
+
+    Args:
+        from_results: the command reads results files, whose name or run sidecar may say the dataset: every
+            option is then optional and overrides what the file says.
+    """
+    if from_results:
+        p.add_argument("--dataset", default=None, help="dimo | tless | bop (default: from the file name or sidecar)")
+        p.add_argument("--data-root", default=None, help="dataset root (default: sidecar, else the embedded demo)")
+        p.add_argument("--split", default=None, help="split (default: from the file name or sidecar)")
+        p.add_argument("--n-views", type=int, default=None, help="views per multi-view group of BOP test splits")
+        p.add_argument(
+            "--seed", type=int, default=None, help="seed of the view-grouping shuffle (default: sidecar, else 0)"
+        )
+        p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
+        return
+    p.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True, help="dataset layout")
+    p.add_argument(
+        "--data-root", default=None, help="dataset root folder (default: the embedded synthetic demo, generated once)"
+    )
+    p.add_argument("--split", default=None, help="dimo: real | sim | train; tless/bop: test | train_pbr | <folder>")
+    p.add_argument("--n-views", type=int, default=None, help="views per multi-view group for test splits (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the view-grouping shuffle (default 0)")
+    p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
+
+
+def data_request(args: argparse.Namespace) -> DatasetRequest:
+    """The :class:`~bop_cender.data.registry.DatasetRequest` of a command's data options."""
+    from bop_cender.data.registry import DatasetRequest
+
+    return DatasetRequest(
+        dataset=args.dataset, root=args.data_root, split=args.split, n_views=args.n_views, seed=args.seed,
+        model_type=args.model_type,
+    )  # fmt: skip
+
+
+def data_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """A results command's data options, as the keyword arguments of :func:`bop_cender.eval.score_file.score_file`
+    (and of compare, crosscheck), with the embedded demo for a dataset without a root."""
+    from bop_cender.datasets import open_with_demo
+
+    return dict(
+        dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views, seed=args.seed,
+        model_type=args.model_type, open_data=functools.partial(open_with_demo, announce=announce),
+    )  # fmt: skip
+
+
+def add_scoring_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--vsd-delta`` and ``--no-progress`` (the commands that score)."""
+    p.add_argument("--vsd-delta", type=float, default=None, help="VSD delta in mm (default: 15, ITODD 5)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def announce(line: str) -> None:
+    """Tell the user what the command does on their behalf (the embedded demo), on stderr."""
+    print(f"[bop-cender] {line}", file=sys.stderr)

@@ -1,0 +1,50 @@
+"""``bop-cender score``: BOP'19 scores of a results CSV."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from bop_cender.cli.options import add_data_options, add_scoring_options, data_overrides
+
+SCORE_EPILOG = """examples:
+  bop-cender score results/cendernet_tless-test.csv                # dataset, split from the name / sidecar
+  bop-cender score run/cendernet_dimo-sim.csv --data-root ~/dimo    # DIMO: no depth, so no VSD / AR
+  bop-cender score my_lmo-test.csv --dataset bop --data-root ~/bop/lmo --out scores/
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``score`` to ``bop-cender``'s subparsers."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    p = sub.add_parser("score", help="BOP'19 scores (AR, AR_VSD, AR_MSSD, AR_MSPD, ...) of a results CSV",
+                       epilog=SCORE_EPILOG, formatter_class=fmt)  # fmt: skip
+    p.add_argument("results", type=Path, help="BOP results CSV ({method}_{dataset}-{split}.csv)")
+    add_data_options(p, from_results=True)
+    add_scoring_options(p)
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: beside the CSV)")
+    p.set_defaults(func=cmd_score)
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from contextlib import nullcontext
+
+    from bop_cender.eval.render_process import RenderProcess, render_process_useful
+
+    # The VSD render process is forked before anything heavy is imported here: its torch import (and
+    # NumPy's) runs while this process imports the scorer and reads the data.
+    with RenderProcess.start() if render_process_useful() else nullcontext() as renderer:
+        from bop_cender.eval.score_file import method_name, score_file
+        from bop_cender.report.summary import format_scores, summary_lines
+
+        scored = score_file(
+            args.results, **data_overrides(args),
+            vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
+            render_process=renderer or False,
+        )  # fmt: skip
+    print(format_scores([(method_name(args.results), scored.report.scores)]))
+    print()
+    print("\n".join(summary_lines(scored.report)))
+    print(f"data: {scored.choice.origin}")
+    print(f"wrote {scored.scores_path} and {scored.errors_path}")
+    return 0

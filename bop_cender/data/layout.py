@@ -1,0 +1,20 @@
+"""BOP file names and constants: the one place that spells them (shared/reference/datasets.md).
+
+A BOP split folder holds one folder per scene, ``{scene:06d}/`` (DIMO synthetic: ``{scene:06d}_{variant:02d}/``),
+each with the files below; the dataset root holds the BOP'19 targets file and the models folders.
+"""
+
+from __future__ import annotations
+
+#: Per-image intrinsics and world-to-camera pose (DIMO: camera-to-world too).
+SCENE_CAMERA = "scene_camera.json"
+#: Per-image GT instances (``obj_id``, model-to-camera pose); an instance's ``gt_id`` is its index in the list.
+SCENE_GT = "scene_gt.json"
+#: Per-image, per-instance visibility (``visib_fract``, pixel counts, boxes).
+SCENE_GT_INFO = "scene_gt_info.json"
+#: BOP'19 test targets at the dataset root.
+TARGETS_FILE = "test_targets_bop19.json"
+#: Models' sizes and symmetries (in each models folder).
+MODELS_INFO = "models_info.json"
+#: The toolkit's minimum visible fraction of a BOP'19 target instance (``enumerate_test_targets.py``).
+MIN_VISIB_FRACT = 0.1

@@ -1,0 +1,58 @@
+"""BOP'19 test targets as the toolkit writes them (``test_targets_bop19.json``): one type, one reader, one writer.
+
+The loaders read the dataset's file (:meth:`bop_cender.data.types.Dataset.bop19_targets`); evaluation and the
+toolkit adapter use the values, never the file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from bop_cender.data.bop_io import load_json, save_json
+from bop_cender.errors import DatasetError
+
+#: A BOP scene id: an int in files and results, a folder name string in memory.
+SceneId = int | str
+
+
+@dataclass(frozen=True)
+class Target:
+    """One line of ``test_targets_bop19.json``: ``inst_count`` instances of ``obj_id`` to find in an image."""
+
+    scene_id: SceneId
+    im_id: int
+    obj_id: int
+    inst_count: int
+
+
+def read_targets(path: str | Path) -> list[Target]:
+    """``test_targets_bop19.json`` as Targets (scene ids as ints); every entry needs ``inst_count`` >= 1.
+
+    Raises:
+        DatasetError: not a list of objects with integer scene_id, im_id, obj_id, inst_count.
+    """
+    path = Path(path)
+    entries = load_json(path)
+    if not isinstance(entries, list):
+        raise DatasetError(f"expected a list of targets, got {type(entries).__name__}", file=path)
+    targets = []
+    for i, entry in enumerate(entries):
+        values = []
+        for key in ("scene_id", "im_id", "obj_id", "inst_count"):
+            value = entry.get(key) if isinstance(entry, dict) else None
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "inst_count" else 0):
+                what = "a positive integer" if key == "inst_count" else "a non-negative integer"
+                raise DatasetError(f"expected {what}, got {value!r}", file=path, field=f"[{i}].{key}")
+            values.append(value)
+        targets.append(Target(*values))
+    return targets
+
+
+def write_targets(path: str | Path, targets: Iterable[Target]) -> None:
+    """Write targets as ``test_targets_bop19.json`` (the toolkit's key order and layout), atomically."""
+    save_json(
+        path,
+        [{"im_id": t.im_id, "inst_count": t.inst_count, "obj_id": t.obj_id, "scene_id": t.scene_id} for t in targets],
+    )

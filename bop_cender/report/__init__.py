@@ -1,0 +1,1 @@
+"""Reports of scored runs: comparison tables and charts (tables.py), score summaries (summary.py)."""
