@@ -16,6 +16,7 @@ import hashlib
 import json
 import re
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -227,7 +228,13 @@ def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary
         dataset.root,
         request.dataset,
         request.split,
-        {"n_views": request.n_views, "scenes": len(keys), "limit_scenes": request.limit_scenes},
+        {
+            "n_views": request.n_views,
+            "scenes": len(keys),
+            "limit_scenes": request.limit_scenes,
+            # a partial run names its scenes, so that `score` counts only their targets
+            **({"scene_keys": keys} if request.limit_scenes and len(keys) < len(dataset.scene_keys) else {}),
+        },
         request.seed,
         extra={
             "method": "cendernet",
@@ -380,24 +387,51 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
         return
     build_method(request, dataset)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(request.workers, len(keys)), mp_context=ctx) as pool:
-        futures = [pool.submit(_worker_scene, request, key) for key in keys]
+    workers = min(request.workers, len(keys))
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(request,)) as pool:
+        futures = [pool.submit(_worker_scene, key) for key in keys]
         for future in as_completed(futures):
             yield future.result()
 
 
-_WORKER: dict[str, Any] = {}
+@dataclass
+class _WorkerState:
+    """What a worker process builds once (in :func:`_init_worker`) and uses for each of its scenes."""
+
+    request: RunRequest
+    dataset: Dataset
+    method: CenDerNet
 
 
-def _worker_scene(request: RunRequest, key: str) -> SceneOutcome:
-    """One scene in a worker process (the dataset and the method are built once per process)."""
+_STATE: list[_WorkerState] = []  # one entry in a worker process, set by its initializer
+
+
+def _init_worker(request: RunRequest) -> None:
+    """Worker process start: one torch thread (the processes share the cores), the dataset, the method."""
     import torch
 
-    if _WORKER.get("request") != request:
-        torch.set_num_threads(1)
-        dataset = open_run_dataset(request)
-        _WORKER.update(request=request, dataset=dataset, method=build_method(request, dataset))
-    return estimate_scene(_WORKER["method"], _WORKER["dataset"].scene(key), request.vis_dir, request.max_views)
+    _exit_with_parent()
+    torch.set_num_threads(1)
+    dataset = open_run_dataset(request)
+    _STATE[:] = [_WorkerState(request, dataset, build_method(request, dataset))]
+
+
+def _exit_with_parent() -> None:
+    """On Linux, have the kernel stop this worker when the run's process dies (a killed run leaves no
+    orphan computing a scene nobody will collect)."""
+    if sys.platform.startswith("linux"):
+        import contextlib
+        import ctypes
+        import signal
+
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+
+def _worker_scene(key: str) -> SceneOutcome:
+    """One scene in a worker process."""
+    state = _STATE[0]
+    return estimate_scene(state.method, state.dataset.scene(key), state.request.vis_dir, state.request.max_views)
 
 
 def request_as_dict(request: RunRequest) -> dict[str, Any]:

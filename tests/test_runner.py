@@ -150,3 +150,14 @@ def test_one_view_gives_no_estimates_and_rows_stay_per_image(mini_root, tmp_path
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     summary = run(request(mini_root, out, max_views=1, limit_scenes=1))
     assert summary.estimates == 0 and summary.empty == ["000000"] and summary.rows == 0
+
+
+def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, capsys):
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    run(request(mini_root, out, limit_scenes=1))
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["selection"]["scene_keys"] == ["000000"]
+    assert main(["score", str(out), "--no-progress"]) == 0
+    scores = json.loads((tmp_path / "scores_cendernet-oracle_dimo-real.json").read_text())
+    # one scene of 4 views: 4 target images (the other scene's 4 are not counted)
+    assert scores["metadata"]["counts"]["target_images"] == 4

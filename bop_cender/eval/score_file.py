@@ -30,7 +30,7 @@ from bop_cender.eval.render_process import RenderProcess, render_process_useful
 from bop_cender.eval.score_report import ScoreReport, write_errors_csv, write_scores_json
 from bop_cender.eval.scoring import score_results
 from bop_cender.results.bop_csv import read_bop_results
-from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar
+from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar, sidecar_path
 
 
 @dataclass(frozen=True)
@@ -40,10 +40,14 @@ class DataChoice:
     Attributes:
         request: what to open (its root None = not given: the caller's ``open_data`` decides, e.g. the demo).
         origin: one line saying where the settings came from.
+        scene_keys: the scenes a run covered (its sidecar's ``selection.scene_keys``, written by a run
+            with ``--limit-scenes``): only these are scored, so the recall of a partial run is not
+            diluted by the targets of scenes it never saw. None: every scene of the split.
     """
 
     request: DatasetRequest
     origin: str
+    scene_keys: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -109,7 +113,10 @@ def choose_data(
         origin.append(f"file name ({parsed.dataset}-{parsed.split}{'-' + split_type if split_type else ''})")
     if dataset or data_root or split:
         origin.insert(0, "options")
-    return DataChoice(request, ", ".join(origin) or "defaults")
+    keys = selection.get("scene_keys")
+    if keys is not None and not (isinstance(keys, list) and all(isinstance(k, str) for k in keys) and keys):
+        raise ResultsError("selection.scene_keys: expected a non-empty list of scene keys", file=sidecar_path(csv_path))
+    return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys))
 
 
 def score_file(
@@ -156,7 +163,7 @@ def score_file(
             csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
             model_type=model_type,
         )  # fmt: skip
-        ds = open_data(choice.request)
+        ds = restrict_scenes(open_data(choice.request), choice.scene_keys, csv_path)
         opened = time.perf_counter()
         rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
         read = time.perf_counter()
@@ -170,6 +177,22 @@ def score_file(
     report.timings["total"] = time.perf_counter() - clock
     write_scores_json(scores_path, report)
     return ScoredFile(report, choice, ds, scores_path, errors_path)
+
+
+def restrict_scenes(ds: Dataset, keys: tuple[str, ...] | None, csv_path: Path) -> Dataset:
+    """``ds`` with only the scenes ``keys`` (in the split's order); every key must be in the split."""
+    if keys is None:
+        return ds
+    missing = sorted(set(keys) - set(ds.scene_keys))
+    if missing:
+        raise ResultsError(
+            f"the run sidecar names {len(missing)} scene(s) the split does not have: {', '.join(missing[:5])}",
+            file=sidecar_path(csv_path),
+            field="selection.scene_keys",
+        )
+    wanted = set(keys)
+    selection = [*ds.selection, f"scenes: the {len(wanted)} of {len(ds.scene_keys)} that the run covered (its sidecar)"]
+    return replace(ds, scene_keys=[k for k in ds.scene_keys if k in wanted], selection=selection, _cache={})
 
 
 def method_name(path: str | Path) -> str:

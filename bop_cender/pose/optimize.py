@@ -42,8 +42,9 @@ class PoseConfig:
     """Stage-3 settings. The paper gives 2,000 candidates and bounded Nelder-Mead; every other value is ours.
 
     Attributes:
-        t_b: binarisation threshold of the predicted curvature (in [0, 1]); ours: 0.5, the middle of
-            the target's range (an edge pixel of the targets is at 1, a smooth surface near 0).
+        t_b: binarisation threshold of the predicted curvature (in [0, 1]); ours: 0.75, with the
+            targets' scale c = 4 a raw curvature of 3: silhouettes and sharp creases (3 to 4.2) pass,
+            the curved surfaces of thin parts (1.3 to 2.9) do not (see ``TargetConfig.curvature_scale``).
         n_candidates: random pose candidates per object (paper: 2,000).
         translation_sigma_mm: standard deviation of the candidates' centre around the 3D centre (ours:
             5 mm, the triangulation error of stage 2 is a few mm on oracle heatmaps).
@@ -66,7 +67,7 @@ class PoseConfig:
         seed: seed of the candidates (combined with the object's index in the scene).
     """
 
-    t_b: float = 0.5
+    t_b: float = 0.75
     n_candidates: int = 2000
     translation_sigma_mm: float = 5.0
     top_k: int = 3

@@ -37,7 +37,7 @@ def mini(tmp_path_factory):
     maps = scene_targets(scene, ds.models, meshes, TargetConfig.for_dataset("dimo"))
     cams = SceneCameras(np.stack([v.K for v in scene.views]), np.stack([v.T_cam_world for v in scene.views]),
                         method_data.HEIGHT, method_data.WIDTH)  # fmt: skip
-    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > 0.5))
+    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > PoseConfig().t_b))
     return ds, scene, meshes, maps, cams, dist
 
 
