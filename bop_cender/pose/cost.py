@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import torch
 
+from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import (
     DEFAULT_CHUNK_PIXELS,
     CurvatureAtlas,
@@ -160,6 +161,12 @@ def candidate_costs(
     Returns:
         ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
     """
+    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
+    check_shape(dist_maps, f"V {int(height)} {int(width)}", "dist_maps", sizes)
+    check_shape(view_weights, "V", "view_weights", sizes)
+    if occluder_depth is not None:
+        check_shape(occluder_depth, f"V {int(height)} {int(width)}", "occluder_depth", sizes)
     device = T_cam_model.device if isinstance(T_cam_model, torch.Tensor) else mesh.device
     mesh = mesh.to(device)
     T = torch.as_tensor(T_cam_model, device=device).to(torch.float32)

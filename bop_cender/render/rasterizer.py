@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from bop_cender.geometry.check import check_shape
 from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
 from bop_cender.render.raster import DEFAULT_NEAR, rasterize
 from bop_cender.render.resolve import WindowMaps, resolve
@@ -107,6 +108,8 @@ def render_scene(
     Returns:
         Depth, normals, instance and face maps ``(V, H, W, ...)``.
     """
+    sizes = check_shape(T_cam_model, "V M 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
     packed = meshes if isinstance(meshes, PackedMeshes) else pack_meshes(list(meshes))
     device = _device(T_cam_model, packed.device)
     packed = _packed_to(packed, device)
@@ -138,6 +141,8 @@ def render_objects_separately(
 
     Args and conventions as :func:`render_scene`.
     """
+    sizes = check_shape(T_cam_model, "V M 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
     device = _device(T_cam_model, meshes[0].device if meshes else torch.device("cpu"))
     T = _as_f32(T_cam_model, device)
     Ks = _as_f32(K, device)
@@ -178,6 +183,8 @@ def render_candidates(
     Returns:
         Normals (None when not asked for), mask, depth in the windows ``(B, V, S, S, ...)`` and the windows' offsets ``(B, V, 2)``.
     """
+    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
     device = _device(T_cam_model, mesh.device)
     mesh = mesh.to(device)
     T = _as_f32(T_cam_model, device)
