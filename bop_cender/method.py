@@ -8,10 +8,11 @@ returns what each stage produced (heatmaps, centres, placed objects) for figures
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -19,6 +20,7 @@ import torch
 
 from bop_cender.centers import Center3D, CenterConfig, detect_centers, sample_scores
 from bop_cender.data.types import ObjectModel, Scene
+from bop_cender.errors import ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.targets import TargetConfig
@@ -64,6 +66,27 @@ class CenDerNetConfig:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def with_settings(self, settings: Sequence[str]) -> CenDerNetConfig:
+        """A copy with ``section.field=value`` settings applied (``poses.t_b=0.5``, ``centers.d_c=30``,
+        ``known_counts=false``), each value parsed as its field's type.
+
+        Raises:
+            ConfigError: unknown section or field, or a value that is not of the field's type.
+        """
+        config = self
+        for item in settings:
+            key, sep, text = item.partition("=")
+            if not sep:
+                raise ConfigError(f"expected section.field=value, got {item!r}", field="--set")
+            section, _, name = key.strip().rpartition(".")
+            target = config if not section else getattr(config, section, None)
+            if not is_dataclass(target) or name not in {f.name for f in fields(target)}:
+                raise ConfigError(f"unknown setting {key!r}; known: {', '.join(_setting_names(self))}", field="--set")
+            value = _parse_setting(text.strip(), type(getattr(target, name)), key)
+            updated = replace(target, **{name: value})
+            config = updated if not section else replace(config, **{section: updated})
+        return config
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,6 +177,28 @@ class CenDerNet:
             if known:
                 return tuple(known)
         return tuple(targets)
+
+
+def _setting_names(config: CenDerNetConfig) -> list[str]:
+    names = []
+    for f in fields(config):
+        value = getattr(config, f.name)
+        names += [f"{f.name}.{g.name}" for g in fields(value)] if is_dataclass(value) else [f.name]
+    return names
+
+
+def _parse_setting(text: str, kind: type, key: str) -> object:
+    try:
+        if kind is bool:
+            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError(text)
+            return text.lower() in ("true", "1", "yes")
+        value = kind(text)
+    except ValueError:
+        raise ConfigError(f"{key}: expected a {kind.__name__}, got {text!r}", field="--set") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{key}: expected a finite number, got {text!r}", field="--set")
+    return value
 
 
 class MeshStore:

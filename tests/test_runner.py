@@ -161,3 +161,11 @@ def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, caps
     scores = json.loads((tmp_path / "scores_cendernet-oracle_dimo-real.json").read_text())
     # one scene of 4 views: 4 target images (the other scene's 4 are not counted)
     assert scores["metadata"]["counts"]["target_images"] == 4
+
+
+def test_settings_override_the_config():
+    c = CenDerNetConfig.for_dataset("dimo").with_settings(["centers.d_c=30", "poses.occlusion=false", "known_counts=0"])
+    assert c.centers.d_c == 30.0 and c.poses.occlusion is False and c.known_counts is False
+    for bad in ("poses.bogus=1", "poses.t_b=abc", "poses.t_b=nan", "nosep", "poses.occlusion=maybe"):
+        with pytest.raises(ConfigError):
+            c.with_settings([bad])

@@ -49,6 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--max-views", type=int, default=None, help="estimate from the first K views of each scene (ablation)"
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="SECTION.FIELD=VALUE",
+        help="override a method setting (repeatable): poses.t_b=0.5, centers.d_c=30, targets.curvature_scale=1",
+    )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
@@ -82,7 +88,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.no_occlusion:
         overrides["occlusion"] = False
     overrides["seed"] = args.seed
-    config = CenDerNetConfig.for_dataset(args.dataset, **overrides)
+    config = CenDerNetConfig.for_dataset(args.dataset, **overrides).with_settings(args.set or [])
     out = Path(args.out or f"cendernet-{args.heatmaps}_{args.dataset}-{split}.csv")
     if args.data_root is None:
         print(f"[bop-cender] no --data-root: using the embedded synthetic {args.dataset} demo", file=sys.stderr)

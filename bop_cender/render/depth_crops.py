@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from bop_cender.render.mesh import RenderMesh
-from bop_cender.render.raster import DEFAULT_NEAR, _project, camera_vertices, rasterize
+from bop_cender.render.raster import DEFAULT_NEAR, camera_vertices, project_vertices, rasterize
 from bop_cender.render.resolve import shade
 from bop_cender.render.window import Windows, plan_atlas_chunks
 
@@ -105,7 +105,7 @@ def _windows(
         verts: ``(3, E, N)`` camera-space vertices.
         K: ``(E, 3, 3)`` intrinsics.
     """
-    x, y = _project(verts, K, near)  # (E, N) each
+    x, y = project_vertices(verts, K, near)  # (E, N) each
     limit = float(4 * max(height, width) + 16)
     # Pixel centres u + 0.5 within [min, max]: u from ceil(min - 0.5) to floor(max - 0.5).
     first = torch.stack([y.amin(-1), x.amin(-1)], -1).double().clamp(-limit, limit).sub(0.5).ceil()

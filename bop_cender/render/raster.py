@@ -125,7 +125,7 @@ def rasterize(
         verts = camera_vertices(mesh, R, t)
     z = verts[2]
     all_in_front = bool(z.amin() >= near)
-    px, py = _project(verts, K, near)
+    px, py = project_vertices(verts, K, near)
 
     # 2. Cull: n . X0 = n . x0 + n . (R^T t) is the signed distance from the camera to the face's plane.
     tau = torch.einsum("cimj,cim->cij", R, t)  # (C, I, 3): R^T t per instance
@@ -171,7 +171,9 @@ def rasterize(
         cut = torch.stack([torch.stack(c).index_select(1, crossing).T for c in corners], 1)  # (Tc, 3, 3)
         pieces = clip_near(cut, vid.T.index_select(0, crossing).to(torch.int64), near, N)
         parent = crossing[pieces.parent]
-        piece_x, piece_y = _project(pieces.corners.permute(2, 0, 1), K.index_select(0, face_canvas[parent]), near)
+        piece_x, piece_y = project_vertices(
+            pieces.corners.permute(2, 0, 1), K.index_select(0, face_canvas[parent]), near
+        )
         tri_x = torch.cat([tri_x.index_select(1, regular), piece_x.T], 1)
         tri_y = torch.cat([tri_y.index_select(1, regular), piece_y.T], 1)
         vid = torch.cat([vid.index_select(1, regular), pieces.vertex_ids.T.to(torch.int32)], 1)
@@ -225,7 +227,7 @@ def _rows(table: torch.Tensor, index: torch.Tensor) -> list[torch.Tensor]:
     return [column.index_select(0, index) for column in table.T.contiguous()]
 
 
-def _project(points: torch.Tensor, K: torch.Tensor, near: float) -> tuple[torch.Tensor, torch.Tensor]:
+def project_vertices(points: torch.Tensor, K: torch.Tensor, near: float) -> tuple[torch.Tensor, torch.Tensor]:
     """Pixel coordinates ``x, y (C, N)`` of camera-space points ``(3, C, N)`` under ``K (C, 3, 3)``.
 
     Depth is clamped to ``near`` so that points behind the camera give finite (unused) values.
