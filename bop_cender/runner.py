@@ -56,7 +56,7 @@ class RunRequest:
         resume: keep the shards of an earlier, interrupted run with the same settings.
         deterministic_time: write ``-1`` as every row's time (reproducible files, for tests).
         device: torch device of the heatmaps.
-        vis_dir: write a figure per scene there (:mod:`bop_cender.vis`); None: no figures.
+        vis_dir: write a figure per scene there (:mod:`bop_cender.report.scene_figure`); None: no figures.
         max_views: estimate from the first K views of each scene only (an ablation); the rows are
             still written for every view, so the scores compare with a run on all views.
     """
@@ -285,7 +285,7 @@ def estimate_scene(
     except (BopCenderError, ValueError, RuntimeError) as e:
         return SceneOutcome(scene.key, None, f"{type(e).__name__}: {e}")
     if vis_dir is not None:
-        from bop_cender.vis import scene_figure
+        from bop_cender.report.scene_figure import scene_figure
 
         scene_figure(
             output,
