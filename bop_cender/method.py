@@ -108,7 +108,10 @@ class CenDerNet:
         config: CenDerNetConfig,
         predictor: HeatmapPredictor,
         meshes: MeshStore | None = None,
+        cost_threads: int = 1,
     ) -> None:
+        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`)."""
+        self.cost_threads = cost_threads
         self.models = models
         self.config = config
         self.predictor = predictor
@@ -143,6 +146,7 @@ class CenDerNet:
                 self.meshes,
                 lambda obj_id: self.models[obj_id].center,
                 self.config.poses,
+                cost_threads=self.cost_threads,
             )
             if targets and candidate_ids
             else []
