@@ -131,12 +131,6 @@ def open_run_dataset(request: RunRequest) -> Dataset:
     return open_with_demo(data)  # no data root: the embedded demo, silently
 
 
-def _usable_cores() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
     """The method for a request: oracle heatmaps, or the network (not shipped yet: a clear error)."""
     meshes = MeshStore(dataset.models)
@@ -387,18 +381,12 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
     if not keys:
         return
     if request.workers == 1 or len(keys) == 1:
-        # One process: one torch thread and the candidates' chunks on threads of their own (faster than
-        # torch's intra-op threads on these small kernels; the same bits), restored afterwards.
-        import torch
-
-        threads = torch.get_num_threads()
-        method = build_method(request, dataset, cost_threads=_usable_cores())
-        torch.set_num_threads(1)
-        try:
-            for key in keys:
-                yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
-        finally:
-            torch.set_num_threads(threads)
+        # One process keeps torch's threads: one torch thread with the candidates' chunks on 2 threads
+        # costs the 2,000 candidates faster (255 vs 193 calls/s) but the Nelder-Mead's small calls slower,
+        # 125 s against 109 s for a 9-part scene (results/bench/run_*).
+        method = build_method(request, dataset)
+        for key in keys:
+            yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
         return
     build_method(request, dataset)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")

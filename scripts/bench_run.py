@@ -6,7 +6,8 @@
    CUDA where present.
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
-   embedded demo), one process, all threads.
+   embedded demo), one process as ``bop-cender run`` runs it (torch's threads; ``--chunk-threads N``: one
+   torch thread and N threads for the candidates' chunks instead).
 
 Prints a table and writes ``results/bench/run_<machine>.md``:
 
@@ -31,8 +32,8 @@ from bop_cender.render.mesh import prepare_mesh
 from bop_cender.synth.reference_meshes import reference_bracket
 
 
-def cost_calls_per_second(device: torch.device, batch: int, seconds: float) -> tuple[float, float]:
-    """Median calls/s and ms per cost call of ``batch`` poses over six views."""
+def cost_calls_per_second(device: torch.device, batch: int, seconds: float, workers: int = 1) -> tuple[float, float]:
+    """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads)."""
     mesh = prepare_mesh(reference_bracket(), device=device)
     T_cw, K = bench_render.make_rig()
     dist = bench_render.target_distance_maps(mesh, T_cw, K).to(device)
@@ -42,7 +43,7 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float) -> t
     w = torch.full((len(K),), 1.0 / len(K), device=device)
 
     def call() -> None:
-        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w)
+        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers)
 
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     call()
@@ -58,7 +59,7 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float) -> t
     return batch / per_call, per_call * 1000
 
 
-def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str) -> list[dict]:
+def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str, chunk_threads: int = 1) -> list[dict]:
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
     from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
@@ -67,7 +68,11 @@ def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str)
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshStore(ds.models, device="cpu")
-    method = CenDerNet(ds.models, config, OraclePredictor(ds.models, meshes, config.targets, device=device), meshes)
+    oracle = OraclePredictor(ds.models, meshes, config.targets, device=device)
+    # as a one-process `bop-cender run` does: torch's threads, one chunk thread (``--chunk-threads`` to compare)
+    method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads)
+    if chunk_threads > 1:
+        torch.set_num_threads(1)
     out = []
     for key in ds.scene_keys[:n_scenes]:
         scene = ds.scene(key)
@@ -88,16 +93,29 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=5.0, help="timing budget per cost measurement")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--chunk-threads", type=int, default=1, help="candidates' chunk threads in the scene timing")
     args = ap.parse_args()
     load_before = os.getloadavg()
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     cost_rows = []
+    threads = torch.get_num_threads()
+    cores = bench_machine.usable_cores()
     for device in devices:
-        for batch in (2000, 1):
-            calls, ms = cost_calls_per_second(device, batch, args.seconds)
-            cost_rows.append((device.type, batch, calls, ms))
-            print(f"cost {device.type} batch {batch}: {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
-    scenes = scene_timings(args.data_root, args.split, args.scenes, "cuda" if torch.cuda.is_available() else "cpu")
+        setups = (
+            [(2000, threads, 1), (2000, 1, cores), (1, threads, 1)]
+            if device.type == "cpu"
+            else [(2000, threads, 1), (1, threads, 1)]
+        )
+        for batch, n_threads, workers in setups:
+            torch.set_num_threads(n_threads)
+            calls, ms = cost_calls_per_second(device, batch, args.seconds, workers)
+            how = f"{n_threads} torch thread(s), {workers} chunk thread(s)"
+            cost_rows.append((device.type, batch, how, calls, ms))
+            print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
+    torch.set_num_threads(threads)
+    scenes = scene_timings(
+        args.data_root, args.split, args.scenes, "cuda" if torch.cuda.is_available() else "cpu", args.chunk_threads
+    )
     load_after = os.getloadavg()
     slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
     path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"run_{slug}.md"
@@ -106,8 +124,8 @@ def main() -> None:
     lines += bench_render.machine_description()
     lines += [f"- load average before / after: {load_before[0]:.2f} / {load_after[0]:.2f}", "",
               "## Cost calls per second (one call = one pose over six 320x256 views, reference bracket)", "",
-              "| device | batch | calls/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
-    lines += [f"| {d} | {b} | {c:,.0f} | {m:.2f} |" for d, b, c, m in cost_rows]
+              "| device | batch | threads | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
+    lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in cost_rows]
     lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config)", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
