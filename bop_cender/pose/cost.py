@@ -22,16 +22,16 @@ import torch
 
 from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import (
-    DEFAULT_CHUNK_PIXELS,
     CurvatureAtlas,
     chunk_curvature,
     prepare_candidates,
 )
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR
+from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS, RenderSettings
 
 #: Window pixels per chunk on CUDA (GPUs want large batches; 2^24 int32 keys are 64 MB).
-CUDA_CHUNK_PIXELS = 1 << 24
+CUDA_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.candidate_chunk_pixels_cuda
 
 ArrayLike = np.ndarray | torch.Tensor
 
@@ -135,6 +135,7 @@ def candidate_costs(
     chunk_pixels: int | None = None,
     workers: int = 1,
     occluder_depth: ArrayLike | None = None,
+    settings: RenderSettings | None = None,
 ) -> torch.Tensor:
     """Render, take curvature and cost B candidates end to end: ``T_cam_model (B, V, 4, 4)`` -> ``(B,)``.
 
@@ -157,6 +158,8 @@ def candidate_costs(
             wait for a busy core make every parallel op cost a scheduler time slice).
         occluder_depth: ``(V, H, W)`` depth (mm) of objects already placed, 0 where none: candidate
             pixels behind it draw no curvature (the paper's sequential occlusion). None: no occluders.
+        settings: near plane and chunk sizes (:class:`~bop_cender.render.settings.RenderSettings`); when
+            given, they replace ``near`` and the default ``chunk_pixels``.
 
     Returns:
         ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
@@ -173,8 +176,10 @@ def candidate_costs(
     Ks = torch.as_tensor(K, device=device).to(torch.float32)
     dist = torch.as_tensor(dist_maps, device=device).to(torch.float32)
     weights = torch.as_tensor(view_weights, device=device).to(torch.float32)
+    if settings is not None:
+        near = settings.near
     if chunk_pixels is None:
-        chunk_pixels = CUDA_CHUNK_PIXELS if device.type == "cuda" else DEFAULT_CHUNK_PIXELS
+        chunk_pixels = (settings or DEFAULT_RENDER_SETTINGS).candidate_chunk_pixels(device)
     B, V = int(T.shape[0]), int(T.shape[1])
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
     occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)

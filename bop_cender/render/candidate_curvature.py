@@ -30,11 +30,12 @@ from bop_cender.render.curvature import curvature_valid
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR, camera_vertices, rasterize
 from bop_cender.render.resolve import shade
+from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS
 from bop_cender.render.window import Windows, plan_atlas_chunks
 
 #: Window pixels per chunk on CPU: small enough for the caches, large enough to amortise the per-call
 #: overhead of the few hundred torch operations of a chunk (2^18 to 2^20 measured within 5 %).
-DEFAULT_CHUNK_PIXELS = 1 << 19
+DEFAULT_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.candidate_chunk_pixels_cpu
 
 #: Window pixels beyond the first and last pixel centre the object can cover: 1 for the curvature
 #: ring, 1 (forced to background) for the ring's own stencil.

@@ -26,10 +26,11 @@ import torch
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.raster import DEFAULT_NEAR, camera_vertices, project_vertices, rasterize
 from bop_cender.render.resolve import shade
+from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS
 from bop_cender.render.window import Windows, plan_atlas_chunks
 
 #: Atlas pixels per rasteriser call (at least one pose per call).
-DEFAULT_CHUNK_PIXELS = 1 << 18
+DEFAULT_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.depth_crop_chunk_pixels
 
 #: Window pixels kept beyond the first and last pixel centre the projected vertices can cover.
 _MARGIN = 1

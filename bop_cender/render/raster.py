@@ -37,10 +37,11 @@ import torch
 from bop_cender.render.clip import clip_near
 from bop_cender.render.mesh import PackedMeshes, RenderMesh
 from bop_cender.render.scanline import KeyCodec, scan, winners
+from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS
 from bop_cender.render.window import Windows
 
 #: Default near plane (mm): geometry closer than this to the camera plane is clipped away.
-DEFAULT_NEAR = 1.0
+DEFAULT_NEAR = DEFAULT_RENDER_SETTINGS.near
 
 #: Faces whose plane passes closer than this to the camera centre (mm) are seen edge-on: not drawn.
 _EDGE_ON = 1e-3

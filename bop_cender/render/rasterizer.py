@@ -18,11 +18,12 @@ from bop_cender.geometry.check import check_shape
 from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
 from bop_cender.render.raster import DEFAULT_NEAR, rasterize
 from bop_cender.render.resolve import WindowMaps, resolve
+from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS
 from bop_cender.render.window import Windows, window_offsets, window_size
 
 #: Window pixels rendered per chunk (all canvases of a chunk together); bounds the z-buffer and the
 #: fragment arrays. 2^21 pixels is about 16 MB of int64 keys.
-DEFAULT_CHUNK_PIXELS = 1 << 21
+DEFAULT_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.scene_chunk_pixels
 
 TensorLike = torch.Tensor | np.ndarray
 
