@@ -219,9 +219,8 @@ def optimise_object(
         evaluations += n
         starts = T[np.argsort(costs, kind="stable")[: max(1, config.top_k)]]
         refine = _refine_lockstep if config.refiner == "lockstep" else _refine_scipy
-        T_ref, c_ref, fev = refine(
-            starts, target.center, center_model, mesh, maps.cameras, maps.dist, weights, occ, config
-        )
+        problem = Refinement(target.center, center_model, mesh, maps.cameras, maps.dist, weights, occ, config)
+        T_ref, c_ref, fev = refine(starts, problem)
         evaluations += fev
         k = int(np.argmin(c_ref))
         if best is None or c_ref[k] < best.cost:
@@ -266,6 +265,25 @@ def _cost(
 
 
 @dataclass(frozen=True)
+class Refinement:
+    """What the Nelder-Mead refinement of one object fits to: its 3D centre, model, the full-resolution
+    distance maps and cameras, view weights, the placed objects' depth and the settings."""
+
+    center3d: np.ndarray
+    center_model: np.ndarray
+    mesh: RenderMesh
+    cameras: SceneCameras
+    dist: torch.Tensor
+    weights: torch.Tensor
+    occluder_depth: torch.Tensor | None
+    config: PoseConfig
+
+    def cost(self, T_world_model: np.ndarray) -> np.ndarray:
+        """``(n,)`` costs of poses ``(n, 4, 4)``."""
+        return _cost(self.mesh, T_world_model, self.cameras, self.dist, self.weights, self.occluder_depth)
+
+
+@dataclass(frozen=True)
 class _Perturbation:
     """Nelder-Mead's parameters ``x = (rotvec * ROTATION_SCALE_MM, centre - center3d)`` around start rotations."""
 
@@ -291,24 +309,15 @@ def _bounds_and_starts(starts: np.ndarray, center3d: np.ndarray, center_model: n
     return x0, step, lo, -lo
 
 
-def _refine_lockstep(
-    starts: np.ndarray,
-    center3d: np.ndarray,
-    center_model: np.ndarray,
-    mesh: RenderMesh,
-    cameras: SceneCameras,
-    dist: torch.Tensor,
-    weights: torch.Tensor,
-    occluder_depth: torch.Tensor | None,
-    config: PoseConfig,
-) -> tuple[np.ndarray, np.ndarray, int]:
+def _refine_lockstep(starts: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray, int]:
     """All starts ``(k, 4, 4)`` refined together (:func:`bop_cender.pose.simplex.batched_nelder_mead`).
 
     Returns the refined poses ``(k, 4, 4)``, their costs ``(k,)`` and the evaluations spent."""
     from bop_cender.pose.simplex import batched_nelder_mead
 
-    x0, step, lo, hi = _bounds_and_starts(starts, center3d, center_model, config)
-    param = _Perturbation(starts[:, :3, :3], center3d, center_model)
+    config = problem.config
+    x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config)
+    param = _Perturbation(starts[:, :3, :3], problem.center3d, problem.center_model)
     k = len(starts)
     # Each point carries the index of its start as a 7th coordinate that never moves (step 0, bounds
     # [0, k - 1]; every simplex vertex and reflection of start i keeps the value i).
@@ -317,32 +326,23 @@ def _refine_lockstep(
 
     def f(x: np.ndarray) -> np.ndarray:
         owner = np.rint(x[:, -1]).astype(np.int64)
-        return _cost(mesh, param.poses(x[:, :-1], owner), cameras, dist, weights, occluder_depth)
+        return problem.cost(param.poses(x[:, :-1], owner))
 
     x_best, f_best, nfev = batched_nelder_mead(f, x0, step, lo, hi, config.nm_xatol, config.nm_fatol, config.nm_maxfev)
     return param.poses(x_best[:, :-1], np.arange(k)), f_best, int(nfev.sum())
 
 
-def _refine_scipy(
-    starts: np.ndarray,
-    center3d: np.ndarray,
-    center_model: np.ndarray,
-    mesh: RenderMesh,
-    cameras: SceneCameras,
-    dist: torch.Tensor,
-    weights: torch.Tensor,
-    occluder_depth: torch.Tensor | None,
-    config: PoseConfig,
-) -> tuple[np.ndarray, np.ndarray, int]:
+def _refine_scipy(starts: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray, int]:
     """Each start refined by its own ``scipy.optimize.minimize(method="Nelder-Mead", bounds=...)`` (the paper's)."""
-    x0, step, lo, hi = _bounds_and_starts(starts, center3d, center_model, config)
-    param = _Perturbation(starts[:, :3, :3], center3d, center_model)
+    config = problem.config
+    x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config)
+    param = _Perturbation(starts[:, :3, :3], problem.center3d, problem.center_model)
     poses, costs, total = [], [], 0
     for i in range(len(starts)):
         which = np.array([i])
 
         def f(x: np.ndarray, which=which) -> float:
-            return float(_cost(mesh, param.poses(x[None], which), cameras, dist, weights, occluder_depth)[0])
+            return float(problem.cost(param.poses(x[None], which))[0])
 
         simplex = np.clip(np.vstack([x0[i], x0[i] + np.diag(step)]), lo, hi)
         res = minimize(

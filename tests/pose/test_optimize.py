@@ -20,6 +20,7 @@ from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
     PoseConfig,
     PoseTarget,
+    Refinement,
     SceneCameras,
     _refine_lockstep,
     _refine_scipy,
@@ -110,7 +111,8 @@ def test_refinement_recovers_a_perturbed_gt_pose(mini, refine):
     start = perturb(g.T_world_model, 6.0, 3.0)
     config = PoseConfig(nm_maxfev=300, t_b=BOX_T_B)
     w = torch.full((len(cams.Ks),), 0.25)
-    T, c, fev = refine(start[None], center3d + 1.0, center_model, meshes(3), cams, dist, w, None, config)
+    problem = Refinement(center3d + 1.0, center_model, meshes(3), cams, dist, w, None, config)
+    T, c, fev = refine(start[None], problem)
     R_err = np.degrees(Rotation.from_matrix(T[0, :3, :3] @ g.T_world_model[:3, :3].T).magnitude())
     t_err = np.linalg.norm(T[0, :3, 3] - g.T_world_model[:3, 3])
     assert R_err < 1.0 and t_err < 1.0, (R_err, t_err)
