@@ -93,15 +93,6 @@ class Center3D:
         """Aggregated heatmap score: the sum over views (paper: "accumulated for all views")."""
         return float(np.sum(self.view_scores))
 
-    def as_dict(self) -> dict:
-        return {
-            "position": [float(x) for x in self.position],
-            "view_scores": [float(x) for x in self.view_scores],
-            "channel": self.channel,
-            "obj_id": self.obj_id,
-            "score": self.score,
-        }
-
 
 def find_peaks(heatmap: np.ndarray, threshold: float, min_distance: int) -> tuple[np.ndarray, np.ndarray]:
     """Local maxima of ``heatmap (H, W)``: continuous image points ``(N, 2)`` (x, y) of the peak pixels'

@@ -16,16 +16,15 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Protocol
 
 import numpy as np
-import torch
 
 from bop_cender.centers import Center3D, CenterConfig, detect_centers, sample_scores
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.errors import ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
+from bop_cender.meshes import MeshCache
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.targets import TargetConfig
 from bop_cender.pose.optimize import PlacedObject, PoseConfig, PoseTarget, SceneCameras, optimise_scene
-from bop_cender.render.mesh import RenderMesh, prepare_mesh
 
 
 class HeatmapPredictor(Protocol):
@@ -107,7 +106,7 @@ class CenDerNet:
         models: Mapping[int, ObjectModel],
         config: CenDerNetConfig,
         predictor: HeatmapPredictor,
-        meshes: MeshStore | None = None,
+        meshes: MeshCache | None = None,
         cost_threads: int = 1,
     ) -> None:
         """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`)."""
@@ -115,7 +114,7 @@ class CenDerNet:
         self.models = models
         self.config = config
         self.predictor = predictor
-        self.meshes = meshes or MeshStore(models)
+        self.meshes = meshes or MeshCache(models)
 
     def estimate(self, scene: Scene) -> SceneEstimate:
         return self.run_scene(scene).estimate
@@ -203,17 +202,3 @@ def _parse_setting(text: str, kind: type, key: str) -> object:
     if isinstance(value, float) and not math.isfinite(value):
         raise ConfigError(f"{key}: expected a finite number, got {text!r}", field="--set")
     return value
-
-
-class MeshStore:
-    """The renderer's mesh of each object id, prepared once (callable: ``store(obj_id) -> RenderMesh``)."""
-
-    def __init__(self, models: Mapping[int, ObjectModel], device: torch.device | str = "cpu") -> None:
-        self.models = models
-        self.device = torch.device(device)
-        self._meshes: dict[int, RenderMesh] = {}
-
-    def __call__(self, obj_id: int) -> RenderMesh:
-        if obj_id not in self._meshes:
-            self._meshes[obj_id] = prepare_mesh(self.models[obj_id].mesh, device=self.device)
-        return self._meshes[obj_id]

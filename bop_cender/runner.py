@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,8 @@ from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
-from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
+from bop_cender.meshes import MeshCache
+from bop_cender.method import CenDerNet, CenDerNetConfig
 from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
 from bop_cender.results.files import write_run_sidecar
 
@@ -133,7 +134,7 @@ def open_run_dataset(request: RunRequest) -> Dataset:
 
 def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
     """The method for a request: oracle heatmaps, or the network (not shipped yet: a clear error)."""
-    meshes = MeshStore(dataset.models)
+    meshes = MeshCache(dataset.models)
     if request.heatmaps == "oracle":
         from bop_cender.net.oracle import OraclePredictor
 
@@ -435,9 +436,3 @@ def _worker_scene(key: str) -> SceneOutcome:
     """One scene in a worker process."""
     state = _STATE[0]
     return estimate_scene(state.method, state.dataset.scene(key), state.request.vis_dir, state.request.max_views)
-
-
-def request_as_dict(request: RunRequest) -> dict[str, Any]:
-    d = asdict(request)
-    d["out"] = str(request.out)
-    return d

@@ -62,12 +62,13 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
 def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str, chunk_threads: int = 1) -> list[dict]:
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
-    from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore
+    from bop_cender.meshes import MeshCache
+    from bop_cender.method import CenDerNet, CenDerNetConfig
     from bop_cender.net.oracle import OraclePredictor
 
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
-    meshes = MeshStore(ds.models, device="cpu")
+    meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets, device=device)
     # as a one-process `bop-cender run` does: torch's threads, one chunk thread (``--chunk-threads`` to compare)
     method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads)

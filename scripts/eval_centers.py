@@ -16,7 +16,8 @@ import numpy as np
 from bop_cender.centers import CenterConfig, detect_centers
 from bop_cender.data.registry import DatasetRequest
 from bop_cender.datasets import open_with_demo
-from bop_cender.method import CenDerNetConfig, MeshStore
+from bop_cender.meshes import MeshCache
+from bop_cender.method import CenDerNetConfig
 from bop_cender.net.oracle import OraclePredictor
 
 SETTINGS = {
@@ -35,7 +36,7 @@ def main() -> None:
     args = ap.parse_args()
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
-    meshes = MeshStore(ds.models)
+    meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets)
     found = dict.fromkeys(SETTINGS, 0)
     errors: dict[str, list[float]] = {k: [] for k in SETTINGS}

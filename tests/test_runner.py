@@ -14,7 +14,8 @@ import method_data  # noqa: E402
 from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
-from bop_cender.method import CenDerNet, CenDerNetConfig, MeshStore  # noqa: E402
+from bop_cender.meshes import MeshCache
+from bop_cender.method import CenDerNet, CenDerNetConfig  # noqa: E402
 from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
 from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
@@ -123,7 +124,7 @@ def test_bad_requests_are_one_line(mini_root, tmp_path, capsys, argv, field, mon
 def test_a_scene_without_centres_has_no_estimates(mini_root):
     ds = open_dimo(mini_root, "real")
     config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
-    meshes = MeshStore(ds.models)
+    meshes = MeshCache(ds.models)
     blind = OraclePredictor(ds.models, meshes, config.targets, degradation=Degradation(miss_prob=1.0))
     est = CenDerNet(ds.models, config, blind, meshes).estimate(ds.scene(ds.scene_keys[0]))
     assert est.objects == () and set(est.timings) == {"heatmaps", "centers", "poses"}
@@ -169,3 +170,17 @@ def test_settings_override_the_config():
     for bad in ("poses.bogus=1", "poses.t_b=abc", "poses.t_b=nan", "nosep", "poses.occlusion=maybe"):
         with pytest.raises(ConfigError):
             c.with_settings([bad])
+
+
+def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsys, monkeypatch):
+    import bop_cender.method as method_module
+
+    def broken(self, scene):
+        raise RuntimeError("heatmaps of the wrong size")
+
+    monkeypatch.setattr(method_module.CenDerNet, "run_scene", broken)
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "every scene failed" in err and err.count("no estimates (RuntimeError: heatmaps of the wrong size)") == 2

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bop_cender.cli.options import add_data_options
+from bop_cender.cli.options import add_data_options, announce
 
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, oracle heatmaps
@@ -78,12 +78,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     elif device == "cuda" and not torch.cuda.is_available():
         raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
     overrides = {}
-    for name, value in (("n_candidates", args.candidates), ("top_k", args.top_k)):
+    for name, flag, value in (("n_candidates", "--candidates", args.candidates), ("top_k", "--top-k", args.top_k)):
         if value is not None:
             if value < 1:
-                raise ConfigError(
-                    f"expected a positive number, got {value}", field=f"--{name.replace('n_', '').replace('_', '-')}"
-                )
+                raise ConfigError(f"expected a positive number, got {value}", field=flag)
             overrides[name] = value
     if args.no_occlusion:
         overrides["occlusion"] = False
@@ -91,7 +89,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = CenDerNetConfig.for_dataset(args.dataset, **overrides).with_settings(args.set or [])
     out = Path(args.out or f"cendernet-{args.heatmaps}_{args.dataset}-{split}.csv")
     if args.data_root is None:
-        print(f"[bop-cender] no --data-root: using the embedded synthetic {args.dataset} demo", file=sys.stderr)
+        announce(f"no --data-root: using the embedded synthetic {args.dataset} demo")
     request = RunRequest(
         dataset=args.dataset, data_root=args.data_root, split=split, out=out, n_views=args.n_views,
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
@@ -126,6 +124,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"{summary.scenes} scenes ({summary.resumed} resumed), {summary.estimates} objects, {summary.rows} rows;"
           f" {summary.wall_seconds:.1f} s ({stages})")  # fmt: skip
     print(f"wrote {summary.out} and {summary.sidecar}")
+    if summary.failed and len(summary.failed) == summary.scenes:
+        print(f"error: every scene failed ({summary.scenes}); the results file holds no estimate", file=sys.stderr)
+        return 1
     if args.score:
         from bop_cender.eval.score_file import method_name, score_file
         from bop_cender.report.summary import format_scores, summary_lines

@@ -36,10 +36,6 @@ class Degradation:
     miss_prob: float = 0.0
     seed: int = 0
 
-    @property
-    def active(self) -> bool:
-        return self.blur_sigma > 0 or self.noise_std > 0 or self.miss_prob > 0
-
 
 class OraclePredictor:
     """Heatmaps rendered from the ground truth (:func:`bop_cender.net.targets.scene_targets`)."""

@@ -101,7 +101,6 @@ class PlacedObject:
     obj_id: int
     T_world_model: np.ndarray
     cost: float
-    center_index: int
     evaluations: int
 
 
@@ -175,7 +174,7 @@ def optimise_scene(
         rng = np.random.default_rng([config.seed, i])
         placed.append(
             optimise_object(
-                targets[i], i, (coarse, occ_coarse), (fine, occ), meshes, model_centers, config, rng, cost_threads
+                targets[i], (coarse, occ_coarse), (fine, occ), meshes, model_centers, config, rng, cost_threads
             )
         )
         if progress is not None:
@@ -195,7 +194,6 @@ def view_weights(view_scores: np.ndarray, mode: str) -> np.ndarray:
 
 def optimise_object(
     target: PoseTarget,
-    index: int,
     coarse: tuple[CostMaps, torch.Tensor | None],
     fine: tuple[CostMaps, torch.Tensor | None],
     meshes: Callable[[int], RenderMesh],
@@ -224,9 +222,9 @@ def optimise_object(
         evaluations += fev
         k = int(np.argmin(c_ref))
         if best is None or c_ref[k] < best.cost:
-            best = PlacedObject(obj_id, T_ref[k], float(c_ref[k]), index, 0)
+            best = PlacedObject(obj_id, T_ref[k], float(c_ref[k]), 0)
     assert best is not None
-    return PlacedObject(best.obj_id, best.T_world_model, best.cost, index, evaluations)
+    return PlacedObject(best.obj_id, best.T_world_model, best.cost, evaluations)
 
 
 def _poses(R: np.ndarray, centers_world: np.ndarray, center_model: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import method_data  # noqa: E402
 
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.data.types import GtObject  # noqa: E402
-from bop_cender.method import MeshStore  # noqa: E402
+from bop_cender.meshes import MeshCache  # noqa: E402
 from bop_cender.net.heatmaps import Heatmaps  # noqa: E402
 from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
 from bop_cender.net.targets import TargetConfig, blob_sigma, scene_targets  # noqa: E402
@@ -27,7 +27,7 @@ from bop_cender.render.rasterizer import render_scene  # noqa: E402
 def mini(tmp_path_factory):
     root = method_data.build(tmp_path_factory.mktemp("targets") / "dimo")
     ds = open_dimo(root, "real")
-    return ds, ds.scene(ds.scene_keys[0]), MeshStore(ds.models)
+    return ds, ds.scene(ds.scene_keys[0]), MeshCache(ds.models)
 
 
 def test_sigma_formula():

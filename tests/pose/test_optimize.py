@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).parents[1]))
 import method_data  # noqa: E402
 
 from bop_cender.data.dimo import open_dimo  # noqa: E402
-from bop_cender.method import MeshStore  # noqa: E402
+from bop_cender.meshes import MeshCache  # noqa: E402
 from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
 from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
@@ -36,7 +36,7 @@ def mini(tmp_path_factory):
     root = method_data.build(tmp_path_factory.mktemp("mini") / "dimo")
     ds = open_dimo(root, "real")
     scene = ds.scene(ds.scene_keys[0])
-    meshes = MeshStore(ds.models)
+    meshes = MeshCache(ds.models)
     # The fixture's parts are boxes: every edge is a crease or a silhouette, so the curvature scale 1 and
     # t_b 0.5 keep all of them (the defaults, 4 and 0.75, are tuned for thin curved parts, where they
     # thin these edges at this fixture's 1.25 mm per pixel).
