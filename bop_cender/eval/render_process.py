@@ -7,6 +7,11 @@ already rendered: the import leaves the critical path and both cores work from t
 Where the child cannot help (no ``fork``, or torch is already imported, so there is no import to
 overlap) the threads of this process render, as a library caller gets by default.
 
+A child is forked only while torch is not imported here. Forking a process whose torch has run (MKL's
+allocator and the OpenMP pool copied mid-use) can leave the child spinning for ever in
+``mkl_serv_allocate`` (seen in CI: a render test hung for 90 minutes), so a render process started
+after torch's import is spawned instead: it imports torch afresh, one second later, and is safe.
+
 Both renderers take a list of :class:`RenderJob` and yield ``(job index, DepthCrops)`` in the order
 the jobs finish, so that the caller computes VSD image by image as their renders arrive. The crops
 are those of :func:`bop_cender.eval.depth_render.render_depth_crops` either way, bit for bit.
@@ -125,16 +130,18 @@ class RenderProcess:
     ``with``). Not thread-safe: one :meth:`render` at a time.
     """
 
-    def __init__(self, process: multiprocessing.process.BaseProcess, conn) -> None:
+    def __init__(self, process: multiprocessing.process.BaseProcess, conn, start_method: str = "fork") -> None:
         self._process = process
         self._conn = conn
+        self._start_method = start_method
         self._closed = False
         self._stopped: str | None = None  # why the child stopped early, and how much was rendered here
         self._courier: threading.Thread | None = None
 
     @classmethod
     def start(cls) -> RenderProcess:
-        """Fork the child now; it imports torch at once and waits for jobs.
+        """Start the child now (forked before torch's import, spawned after it); it imports torch at once and
+        waits for jobs.
 
         Raises:
             ConfigError: this platform has no ``fork`` (Windows).
@@ -143,9 +150,11 @@ class RenderProcess:
             from bop_cender.errors import ConfigError
 
             raise ConfigError("a render process needs fork(), which this platform lacks: render in threads instead")
-        ctx = multiprocessing.get_context("fork")
+        start_method = "spawn" if "torch" in sys.modules else "fork"  # see the module docstring
+        ctx = multiprocessing.get_context(start_method)
         parent_conn, child_conn = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=_child_main, args=(child_conn, parent_conn), name="bop-cender-render", daemon=True)
+        inherited = parent_conn if start_method == "fork" else None  # a forked child holds both ends: it closes ours
+        process = ctx.Process(target=_child_main, args=(child_conn, inherited), name="bop-cender-render", daemon=True)
         with warnings.catch_warnings():
             # Python >= 3.12 warns about forking while NumPy's BLAS threads exist (a library caller that imported
             # NumPy first). The child never calls BLAS, and OpenBLAS resets its pool in the child at fork anyway.
@@ -154,7 +163,7 @@ class RenderProcess:
             )
             process.start()
         child_conn.close()
-        return cls(process, parent_conn)
+        return cls(process, parent_conn, start_method)
 
     def __enter__(self) -> RenderProcess:
         return self
@@ -163,9 +172,10 @@ class RenderProcess:
         self.close()
 
     def describe(self) -> str:
+        kind = "a forked render process" if self._start_method == "fork" else "a spawned render process"
         if self._stopped is not None:
-            return f"a forked render process, then the scoring process ({self._stopped})"
-        return "a forked render process"
+            return f"{kind}, then the scoring process ({self._stopped})"
+        return kind
 
     def close(self) -> None:
         """Stop the child (at once: it may still be importing torch) and reap it."""
@@ -261,8 +271,12 @@ class RenderProcess:
 
 
 def _child_main(conn, parent_end) -> None:
-    """The child: import torch (one intra-op thread), then render each job received and send its crops."""
-    parent_end.close()
+    """The child: import torch (one intra-op thread), then render each job received and send its crops.
+
+    ``parent_end`` is the parent's end of the pipe where the child was forked (closed here, so that the
+    child sees EOF when the parent goes), None where it was spawned."""
+    if parent_end is not None:
+        parent_end.close()
     try:
         import torch
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -173,7 +174,12 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
             bar.update()
     else:
         threads = max(1, (os.cpu_count() or 1) // workers)
-        with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(layout, spec, threads)) as pool:
+        # Spawned, not forked: this process has imported torch (and may have run it), and a fork copies MKL's
+        # allocator and the OpenMP pool mid-use, which can hang the worker (see eval/render_process.py).
+        ctx = get_context("spawn")
+        with ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=_init_worker, initargs=(layout, spec, threads)
+        ) as pool:
             futures = [pool.submit(_run_job, str(root), job) for job in jobs]
             for f in as_completed(futures):
                 written += f.result()
