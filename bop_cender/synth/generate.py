@@ -59,7 +59,7 @@ class DimoLayout:
     name = "dimo"
 
     def models(self, spec: write_dimo.DimoSpec) -> dict[int, Part]:
-        return write_dimo.dimo_models(spec.seed)
+        return write_dimo.dimo_models(spec.catalogue_seed)
 
     def write_models(self, root: Path, spec: write_dimo.DimoSpec) -> None:
         write_dimo.write_models(root, spec)

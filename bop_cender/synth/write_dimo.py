@@ -40,6 +40,8 @@ N_CARRIERS = 3
 COMPOSITION_SIZES = {0: (4, 6), 1: (3, 4), 2: (5, 6), 3: (5, 7), 4: (7, 9)}
 SAME_TYPE = (1, 2, 4)
 N_LIGHT_SETUPS = 4
+#: The DIMO layout's one object catalogue (the demo's seed: the demo's models are unchanged).
+DIMO_CATALOGUE_SEED = 20221023
 #: The rig looks at this world point in every scene (the carriers' top is near z = 20 mm).
 RIG_TARGET = (0.0, 0.0, 20.0)
 #: Focal length (px) of the rig at DIMO small's 320x256.
@@ -57,8 +59,12 @@ class DimoSpec:
         carriers: carrier ids cycled over scenes (the paper selects carrier 2).
         compositions: composition ids cycled over scenes (the paper selects 1, 2, 4).
         width, height: image size (DIMO small: 320x256).
-        seed: everything derives from it.
+        seed: scenes, poses, light and materials derive from it (not the models: see ``catalogue_seed``).
         write_real: also write ``real_jaigo``.
+        catalogue_seed: draws the object catalogue (which part type has which id, its dimensions, the
+            carriers). Fixed per layout, as a real dataset has one catalogue, so that sets of other seeds
+            share their objects (a network trained on one is tested on another); the default is the
+            demo's seed, so the demo's models are the catalogue.
     """
 
     n_scenes: int = 3
@@ -71,6 +77,7 @@ class DimoSpec:
     seed: int = 0
     write_real: bool = True
     contact_sheets: bool = True
+    catalogue_seed: int = DIMO_CATALOGUE_SEED
 
     def __post_init__(self) -> None:
         bad = [v for v in self.variants if not 0 <= v <= 70]
@@ -82,9 +89,9 @@ class DimoSpec:
             raise ValueError(f"carriers must be 0..{N_CARRIERS - 1}")
 
 
-def dimo_models(seed: int) -> dict[int, Part]:
-    """The dataset's models: one part per type (ids 1..6) and the carriers (ids 100..102)."""
-    rng = np.random.default_rng([seed, 7])
+def dimo_models(catalogue_seed: int = DIMO_CATALOGUE_SEED) -> dict[int, Part]:
+    """The catalogue: one part per type (ids 1..6) and the carriers (ids 100..102), drawn by ``catalogue_seed``."""
+    rng = np.random.default_rng([catalogue_seed, 7])
     models = {i + 1: p for i, p in enumerate(make_part_set(rng, 6))}
     for c in range(N_CARRIERS):
         models[CARRIER_MIN_ID + c] = make_carrier(rng)
@@ -92,8 +99,8 @@ def dimo_models(seed: int) -> dict[int, Part]:
 
 
 def write_models(root: Path, spec: DimoSpec) -> dict[int, Part]:
-    """Write ``models/`` and ``models_eval/`` once (deterministic from the seed); return the parts."""
-    models = dimo_models(spec.seed)
+    """Write ``models/`` and ``models_eval/`` once (the catalogue of ``spec.catalogue_seed``); return the parts."""
+    models = dimo_models(spec.catalogue_seed)
     write_model_folders(root, models, "dimo")
     return models
 
