@@ -27,6 +27,7 @@ COMMANDS = (
     "bop_cender.cli.compare",
     "bop_cender.cli.convert_pvnet",
     "bop_cender.cli.run",
+    "bop_cender.cli.train",
     "bop_cender.cli.crosscheck",
 )
 

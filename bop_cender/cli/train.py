@@ -1,0 +1,102 @@
+"""``bop-cender train``: train stage 1 (the U-Net) on a split's views; checkpoints every epoch, ``--resume``."""
+
+from __future__ import annotations
+
+import argparse
+
+from bop_cender.cli.options import announce
+
+EPILOG = """examples:
+  bop-cender train --dataset dimo --epochs 1 --out runs/smoke          # one epoch on the embedded demo
+  bop-cender train --dataset dimo --data-root data/dimo_train --split train --val-split sim \\
+      --val-data-root data/dimo_test --epochs 12 --out runs/dimo
+  bop-cender train --dataset dimo --data-root data/dimo_train --out runs/dimo --epochs 20 --resume
+  bop-cender train --dataset tless --data-root ~/bop/tless --split train_pbr --variant tless --crop 270x360 \\
+      --batch-size 4 --epochs 40 --device cuda --out runs/tless                # the paper's T-LESS model
+Writes RUN_DIR/weights.pt (give it to run or heatmaps with --weights), checkpoint.pt, metrics.csv, config.json.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train the stage-1 network (center and curvature heatmaps) on a split",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True, help="dataset layout")
+    p.add_argument("--data-root", default=None, help="dataset root (default: the embedded synthetic demo)")
+    p.add_argument("--split", default=None, help="training split (default: dimo train, tless/bop train_pbr)")
+    p.add_argument("--val-split", default=None, help="validation split, scored every epoch (default: none)")
+    p.add_argument("--val-data-root", default=None, help="root of the validation split (default: --data-root)")
+    p.add_argument("--epochs", type=int, default=10, help="epochs in all (with --resume: up to this many)")
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (paper: 3e-4)")
+    p.add_argument(
+        "--variant",
+        choices=("dimo", "dimo-lean", "tless", "tless-lean"),
+        default=None,
+        help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean)",
+    )
+    p.add_argument("--width", type=float, default=1.0, help="channel multiplier (default 1)")
+    p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
+    p.add_argument("--no-augment", action="store_true", help="no data augmentation (ablation)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--seed", type=int, default=0, help="everything random derives from it (default 0)")
+    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K training scenes")
+    p.add_argument("--val-limit-scenes", type=int, default=None, help="only the first K validation scenes")
+    p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
+    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_train)
+
+
+def parse_crop(text: str | None) -> tuple[int, int] | None:
+    from bop_cender.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        h, w = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"expected HxW (e.g. 128x160), got {text!r}", field="--crop") from None
+    return h, w
+
+
+def resolve_device(name: str):
+    import torch
+
+    from bop_cender.errors import ConfigError
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
+    return torch.device(name)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from bop_cender.datasets import resolve_data_root
+    from bop_cender.net.train import TrainConfig, train
+    from bop_cender.synth.demo import cache_dir
+
+    kind = "dimo" if args.dataset == "dimo" else "tless"
+    root = resolve_data_root(args.dataset, args.data_root, announce)
+    config = TrainConfig(
+        dataset=args.dataset, data_root=str(root), split=args.split or ("train" if kind == "dimo" else "train_pbr"),
+        val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
+        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=parse_crop(args.crop),
+        augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
+        val_limit_scenes=args.val_limit_scenes,
+    )  # fmt: skip
+    summary = train(
+        config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),
+        progress=not args.no_progress, announce=announce,
+    )  # fmt: skip
+    last = summary.history[-1] if summary.history else None
+    done = f"{summary.epochs_done} epochs" + (f" (resumed after {summary.resumed_from})" if summary.resumed_from else "")
+    print(f"trained {done} in {summary.wall_s:.0f} s" + (f"; last loss {last.train_loss:.4f}" if last else ""))
+    print(f"wrote {summary.run_dir / 'weights.pt'} (use: --heatmaps net --weights {summary.run_dir / 'weights.pt'})")
+    return 0

@@ -1,0 +1,326 @@
+"""Training stage 1 (``bop-cender train``): the U-Net on a split's views and their cached GT heatmaps.
+
+- Loss: BCE-with-logits on the center and on the curvature heatmaps, summed (paper Section 2.1).
+- Adam, learning rate 3e-4 (paper appendix), batch size and epochs from the config.
+- Every epoch: the appendix's augmentations (:mod:`bop_cender.net.augment`), optionally random crops
+  (the net is fully convolutional: crops cut the cost of large T-LESS images), then validation on
+  ``val_split`` (losses, center-peak precision / recall / F1, curvature AP and F1 at t_b).
+- Deterministic per seed on the CPU: the model's initial weights come from ``seed``, the order of the
+  samples, the augmentations and the crops of epoch ``e`` from ``(seed, e)`` alone, so that a run
+  resumed from its checkpoint after epoch ``e`` continues bit for bit as if it had never stopped.
+- ``RUN_DIR/checkpoint.pt`` (model, optimiser, epoch, history; atomic) and ``RUN_DIR/weights.pt`` (the
+  latest weights alone, what ``run --weights`` takes) after every epoch; ``RUN_DIR/metrics.csv`` one row
+  per epoch; ``RUN_DIR/config.json`` the run's config.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from bop_cender.data.bop_io import write_text_atomic
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.errors import ConfigError
+from bop_cender.meshes import MeshCache
+from bop_cender.net.augment import AugmentConfig, augment
+from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
+from bop_cender.net.samples import SampleSet, load_samples
+from bop_cender.net.targets import TargetConfig
+from bop_cender.net.unet import UNet, UNetSpec
+from bop_cender.net.weights import load_weights, save_weights, weights_payload
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run (saved as ``RUN_DIR/config.json``; a resumed run must have the same).
+
+    Attributes:
+        dataset, data_root, split: the training data (``dimo`` / ``tless`` / ``bop``).
+        val_split, val_data_root: validation data (default root: the training root); None: no validation.
+        epochs, batch_size, lr: optimisation (paper: Adam 3e-4; DIMO 200 epochs of 8, T-LESS 40 of 4).
+        variant, width: network variant (:meth:`UNetSpec.named`) and width multiplier.
+        crop: ``(H, W)`` random crops of every sample (None: whole images).
+        augment: the appendix's augmentations (False: none, for tests and ablations).
+        seed: everything random derives from it.
+        limit_scenes, val_limit_scenes: the first K scenes only (smoke runs).
+    """
+
+    dataset: str
+    data_root: str | None = None
+    split: str = "train"
+    val_split: str | None = None
+    val_data_root: str | None = None
+    epochs: int = 10
+    batch_size: int = 8
+    lr: float = 3e-4
+    variant: str = "dimo-lean"
+    width: float = 1.0
+    crop: tuple[int, int] | None = None
+    augment: bool = True
+    seed: int = 0
+    limit_scenes: int | None = None
+    val_limit_scenes: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "batch_size"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"must be >= 1, got {getattr(self, name)}", field=f"--{name.replace('_', '-')}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise ConfigError(f"must be a positive number, got {self.lr}", field="--lr")
+        if not (math.isfinite(self.width) and self.width > 0):
+            raise ConfigError(f"must be a positive number, got {self.width}", field="--width")
+        if self.crop is not None and min(self.crop) < 1:
+            raise ConfigError(f"crop sizes must be >= 1, got {self.crop}", field="--crop")
+        for name in ("limit_scenes", "val_limit_scenes"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ConfigError(f"must be >= 1, got {value}", field=f"--{name.replace('_', '-')}")
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["crop"] = None if self.crop is None else list(self.crop)
+        return d
+
+    def same_run_as(self, other: TrainConfig) -> bool:
+        """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed)."""
+        return replace(self, epochs=other.epochs) == other
+
+
+@dataclass
+class EpochRecord:
+    """One row of ``metrics.csv``."""
+
+    epoch: int
+    train_loss: float
+    train_center_loss: float
+    train_curvature_loss: float
+    images_per_s: float
+    wall_s: float
+    val: dict[str, float] = field(default_factory=dict)
+
+    def row(self) -> dict[str, Any]:
+        d = {k: v for k, v in asdict(self).items() if k != "val"}
+        d.update({f"val_{k}": v for k, v in self.val.items()})
+        return d
+
+
+@dataclass(frozen=True)
+class TrainSummary:
+    run_dir: Path
+    epochs_done: int
+    resumed_from: int
+    history: list[EpochRecord]
+    wall_s: float
+
+
+CHECKPOINT = "checkpoint.pt"
+WEIGHTS = "weights.pt"
+METRICS = "metrics.csv"
+CONFIG = "config.json"
+
+
+def train(
+    config: TrainConfig,
+    run_dir: str | Path,
+    resume: bool = False,
+    device: torch.device | str = "cpu",
+    cache_dir: Path | None = None,
+    progress: bool = True,
+    announce: Callable[[str], None] | None = None,
+) -> TrainSummary:
+    """Train (or resume) a run; see the module docstring.
+
+    Raises:
+        ConfigError: ``run_dir`` holds another run (or a checkpoint without ``resume``), bad options.
+        DatasetError: unreadable data.
+    """
+    say = announce or (lambda _msg: None)
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError("exists and is not a directory", file=run_dir, field="--out")
+    checkpoint_path = run_dir / CHECKPOINT
+    if checkpoint_path.exists() and not resume:
+        raise ConfigError("holds a training run already: pass --resume to continue it, or another --out", file=run_dir)
+    device = torch.device(device)
+    kind = "dimo" if config.dataset == "dimo" else "tless"
+    targets = TargetConfig.for_dataset(kind)
+    train_set = _open_samples(config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress)
+    val_set = None
+    if config.val_split is not None:
+        val_root = config.val_data_root or config.data_root
+        val_set = _open_samples(
+            config.dataset, val_root, config.val_split, config.val_limit_scenes, targets, cache_dir, progress,
+            channel_obj_ids=train_set.channel_obj_ids,
+        )  # fmt: skip
+    n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
+    spec = UNetSpec.named(config.variant, center_channels=n_channels, width=config.width)
+    torch.manual_seed(config.seed)
+    model = UNet(spec).to(device)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
+    history: list[EpochRecord] = []
+    start_epoch = 0
+    if resume and checkpoint_path.exists():
+        start_epoch, history = _restore(checkpoint_path, config, model, optimiser, device)
+        say(f"resuming {run_dir} after epoch {start_epoch}")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(run_dir / CONFIG, json.dumps(config.as_dict(), indent=2) + "\n")
+    say(
+        f"training {spec.name} ({sum(p.numel() for p in model.parameters()):,} parameters) on {len(train_set)} views"
+        f" of {config.dataset} {config.split}" + (f", validating on {len(val_set)}" if val_set else "") + f", {device}"
+    )
+    aug = AugmentConfig() if config.augment else AugmentConfig.none()
+    t_start = time.perf_counter()
+    for epoch in range(start_epoch, config.epochs):
+        record = _train_epoch(model, optimiser, train_set, config, aug, epoch, device, progress)
+        if val_set is not None:
+            record.val = evaluate(model, val_set, device, targets)
+        history.append(record)
+        extra = {"epoch": epoch + 1, "config": config.as_dict(), "history": [asdict(h) for h in history]}
+        payload = weights_payload(model, kind, train_set.channel_obj_ids, targets, **extra)
+        save_weights(run_dir / WEIGHTS, payload)
+        payload["optimiser"] = optimiser.state_dict()
+        save_weights(checkpoint_path, payload)
+        _write_metrics(run_dir / METRICS, history)
+        say(_epoch_line(record, config.epochs))
+    return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
+
+
+def _open_samples(dataset, root, split, limit, targets, cache_dir, progress, channel_obj_ids=None) -> SampleSet:
+    ds = open_dataset(DatasetRequest(dataset=dataset, root=None if root is None else Path(root), split=split))
+    keys = ds.scene_keys[:limit] if limit else ds.scene_keys
+    return load_samples(ds, targets, MeshCache(ds.models), cache_dir, channel_obj_ids, keys, progress)
+
+
+def _restore(path: Path, config: TrainConfig, model: UNet, optimiser, device) -> tuple[int, list[EpochRecord]]:
+    weights = load_weights(path)
+    saved = weights.extra.get("config")
+    if not isinstance(saved, dict) or "optimiser" not in weights.extra:
+        raise ConfigError("is not a training checkpoint (no config or optimiser state)", file=path)
+    saved_config = TrainConfig(**{**saved, "crop": None if saved.get("crop") is None else tuple(saved["crop"])})
+    if not config.same_run_as(saved_config):
+        diff = sorted(k for k, v in config.as_dict().items() if k != "epochs" and saved.get(k) != v)
+        raise ConfigError(f"was trained with other settings ({', '.join(diff)}): use another --out", file=path)
+    model.load_state_dict(weights.model.state_dict())
+    optimiser.load_state_dict(weights.extra["optimiser"])
+    for state in optimiser.state.values():  # the optimiser's moments follow the model's device
+        for k, v in state.items():
+            if isinstance(v, torch.Tensor) and k != "step":
+                state[k] = v.to(device)
+    history = [EpochRecord(**h) for h in weights.extra.get("history", [])]
+    return int(weights.extra["epoch"]), history
+
+
+def _epoch_generator(seed: int, epoch: int, salt: int) -> torch.Generator:
+    return torch.Generator().manual_seed(int(np.random.default_rng([seed, epoch, salt]).integers(2**62)))
+
+
+def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, device, progress) -> EpochRecord:
+    model.train()
+    order = torch.randperm(len(samples), generator=_epoch_generator(config.seed, epoch, 0)).numpy()
+    batches = [order[i : i + config.batch_size] for i in range(0, len(order), config.batch_size)]
+    gen = _epoch_generator(config.seed, epoch, 1)
+    totals = np.zeros(3)
+    seen = 0
+    t0 = time.perf_counter()
+    bar = tqdm(batches, desc=f"epoch {epoch + 1}/{config.epochs}", unit="batch", disable=not progress, leave=False)
+    for idx in bar:
+        image, center, curvature = samples.batch(idx, device)
+        if config.crop is not None:
+            image, center, curvature = random_crop(image, center, curvature, config.crop, gen)
+        image, center, curvature = augment(image, center, curvature, aug, gen)
+        with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=device.type == "cuda"):
+            center_logits, curvature_logits = model(image)
+        loss_center = F.binary_cross_entropy_with_logits(center_logits.float(), center)
+        loss_curvature = F.binary_cross_entropy_with_logits(curvature_logits.float(), curvature)
+        loss = loss_center + loss_curvature
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        n = len(idx)
+        totals += n * np.array([loss.item(), loss_center.item(), loss_curvature.item()])
+        seen += n
+        bar.set_postfix(loss=f"{totals[0] / seen:.4f}", img_s=f"{seen / (time.perf_counter() - t0):.1f}")
+    bar.close()
+    wall = time.perf_counter() - t0
+    mean = totals / max(seen, 1)
+    return EpochRecord(epoch + 1, float(mean[0]), float(mean[1]), float(mean[2]), seen / wall, wall)
+
+
+def random_crop(
+    image: torch.Tensor, center: torch.Tensor, curvature: torch.Tensor, size: tuple[int, int], gen: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One random ``size`` window per sample, the same for the image and both targets (no crop where the image
+    is not larger). image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
+    B, _, H, W = image.shape
+    h, w = min(size[0], H), min(size[1], W)
+    top = torch.randint(0, H - h + 1, (B,), generator=gen).tolist()
+    left = torch.randint(0, W - w + 1, (B,), generator=gen).tolist()
+    pick = lambda x: torch.stack([x[b, ..., t : t + h, l : l + w] for b, (t, l) in enumerate(zip(top, left))])  # noqa: E731
+    return pick(image), pick(center), pick(curvature)
+
+
+@torch.no_grad()
+def predict_probabilities(model: UNet, image: torch.Tensor, batch_size: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sigmoid of the network's logits for ``image (N, 3, H, W)`` in batches: ``(N, C, H, W)``, ``(N, H, W)``."""
+    model.eval()
+    centers, curvatures = [], []
+    for i in range(0, image.shape[0], batch_size):
+        c, k = model(image[i : i + batch_size])
+        centers.append(torch.sigmoid(c.float()))
+        curvatures.append(torch.sigmoid(k.float()))
+    return torch.cat(centers), torch.cat(curvatures)
+
+
+@torch.no_grad()
+def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, batch_size: int = 8) -> dict[str, float]:
+    """Validation figures of ``model`` on ``samples``: mean losses and :class:`HeatmapMetrics`' figures."""
+    model.eval()
+    metrics = HeatmapMetrics(HeatmapMetricsConfig())
+    losses = np.zeros(2)
+    for i in range(0, len(samples), batch_size):
+        image, center, curvature = samples.batch(range(i, min(i + batch_size, len(samples))), device)
+        c_logits, k_logits = model(image)
+        n = image.shape[0]
+        losses += n * np.array(
+            [
+                F.binary_cross_entropy_with_logits(c_logits.float(), center).item(),
+                F.binary_cross_entropy_with_logits(k_logits.float(), curvature).item(),
+            ]
+        )
+        metrics.update(torch.sigmoid(c_logits.float()), torch.sigmoid(k_logits.float()), center, curvature)
+    out = {"center_loss": float(losses[0] / len(samples)), "curvature_loss": float(losses[1] / len(samples))}
+    out.update({k: float(v) for k, v in metrics.result().items()})
+    return out
+
+
+def _write_metrics(path: Path, history: list[EpochRecord]) -> None:
+    rows = [h.row() for h in history]
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    write_text_atomic(path, buffer.getvalue())
+
+
+def _epoch_line(r: EpochRecord, epochs: int) -> str:
+    line = f"epoch {r.epoch}/{epochs}: loss {r.train_loss:.4f}, {r.images_per_s:.1f} images/s, {r.wall_s:.0f} s"
+    if r.val:
+        line += (
+            f"; val center F1 {r.val.get('center_f1', float('nan')):.3f}, curvature AP"
+            f" {r.val.get('curvature_ap', float('nan')):.3f}"
+        )
+    return line

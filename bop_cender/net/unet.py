@@ -1,0 +1,212 @@
+"""Stage 1's network: a small U-Net with a shared backbone and two heads (paper Section 2.1, appendix).
+
+One fully convolutional network turns a view into center logits ``(C, H, W)`` (one shared channel for
+DIMO, one per object id for T-LESS) and curvature logits ``(1, H, W)``; both are trained with
+BCE-with-logits and turned into probabilities with a sigmoid at inference.
+
+Architecture (the appendix's feature-map tables, read as a three-level U-Net):
+
+- encoder: three levels ``e1, e2, e3`` of ``channels[i]`` features, each entered by a strided
+  convolution of stride ``strides[i]`` (DIMO ``(1, 2, 2)``: full, 1/2, 1/4 resolution; T-LESS
+  ``(3, 1, 3)``: 1/3, 1/3, 1/9), then a bottleneck at the last level;
+- decoder: upsample to the previous level, concatenate its features (the tables' ``64 + 32``), convolve;
+  twice, ending at ``e1``'s resolution with ``channels[2]`` features;
+- heads: two separate branches of two 3x3 convolutions of ``head_channels`` and a 1x1 output
+  convolution; where ``e1`` is below full resolution (a first stride above 1) the logits are upsampled
+  bilinearly to the input size.
+
+Every block is 3x3 conv, BatchNorm, ReLU, twice. Inputs of any size are padded (replicate) at the
+bottom and right to a multiple of the total stride and the outputs cropped back.
+
+Variants: :meth:`UNetSpec.dimo` (paper, 320x256, 32/32/64 with heads of 32), :meth:`UNetSpec.tless`
+(paper, 720x540, 64/128/256, heads of 128, first stride 3) and :meth:`UNetSpec.dimo_lean`, the one we
+ship for DIMO, trained on 2 CPU cores: a first stride of 2 (every feature at half resolution or less)
+and fewer channels, about 8x cheaper than the paper's (see ``results/bench/``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+@dataclass(frozen=True)
+class UNetSpec:
+    """What a :class:`UNet` is made of; saved in every checkpoint, so weights are rebuilt exactly.
+
+    Attributes:
+        channels: features of the three encoder levels (before ``width``).
+        strides: downsampling factor entering each level (the total stride is their product).
+        head_channels: features of each head's two 3x3 convolutions (before ``width``).
+        center_channels: center output channels: 1 (shared, DIMO) or one per object id (T-LESS: 30).
+        width: multiplier of every feature count (rounded, at least 4).
+        name: the variant's name, for cards and messages.
+    """
+
+    channels: tuple[int, int, int] = (32, 32, 64)
+    strides: tuple[int, int, int] = (1, 2, 2)
+    head_channels: int = 32
+    center_channels: int = 1
+    width: float = 1.0
+    name: str = "dimo"
+
+    def __post_init__(self) -> None:
+        if len(self.channels) != 3 or len(self.strides) != 3:
+            raise ValueError(f"channels and strides need 3 levels, got {self.channels} and {self.strides}")
+        if min(self.channels) < 1 or min(self.strides) < 1 or self.head_channels < 1 or self.center_channels < 1:
+            raise ValueError(f"channels, strides, head channels and center channels must be >= 1: {self}")
+        if not self.width > 0:
+            raise ValueError(f"width must be > 0, got {self.width}")
+
+    @staticmethod
+    def dimo(width: float = 1.0) -> UNetSpec:
+        """The paper's DIMO model (appendix table): 32/32/64 at full, 1/2, 1/4 resolution, heads of 32."""
+        return UNetSpec((32, 32, 64), (1, 2, 2), 32, 1, width, "dimo")
+
+    @staticmethod
+    def tless(center_channels: int = 30, width: float = 1.0) -> UNetSpec:
+        """The paper's T-LESS model: 64/128/256 at 1/3, 1/3, 1/9 resolution (first stride 3), heads of 128."""
+        return UNetSpec((64, 128, 256), (3, 1, 3), 128, center_channels, width, "tless")
+
+    @staticmethod
+    def dimo_lean(width: float = 1.0) -> UNetSpec:
+        """Ours for 2 CPU cores: first stride 2, 16/32/48 at 1/2, 1/4, 1/8 resolution, heads of 16."""
+        return UNetSpec((16, 32, 48), (2, 2, 2), 16, 1, width, "dimo-lean")
+
+    @staticmethod
+    def tless_lean(center_channels: int = 30, width: float = 1.0) -> UNetSpec:
+        """Ours for 2 CPU cores on 720x540: first stride 3, 16/32/48 at 1/3, 1/6, 1/12, heads of 32."""
+        return UNetSpec((16, 32, 48), (3, 2, 2), 32, center_channels, width, "tless-lean")
+
+    @staticmethod
+    def named(name: str, center_channels: int = 1, width: float = 1.0) -> UNetSpec:
+        """A variant by name: ``dimo``, ``dimo-lean``, ``tless``, ``tless-lean``."""
+        makers = {
+            "dimo": lambda: UNetSpec.dimo(width),
+            "dimo-lean": lambda: UNetSpec.dimo_lean(width),
+            "tless": lambda: UNetSpec.tless(center_channels, width),
+            "tless-lean": lambda: UNetSpec.tless_lean(center_channels, width),
+        }
+        if name not in makers:
+            raise ValueError(f"unknown network variant {name!r}; expected one of {sorted(makers)}")
+        spec = makers[name]()
+        if spec.center_channels != center_channels:
+            spec = UNetSpec(spec.channels, spec.strides, spec.head_channels, center_channels, width, name)
+        return spec
+
+    @property
+    def total_stride(self) -> int:
+        """Input sizes are padded to a multiple of this."""
+        return self.strides[0] * self.strides[1] * self.strides[2]
+
+    def features(self, n: int) -> int:
+        """``n`` features scaled by ``width``."""
+        return max(4, round(n * self.width))
+
+    def as_dict(self) -> dict:
+        return {**asdict(self), "channels": list(self.channels), "strides": list(self.strides)}
+
+    @staticmethod
+    def from_dict(d: dict) -> UNetSpec:
+        return UNetSpec(
+            channels=tuple(int(c) for c in d["channels"]),
+            strides=tuple(int(s) for s in d["strides"]),
+            head_channels=int(d["head_channels"]),
+            center_channels=int(d["center_channels"]),
+            width=float(d["width"]),
+            name=str(d["name"]),
+        )
+
+
+class _Block(nn.Module):
+    """Two (3x3 conv, BatchNorm, ReLU); the first may downsample by ``stride`` (its kernel covers the stride)."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int = 1) -> None:
+        super().__init__()
+        k = max(3, stride)
+        self.body = nn.Sequential(
+            nn.Conv2d(c_in, c_out, k, stride=stride, padding=(k - stride + 1) // 2, bias=False),  # size / stride
+            nn.BatchNorm2d(c_out),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+            nn.BatchNorm2d(c_out),
+            nn.ReLU(inplace=True),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.body(x)
+
+
+class _Head(nn.Module):
+    """Two (3x3 conv, BatchNorm, ReLU) of ``c_mid`` features, then a 1x1 convolution to ``c_out`` logits."""
+
+    def __init__(self, c_in: int, c_mid: int, c_out: int) -> None:
+        super().__init__()
+        self.body = nn.Sequential(
+            nn.Conv2d(c_in, c_mid, 3, padding=1, bias=False),
+            nn.BatchNorm2d(c_mid),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c_mid, c_mid, 3, padding=1, bias=False),
+            nn.BatchNorm2d(c_mid),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c_mid, c_out, 1),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.body(x)
+
+
+class UNet(nn.Module):
+    """``forward(image (B, 3, H, W)) -> (center logits (B, C, H, W), curvature logits (B, H, W))``.
+
+    Any ``H, W``: padded to a multiple of :attr:`UNetSpec.total_stride`, outputs cropped back.
+    """
+
+    def __init__(self, spec: UNetSpec) -> None:
+        super().__init__()
+        self.spec = spec
+        c1, c2, c3 = (spec.features(c) for c in spec.channels)
+        s1, s2, s3 = spec.strides
+        h = spec.features(spec.head_channels)
+        self.e1 = _Block(3, c1, s1)
+        self.e2 = _Block(c1, c2, s2)
+        self.e3 = _Block(c2, c3, s3)
+        self.bottleneck = _Block(c3, c3)
+        self.d2 = _Block(c3 + c2, c3)
+        self.d1 = _Block(c3 + c1, c3)
+        self.center_head = _Head(c3, h, spec.center_channels)
+        self.curvature_head = _Head(c3, h, 1)
+        # Logits start near the targets' mean (mostly background) so early losses are not dominated by it.
+        for head in (self.center_head, self.curvature_head):
+            nn.init.constant_(head.body[-1].bias, -4.0)
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if image.dim() != 4 or image.shape[1] != 3:
+            raise ValueError(f"image must be (B, 3, H, W), got {tuple(image.shape)}")
+        H, W = image.shape[-2:]
+        stride = self.spec.total_stride
+        pad_h, pad_w = (-H) % stride, (-W) % stride
+        x = F.pad(image, (0, pad_w, 0, pad_h), mode="replicate") if pad_h or pad_w else image
+        f1 = self.e1(x)
+        f2 = self.e2(f1)
+        f3 = self.bottleneck(self.e3(f2))
+        u2 = self.d2(torch.cat([_resize(f3, f2.shape[-2:]), f2], dim=1))
+        u1 = self.d1(torch.cat([_resize(u2, f1.shape[-2:]), f1], dim=1))
+        center = self.center_head(u1)
+        curvature = self.curvature_head(u1)
+        if center.shape[-2:] != x.shape[-2:]:  # a first stride above 1: logits up to the padded input size
+            center = _resize(center, x.shape[-2:])
+            curvature = _resize(curvature, x.shape[-2:])
+        return center[..., :H, :W], curvature[:, 0, :H, :W]
+
+
+def _resize(x: torch.Tensor, size) -> torch.Tensor:
+    """Bilinear resize to ``size`` (align_corners False: pixel centres at +0.5, the project's convention)."""
+    return F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

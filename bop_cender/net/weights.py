@@ -1,0 +1,151 @@
+"""Network weights files: what a trained stage 1 is, written so that it is rebuilt exactly and checked on load.
+
+A weights file is a ``torch.save`` dict of plain values (read with ``weights_only=True``: no code runs on
+load): the format tag, the :class:`~bop_cender.net.unet.UNetSpec`, the dataset it was trained for, the
+center channels' object ids, the target config (so that oracle and network agree on what a heatmap
+means) and the state dict. A training checkpoint is the same dict plus the optimiser and the epoch.
+Beside shipped weights lies a JSON card (data, seed, command, epochs, wall time, machine, figures).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from bop_cender.data.bop_io import atomic_path
+from bop_cender.errors import ConfigError
+from bop_cender.net.targets import TargetConfig
+from bop_cender.net.unet import UNet, UNetSpec
+
+FORMAT = "bop-cender-unet"
+FORMAT_VERSION = 1
+#: Shipped weights, by dataset: files in ``bop_cender/net/weights/`` (with a ``.json`` card beside each).
+SHIPPED = {"dimo": "dimo.pt", "tless": "tless.pt"}
+
+
+@dataclass(frozen=True)
+class NetWeights:
+    """A loaded weights file.
+
+    Attributes:
+        model: the network, in eval mode, on the CPU.
+        dataset: ``dimo`` or ``tless`` (what it was trained for: one shared or per-object center channels).
+        channel_obj_ids: object id of each center channel, None for one shared channel.
+        targets: the target config it was trained on.
+        path: where it was read from.
+        extra: everything else in the file (epoch, optimiser state of a checkpoint, ...).
+    """
+
+    model: UNet
+    dataset: str
+    channel_obj_ids: tuple[int, ...] | None
+    targets: TargetConfig
+    path: Path
+    extra: dict[str, Any]
+
+
+def weights_payload(
+    model: UNet, dataset: str, channel_obj_ids: tuple[int, ...] | None, targets: TargetConfig, **extra: Any
+) -> dict[str, Any]:
+    """The dict written by :func:`save_weights` (a checkpoint adds its optimiser and epoch in ``extra``)."""
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "spec": model.spec.as_dict(),
+        "dataset": dataset,
+        "channel_obj_ids": None if channel_obj_ids is None else [int(i) for i in channel_obj_ids],
+        "targets": asdict(targets),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        **extra,
+    }
+
+
+def save_weights(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` atomically (a crash mid-write leaves the previous file)."""
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(buffer.getvalue())
+
+
+def shipped_weights_path(dataset: str) -> Path:
+    """The shipped weights of ``dataset`` (``dimo``, ``tless``).
+
+    Raises:
+        ConfigError: none are shipped for it.
+    """
+    name = SHIPPED.get(dataset)
+    path = None if name is None else Path(str(resources.files("bop_cender.net") / "weights" / name))
+    if path is None or not path.is_file():
+        raise ConfigError(
+            f"no shipped network weights for dataset {dataset!r} (shipped: {', '.join(_shipped_names()) or 'none'});"
+            " train some with `bop-cender train` and pass --weights",
+            field="--weights",
+        )
+    return path
+
+
+def _shipped_names() -> list[str]:
+    folder = Path(str(resources.files("bop_cender.net") / "weights"))
+    return sorted(d for d, n in SHIPPED.items() if (folder / n).is_file())
+
+
+def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
+    """Read and check a weights file (or a training checkpoint).
+
+    Args:
+        path: the file.
+        dataset: when given, the file must have been trained for this dataset kind (``dimo`` or ``tless``;
+            other BOP datasets use ``tless``-kind weights: one center channel per object).
+
+    Raises:
+        ConfigError: missing, truncated or not a weights file, another architecture than its spec says,
+            or trained for another dataset kind; one line naming the file.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError("is a directory, not a weights file", file=path, field="--weights")
+    if not path.is_file():
+        raise ConfigError("weights file not found", file=path, field="--weights")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
+        raise ConfigError(f"not a readable weights file ({type(exc).__name__}: {exc})", file=path) from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
+    if payload.get("format_version") != FORMAT_VERSION:
+        raise ConfigError(
+            f"weights format version {payload.get('format_version')!r}; this bop-cender reads {FORMAT_VERSION}",
+            file=path,
+        )
+    try:
+        spec = UNetSpec.from_dict(payload["spec"])
+        kind = str(payload["dataset"])
+        ids = payload["channel_obj_ids"]
+        channel_obj_ids = None if ids is None else tuple(int(i) for i in ids)
+        targets = TargetConfig(**payload["targets"])
+        state = payload["state_dict"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"malformed weights file ({type(exc).__name__}: {exc})", file=path) from None
+    if dataset is not None:
+        wanted = "dimo" if dataset == "dimo" else "tless"
+        if kind != wanted:
+            raise ConfigError(
+                f"these weights were trained for {kind!r} data; dataset {dataset!r} needs {wanted!r} weights",
+                file=path,
+                field="--weights",
+            )
+    model = UNet(spec)
+    try:
+        model.load_state_dict(state, strict=True)
+    except (RuntimeError, TypeError) as exc:
+        first = str(exc).strip().splitlines()[0:2]
+        raise ConfigError(f"the weights do not fit their network spec: {' '.join(first)}", file=path) from None
+    model.eval()
+    extra = {k: v for k, v in payload.items() if k not in ("spec", "dataset", "channel_obj_ids", "targets", "state_dict")}
+    return NetWeights(model, kind, channel_obj_ids, targets, path, extra)

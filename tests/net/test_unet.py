@@ -1,0 +1,69 @@
+"""The U-Net's variants: output shapes at any size, separate heads, spec round trip."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from bop_cender.net.unet import UNet, UNetSpec, count_parameters
+
+
+@pytest.mark.parametrize(
+    ("spec", "size"),
+    [
+        (UNetSpec.dimo(width=0.25), (32, 40)),
+        (UNetSpec.dimo(width=0.25), (31, 45)),  # odd: padded to the stride and cropped back
+        (UNetSpec.dimo_lean(), (37, 50)),
+        (UNetSpec.tless(center_channels=5, width=0.125), (54, 72)),
+        (UNetSpec.tless(center_channels=5, width=0.125), (50, 61)),
+        (UNetSpec.tless_lean(center_channels=3), (40, 41)),
+    ],
+)
+def test_outputs_have_the_input_size_and_the_spec_channels(spec, size, device) -> None:
+    model = UNet(spec).to(device).eval()
+    image = torch.rand(2, 3, *size, device=device)
+    with torch.no_grad():
+        center, curvature = model(image)
+    assert center.shape == (2, spec.center_channels, *size) and curvature.shape == (2, *size)
+    assert center.device == image.device and center.dtype == torch.float32
+    assert torch.isfinite(center).all() and torch.isfinite(curvature).all()
+
+
+def test_paper_variants_follow_the_appendix_tables() -> None:
+    dimo, tless = UNetSpec.dimo(), UNetSpec.tless()
+    assert (dimo.channels, dimo.strides, dimo.head_channels, dimo.center_channels) == ((32, 32, 64), (1, 2, 2), 32, 1)
+    assert (tless.channels, tless.strides, tless.head_channels, tless.center_channels) == ((64, 128, 256), (3, 1, 3), 128, 30)
+    assert dimo.total_stride == 4 and tless.total_stride == 9
+    model = UNet(dimo)
+    assert model.e1.body[0].out_channels == 32 and model.e3.body[0].out_channels == 64
+    feats = {}
+    hooks = [getattr(model, n).register_forward_hook(lambda m, i, o, n=n: feats.__setitem__(n, o.shape)) for n in ("e1", "e2", "e3", "d1")]
+    with torch.no_grad():
+        model.eval()(torch.rand(1, 3, 256, 320))
+    for h in hooks:
+        h.remove()
+    assert feats["e1"][-2:] == (256, 320) and feats["e2"][-2:] == (128, 160) and feats["e3"][-2:] == (64, 80)
+    assert feats["d1"][1:] == (64, 256, 320)
+
+
+def test_heads_are_separate_and_logits_are_unbounded() -> None:
+    model = UNet(UNetSpec.dimo_lean())
+    assert not set(map(id, model.center_head.parameters())) & set(map(id, model.curvature_head.parameters()))
+    with torch.no_grad():
+        model.center_head.body[-1].bias.fill_(-20.0)
+        center, curvature = model.eval()(torch.rand(1, 3, 32, 32))
+    assert center.max() < -10 and curvature.min() > -10  # one head changed, the other did not
+
+
+def test_width_scales_the_features_and_the_spec_round_trips() -> None:
+    small, large = UNet(UNetSpec.dimo(width=0.5)), UNet(UNetSpec.dimo(width=1.0))
+    assert count_parameters(small) < count_parameters(large) / 3
+    spec = UNetSpec.tless_lean(center_channels=7, width=0.75)
+    assert UNetSpec.from_dict(spec.as_dict()) == spec
+    assert UNetSpec.named("tless", center_channels=4).center_channels == 4
+    with pytest.raises(ValueError, match="unknown network variant"):
+        UNetSpec.named("resnet")
+    with pytest.raises(ValueError, match="width"):
+        UNetSpec.dimo(width=0)
+    with pytest.raises(ValueError, match="image must be"):
+        UNet(UNetSpec.dimo_lean())(torch.rand(1, 1, 16, 16))
