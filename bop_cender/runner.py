@@ -89,12 +89,22 @@ class RunRequest:
             "n_views": self.n_views,
             "model_type": self.model_type,
             "heatmaps": self.heatmaps,
-            "weights": self.weights,
+            "weights": _file_digest(self.weights),
             "seed": self.seed,
             "config": self.config.as_dict(),
             "max_views": self.max_views,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _file_digest(path: str | None) -> str | None:
+    """sha256 of a weights file (retrained weights under the same name invalidate the shards); the path if unreadable."""
+    if path is None:
+        return None
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return str(path)
 
 
 @dataclass(frozen=True)
@@ -133,16 +143,50 @@ def open_run_dataset(request: RunRequest) -> Dataset:
 
 
 def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
-    """The method for a request: oracle heatmaps, or the network (not shipped yet: a clear error)."""
+    """The method for a request: oracle heatmaps, or the network (given or shipped weights)."""
     meshes = MeshCache(dataset.models)
     if request.heatmaps == "oracle":
         from bop_cender.net.oracle import OraclePredictor
 
         predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
     else:
-        _check_request(request)  # raises: the source is not available
-        raise AssertionError(request.heatmaps)
+        predictor = net_predictor(request, dataset)
     return CenDerNet(dataset.models, request.config, predictor, meshes, cost_threads=cost_threads)
+
+
+def resolve_weights(request: RunRequest) -> RunRequest:
+    """``request`` with ``weights`` set to a file: the given one, or the shipped weights of the dataset kind."""
+    if request.heatmaps != "net" or request.weights is not None:
+        return request
+    from bop_cender.net.weights import shipped_weights_path
+
+    return replace(request, weights=str(shipped_weights_path("dimo" if request.dataset == "dimo" else "tless")))
+
+
+def net_predictor(request: RunRequest, dataset: Dataset):
+    """The network predictor of ``request`` (weights resolved), checked against the dataset and the config.
+
+    Raises:
+        ConfigError: weights for another dataset kind, center channels that miss a target object of the
+            dataset, or targets (curvature scale) other than the config's.
+    """
+    from bop_cender.net.predictor import NetPredictor
+    from bop_cender.net.weights import load_weights
+
+    weights = load_weights(resolve_weights(request).weights, dataset=request.dataset)
+    if weights.channel_obj_ids is not None:
+        missing = sorted(i for i, m in dataset.models.items() if m.is_target and i not in weights.channel_obj_ids)
+        if missing:
+            raise ConfigError(
+                f"the weights have no center channel for object(s) {missing} of this dataset", file=weights.path
+            )
+    if weights.targets.curvature_scale != request.config.targets.curvature_scale:
+        raise ConfigError(
+            f"the weights were trained on curvature / {weights.targets.curvature_scale:g}; this run's config says"
+            f" / {request.config.targets.curvature_scale:g} (--set targets.curvature_scale=...)",
+            file=weights.path,
+        )
+    return NetPredictor(weights, device=request.device)
 
 
 def run(
@@ -163,7 +207,10 @@ def run(
     """
     start = time.perf_counter()
     _check_request(request)
+    request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
+    if request.heatmaps == "net":
+        net_predictor(request, dataset)  # bad weights fail here, once, before any scene
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
@@ -357,12 +404,6 @@ def _check_request(request: RunRequest) -> None:
 
     if request.heatmaps not in HEATMAP_SOURCES:
         raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")
-    if request.heatmaps == "net":
-        raise ConfigError(
-            "network heatmaps are not available yet (stage 1 has no trained weights in this version);"
-            " use --heatmaps oracle",
-            field="--heatmaps",
-        )
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
     if request.max_views is not None and request.max_views < 1:

@@ -104,7 +104,7 @@ def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, field",
     [
-        (["--heatmaps", "net"], "--heatmaps"),
+        (["--heatmaps", "net", "--weights", "missing.pt"], "--weights"),
         (["--workers", "0"], "--workers"),
         (["--limit-scenes", "0"], "--limit-scenes"),
         (["--candidates", "0"], "--candidates"),

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--heatmaps",
         choices=("oracle", "net"),
         default="oracle",
-        help="heatmap source: oracle (rendered from the GT) or net (default: oracle; no network is shipped yet)",
+        help="heatmap source: oracle (rendered from the GT) or net (the network: --weights, else the shipped weights)",
     )
     p.add_argument("--weights", default=None, help="network weights (with --heatmaps net)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")

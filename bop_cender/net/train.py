@@ -272,18 +272,6 @@ def random_crop(
 
 
 @torch.no_grad()
-def predict_probabilities(model: UNet, image: torch.Tensor, batch_size: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
-    """Sigmoid of the network's logits for ``image (N, 3, H, W)`` in batches: ``(N, C, H, W)``, ``(N, H, W)``."""
-    model.eval()
-    centers, curvatures = [], []
-    for i in range(0, image.shape[0], batch_size):
-        c, k = model(image[i : i + batch_size])
-        centers.append(torch.sigmoid(c.float()))
-        curvatures.append(torch.sigmoid(k.float()))
-    return torch.cat(centers), torch.cat(curvatures)
-
-
-@torch.no_grad()
 def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, batch_size: int = 8) -> dict[str, float]:
     """Validation figures of ``model`` on ``samples``: mean losses and :class:`HeatmapMetrics`' figures."""
     model.eval()

@@ -115,7 +115,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
-        raise ConfigError(f"not a readable weights file ({type(exc).__name__}: {exc})", file=path) from None
+        raise ConfigError(f"not a readable weights file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
     if payload.get("format_version") != FORMAT_VERSION:
@@ -131,7 +131,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
         targets = TargetConfig(**payload["targets"])
         state = payload["state_dict"]
     except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"malformed weights file ({type(exc).__name__}: {exc})", file=path) from None
+        raise ConfigError(f"malformed weights file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     if dataset is not None:
         wanted = "dimo" if dataset == "dimo" else "tless"
         if kind != wanted:
@@ -144,8 +144,13 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     try:
         model.load_state_dict(state, strict=True)
     except (RuntimeError, TypeError) as exc:
-        first = str(exc).strip().splitlines()[0:2]
-        raise ConfigError(f"the weights do not fit their network spec: {' '.join(first)}", file=path) from None
+        raise ConfigError(f"the weights do not fit their network spec: {_first_line(exc, 2)}", file=path) from None
     model.eval()
     extra = {k: v for k, v in payload.items() if k not in ("spec", "dataset", "channel_obj_ids", "targets", "state_dict")}
     return NetWeights(model, kind, channel_obj_ids, targets, path, extra)
+
+
+def _first_line(exc: BaseException, lines: int = 1, limit: int = 200) -> str:
+    """The start of an exception's message on one line (torch's messages run over many)."""
+    text = " ".join(line.strip() for line in str(exc).strip().splitlines()[:lines] if line.strip())
+    return text if len(text) <= limit else text[: limit - 3] + "..."

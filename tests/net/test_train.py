@@ -1,0 +1,114 @@
+"""Training stage 1: the loss falls, a resumed run equals an uninterrupted one, targets are cached, runs are guarded."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+import method_data  # noqa: E402
+
+from bop_cender.data.bop_io import write_image  # noqa: E402
+from bop_cender.data.registry import DatasetRequest, open_dataset  # noqa: E402
+from bop_cender.errors import ConfigError  # noqa: E402
+from bop_cender.meshes import MeshCache  # noqa: E402
+from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
+from bop_cender.net import samples as samples_module  # noqa: E402
+from bop_cender.net.train import CHECKPOINT, METRICS, WEIGHTS, TrainConfig, random_crop, train  # noqa: E402
+from bop_cender.net.weights import load_weights  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny_root(tmp_path_factory) -> Path:
+    """Two DIMO-layout scenes of two L-parts, 4 views each at 160x128, whose colour images show the parts (the
+    builder's are black): grey curvature plus a faint disk at each centre, so that there is something to learn."""
+    root = method_data.build(tmp_path_factory.mktemp("dimo_tiny"), n_scenes=2)
+    dataset = open_dataset(DatasetRequest("dimo", root, "real"))
+    meshes = MeshCache(dataset.models)
+    for key in dataset.scene_keys:
+        scene = dataset.loader(key)
+        maps = scene_targets(scene, dataset.models, meshes, TargetConfig.for_dataset("dimo"))
+        shown = (maps.curvature + 0.4 * (maps.center[:, 0] > 0.5)).clamp(0, 1)
+        for view, grey in zip(scene.views, shown, strict=True):
+            write_image(view.rgb_path, (grey[..., None].repeat(1, 1, 3) * 255).round().to(torch.uint8).numpy())
+    return root
+
+
+def _config(root: Path, **kw) -> TrainConfig:
+    base = dict(dataset="dimo", data_root=str(root), split="real", val_split="real", epochs=2, batch_size=4,
+                variant="dimo-lean", width=0.5, seed=3, lr=3e-3)  # fmt: skip
+    return TrainConfig(**{**base, **kw})
+
+
+def test_a_short_run_lowers_the_loss_and_writes_its_files(tiny_root, tmp_path) -> None:
+    torch.set_num_threads(2)
+    config = _config(tiny_root, epochs=5, batch_size=2, lr=1e-2, augment=False)
+    summary = train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
+    losses = [r.train_loss for r in summary.history]
+    assert len(losses) == 5 and losses[-1] < 0.7 * losses[0], losses
+    for name in (CHECKPOINT, WEIGHTS, METRICS, "config.json"):
+        assert (tmp_path / "run" / name).is_file()
+    rows = (tmp_path / "run" / METRICS).read_text().splitlines()
+    assert len(rows) == 6 and "val_center_f1" in rows[0] and "val_curvature_ap" in rows[0]
+    weights = load_weights(tmp_path / "run" / WEIGHTS, dataset="dimo")
+    assert weights.extra["epoch"] == 5 and weights.channel_obj_ids is None
+    assert {"center_f1", "curvature_ap", "center_loss"} <= set(summary.history[-1].val)
+
+
+def test_a_resumed_run_equals_an_uninterrupted_one(tiny_root, tmp_path) -> None:
+    cache = tmp_path / "cache"
+    whole = train(_config(tiny_root, epochs=2), tmp_path / "whole", cache_dir=cache, progress=False)
+    train(_config(tiny_root, epochs=1), tmp_path / "split", cache_dir=cache, progress=False)
+    resumed = train(_config(tiny_root, epochs=2), tmp_path / "split", resume=True, cache_dir=cache, progress=False)
+    assert resumed.resumed_from == 1
+    a = load_weights(tmp_path / "whole" / WEIGHTS).model.state_dict()
+    b = load_weights(tmp_path / "split" / WEIGHTS).model.state_dict()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+    assert [r.train_loss for r in whole.history] == [r.train_loss for r in resumed.history]
+
+
+def test_targets_are_rendered_once_then_read_from_the_cache(tiny_root, tmp_path, monkeypatch) -> None:
+    cache = tmp_path / "cache"
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "a", cache_dir=cache, progress=False)
+    files = sorted((cache / "targets").rglob("*.npz"))
+    assert len(files) == 2
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("targets rendered again")
+
+    monkeypatch.setattr(samples_module, "scene_targets", no_render)
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "b", cache_dir=cache, progress=False)
+    files[0].write_bytes(b"damaged")  # a damaged cache file is rendered again
+    monkeypatch.undo()
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "c", cache_dir=cache, progress=False)
+    assert sorted((cache / "targets").rglob("*.npz")) == files
+
+
+def test_runs_are_guarded(tiny_root, tmp_path) -> None:
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "run", progress=False)
+    with pytest.raises(ConfigError, match="--resume"):
+        train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "run", progress=False)
+    with pytest.raises(ConfigError, match="other settings.*lr"):
+        train(_config(tiny_root, epochs=2, val_split=None, lr=1e-4), tmp_path / "run", resume=True, progress=False)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ConfigError, match="not a directory"):
+        train(_config(tiny_root), tmp_path / "file", progress=False)
+    for bad in (dict(epochs=0), dict(batch_size=0), dict(lr=float("nan")), dict(width=-1.0), dict(crop=(0, 4))):
+        with pytest.raises(ConfigError):
+            _config(tiny_root, **bad)
+
+
+def test_random_crops_cut_image_and_targets_alike() -> None:
+    image = torch.arange(2 * 3 * 8 * 10, dtype=torch.float32).view(2, 3, 8, 10)
+    center = image[:, :1].clone()
+    curvature = image[:, 0].clone()
+    gen = torch.Generator().manual_seed(0)
+    a, b, c = random_crop(image, center, curvature, (4, 5), gen)
+    assert a.shape == (2, 3, 4, 5) and b.shape == (2, 1, 4, 5) and c.shape == (2, 4, 5)
+    assert torch.equal(a[:, :1], b) and torch.equal(a[:, 0], c)
+    whole = random_crop(image, center, curvature, (20, 20), gen)[0]
+    assert torch.equal(whole, image)  # no crop larger than the image

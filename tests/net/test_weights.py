@@ -1,0 +1,98 @@
+"""Weights files: a round trip rebuilds the same network; every bad file is one clear error; the predictor's maps."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+import method_data  # noqa: E402
+
+from bop_cender.data.dimo import open_dimo  # noqa: E402
+from bop_cender.errors import ConfigError  # noqa: E402
+from bop_cender.net.predictor import NetPredictor  # noqa: E402
+from bop_cender.net.targets import TargetConfig  # noqa: E402
+from bop_cender.net.unet import UNet, UNetSpec  # noqa: E402
+from bop_cender.net.weights import load_weights, save_weights, shipped_weights_path, weights_payload  # noqa: E402
+from bop_cender.runner import RunRequest, net_predictor  # noqa: E402
+
+
+def _save(path: Path, spec: UNetSpec, dataset: str = "dimo", ids=None, **extra) -> UNet:
+    torch.manual_seed(0)
+    model = UNet(spec).eval()
+    save_weights(path, weights_payload(model, dataset, ids, TargetConfig.for_dataset(dataset), **extra))
+    return model
+
+
+def test_a_round_trip_rebuilds_the_same_network(tmp_path) -> None:
+    model = _save(tmp_path / "w.pt", UNetSpec.tless_lean(center_channels=3, width=0.5), "tless", (1, 2, 5), epoch=7)
+    loaded = load_weights(tmp_path / "w.pt", dataset="tless")
+    assert loaded.model.spec == model.spec and loaded.channel_obj_ids == (1, 2, 5) and loaded.extra["epoch"] == 7
+    assert loaded.targets == TargetConfig.for_dataset("tless")
+    x = torch.rand(1, 3, 30, 33)
+    with torch.no_grad():
+        for a, b in zip(model(x), loaded.model(x), strict=True):
+            assert torch.equal(a, b)
+    assert load_weights(tmp_path / "w.pt", dataset="lmo").dataset == "tless"  # any BOP dataset takes tless weights
+
+
+def test_bad_weights_files_are_one_clear_error(tmp_path) -> None:
+    good = tmp_path / "good.pt"
+    _save(good, UNetSpec.dimo_lean(width=0.5))
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(good.read_bytes()[:1000])
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"state_dict": {}}, foreign)
+    text = tmp_path / "text.pt"
+    text.write_text("not weights")
+    other_arch = tmp_path / "arch.pt"
+    payload = torch.load(good, weights_only=True)
+    payload["spec"] = UNetSpec.dimo_lean(width=1.0).as_dict()  # the state dict is of width 0.5
+    torch.save(payload, other_arch)
+    cases = [
+        (tmp_path / "missing.pt", "not found"),
+        (tmp_path, "is a directory"),
+        (truncated, "not a readable weights file"),
+        (text, "not a readable weights file"),
+        (foreign, "not a bop-cender network weights file"),
+        (other_arch, "do not fit their network spec"),
+    ]
+    for path, message in cases:
+        with pytest.raises(ConfigError, match=message) as info:
+            load_weights(path)
+        assert str(path) in info.value.format() and "\n" not in info.value.format()
+    with pytest.raises(ConfigError, match="trained for 'dimo' data; dataset 'tless'"):
+        load_weights(good, dataset="tless")
+
+
+def test_the_predictor_gives_probabilities_of_every_view(tmp_path) -> None:
+    root = method_data.build(tmp_path / "dimo")
+    dataset = open_dimo(root, "real")
+    scene = dataset.loader(dataset.scene_keys[0])
+    _save(tmp_path / "w.pt", UNetSpec.dimo_lean(width=0.5))
+    predictor = NetPredictor(load_weights(tmp_path / "w.pt", dataset="dimo"))
+    maps = predictor.predict(scene)
+    V, H, W = len(scene.views), scene.views[0].height, scene.views[0].width
+    assert maps.center.shape == (V, 1, H, W) and maps.curvature.shape == (V, H, W)
+    assert 0 <= float(maps.center.min()) and float(maps.center.max()) <= 1 and maps.im_ids == tuple(scene.im_ids)
+    assert predictor.last_seconds_per_view > 0
+    request = RunRequest(dataset="dimo", data_root=str(root), split="real", out=tmp_path / "x_dimo-real.csv",
+                         heatmaps="net", weights=str(tmp_path / "w.pt"))  # fmt: skip
+    assert isinstance(net_predictor(request, dataset), NetPredictor)
+    _save(tmp_path / "t.pt", UNetSpec.tless_lean(center_channels=1, width=0.5), "tless", (3,))
+    with pytest.raises(ConfigError, match="trained for 'tless'"):
+        net_predictor(RunRequest(**{**request.__dict__, "weights": str(tmp_path / "t.pt")}), dataset)
+
+
+def test_shipped_weights_are_found_or_named_missing() -> None:
+    for kind in ("dimo", "tless"):
+        try:
+            path = shipped_weights_path(kind)
+        except ConfigError as e:
+            assert "no shipped network weights" in str(e)
+            continue
+        assert path.is_file() and np.isfinite(path.stat().st_size)
