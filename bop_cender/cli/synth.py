@@ -11,7 +11,11 @@ EXAMPLES = """examples:
   bop-cender synth --layout dimo --out data/dimo_synth --scenes 20 --workers 2
   bop-cender synth --layout dimo --out data/dimo_synth --scenes 20 --variants 0,1,16,31 --views 13
   bop-cender synth --layout tless --out data/tless_synth --scenes 5 --views 20 --pbr-scenes 2
-Running the same command again resumes: complete scene folders are kept, the rest is generated.
+  bop-cender synth --layout tless --out data/tless_test --scenes 5 --seed 1
+Running the same command again resumes: complete scene folders are kept, the rest is generated. Each
+layout has one object catalogue (DIMO: 6 parts and 3 carriers; T-LESS: 30 objects), the same for every
+--seed, so sets of two seeds share their models; --catalogue-seed draws another catalogue. Both seeds are
+recorded in OUT/bop_cender_synth.json, and a resume with other values is refused.
 """
 
 
@@ -43,7 +47,13 @@ def register(sub) -> None:
     p.add_argument("--compositions", default="1,2,4", help="dimo: composition ids cycled over scenes (0..4)")
     p.add_argument("--pbr-scenes", type=int, default=1, help="tless: train_pbr scenes")
     p.add_argument("--pbr-images", type=int, default=4, help="tless: images per train_pbr scene")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="draws the scenes, poses, light and materials (default 0)")
+    p.add_argument(
+        "--catalogue-seed",
+        type=int,
+        default=None,
+        help="draws the object catalogue (default: the layout's one catalogue, the same for every --seed)",
+    )
     p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--no-contact-sheets", action="store_true")
     p.set_defaults(func=cmd_synth)
@@ -61,11 +71,16 @@ def _ints(text: str, option: str) -> tuple[int, ...]:
 
 def cmd_synth(args: argparse.Namespace) -> int:
     from bop_cender.synth.generate import generate
-    from bop_cender.synth.write_dimo import DimoSpec
-    from bop_cender.synth.write_tless import TlessSpec
+    from bop_cender.synth.write_dimo import DIMO_CATALOGUE_SEED, DimoSpec
+    from bop_cender.synth.write_tless import TLESS_CATALOGUE_SEED, TlessSpec
 
     if args.scenes < 0 or args.workers < 1 or (args.views is not None and args.views < 1):
         raise ConfigError("--scenes must be >= 0, --workers and --views >= 1")
+    for option, value in (("--seed", args.seed), ("--catalogue-seed", args.catalogue_seed)):
+        if value is not None and value < 0:
+            raise ConfigError(f"must be >= 0, got {value}", field=option)
+    default_catalogue = DIMO_CATALOGUE_SEED if args.layout == "dimo" else TLESS_CATALOGUE_SEED
+    catalogue_seed = default_catalogue if args.catalogue_seed is None else args.catalogue_seed
     try:
         if args.layout == "dimo":
             spec = DimoSpec(
@@ -76,6 +91,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
                 compositions=_ints(args.compositions, "--compositions"),
                 seed=args.seed,
                 contact_sheets=not args.no_contact_sheets,
+                catalogue_seed=catalogue_seed,
             )
         else:
             spec = TlessSpec(
@@ -85,6 +101,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
                 pbr_images=args.pbr_images,
                 seed=args.seed,
                 contact_sheets=not args.no_contact_sheets,
+                catalogue_seed=catalogue_seed,
             )
     except ValueError as e:
         raise ConfigError(str(e)) from None

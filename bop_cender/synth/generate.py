@@ -2,7 +2,8 @@
 
 Deterministic per seed (every scene derives its generator from ``(seed, scene)``, so the output
 does not depend on the number of workers or on the order of completion), resumable (scene folders
-are written atomically and complete ones are skipped), with a progress bar on stderr.
+are written atomically and complete ones are skipped; the root's record, :mod:`bop_cender.synth.record`,
+refuses a resume with another seed or catalogue), with a progress bar on stderr.
 
 What differs between layouts is one small protocol, :class:`SynthLayout` (models, jobs, scenes, what is
 written once at the end); :data:`LAYOUTS` holds its two implementations. A worker process keeps its
@@ -25,6 +26,7 @@ from bop_cender.meshes import MeshCache
 from bop_cender.synth import write_dimo, write_tless
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache
+from bop_cender.synth.record import check_or_write_record
 
 
 class SynthLayout(Protocol):
@@ -83,7 +85,7 @@ class TlessLayout:
     name = "tless"
 
     def models(self, spec: write_tless.TlessSpec) -> dict[int, Part]:
-        return write_tless.tless_models(spec)
+        return write_tless.tless_models(spec.catalogue_seed)
 
     def write_models(self, root: Path, spec: write_tless.TlessSpec) -> None:
         write_tless.write_models(root, spec)
@@ -153,7 +155,8 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
 
     Args:
         layout: ``dimo`` or ``tless``.
-        root: output folder (created; existing complete scenes are kept).
+        root: output folder (created; existing complete scenes are kept, if its record, written on the first
+            run, names the same layout, seed and catalogue seed).
         spec: :class:`~bop_cender.synth.write_dimo.DimoSpec` or :class:`~bop_cender.synth.write_tless.TlessSpec`.
         workers: processes (1 = in this process).
         progress: progress bar on stderr.
@@ -163,6 +166,7 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
     impl = LAYOUTS[layout]
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
+    check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
     impl.write_models(root, spec)
     jobs = impl.scene_jobs(spec)
     written = 0

@@ -87,6 +87,8 @@ class DimoSpec:
             raise ValueError(f"compositions must be among {sorted(COMPOSITION_SIZES)}")
         if any(not 0 <= c < N_CARRIERS for c in self.carriers):
             raise ValueError(f"carriers must be 0..{N_CARRIERS - 1}")
+        if self.seed < 0 or self.catalogue_seed < 0:
+            raise ValueError(f"seeds must be >= 0, got seed {self.seed}, catalogue_seed {self.catalogue_seed}")
 
 
 def dimo_models(catalogue_seed: int = DIMO_CATALOGUE_SEED) -> dict[int, Part]:

@@ -7,6 +7,11 @@ The full BOP set: ``models_cad/`` + ``models_eval/``, ``camera_primesense.json``
 (JPG; objects re-dropped every ``drop_every`` images, as BOP's PBR renders), and
 ``test_targets_bop19.json`` (the visib_fract >= 0.1 rule). The table the objects rest on is
 rendered (it occludes and casts shadows) but is not a BOP object.
+
+As real T-LESS, a dataset has one catalogue of 30 objects (:mod:`bop_cender.synth.catalogue`: families
+of similar-looking parts of different sizes), fixed by ``TlessSpec.catalogue_seed``; each pile shows a
+few of them (``models_per_scene``), some several times, drawn with the scene's poses, light and
+materials from ``TlessSpec.seed``.
 """
 
 from __future__ import annotations
@@ -20,11 +25,12 @@ from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
 from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
 from bop_cender.meshes import MeshCache
 from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
+from bop_cender.synth.catalogue import N_OBJECTS, catalogue_parts
 from bop_cender.synth.contact_sheet import write_contact_sheet
 from bop_cender.synth.gt_info import object_visibility
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
-from bop_cender.synth.parts import Part, make_carrier, make_part_set
+from bop_cender.synth.parts import Part, make_carrier
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
 from bop_cender.synth.styles import make_style
@@ -33,6 +39,8 @@ DEPTH_SCALE = 0.1
 #: Views on a scene's contact sheet (the first ones rendered).
 SHEET_VIEWS = 4
 TABLE_ID = 0  # render-only support; never written to GT files
+#: The T-LESS layout's one object catalogue (any fixed value; 2017 is T-LESS's year).
+TLESS_CATALOGUE_SEED = 2017
 
 
 @dataclass(frozen=True)
@@ -42,17 +50,22 @@ class TlessSpec:
     Attributes:
         n_scenes: test scenes (ids 1..n, as T-LESS numbers them).
         n_views: images per test scene.
-        n_objects: object models (ids 1..n).
-        objects_per_scene: (min, max) instances per test pile.
+        objects_per_scene: (min, max) instances per pile (a test scene, or a PBR drop).
+        models_per_scene: (min, max) distinct catalogue objects a pile's instances are drawn from (a real
+            T-LESS test scene shows a few of the 30 objects, some several times). The piles' size, hence
+            the cost of a scene, does not depend on the catalogue's size.
         pbr_scenes, pbr_images: ``train_pbr`` scenes (ids 0..) and images per scene.
         drop_every: PBR objects are re-dropped every this many images.
-        seed: everything derives from it.
+        seed: scenes, poses, light and materials derive from it (not the models: see ``catalogue_seed``).
+        catalogue_seed: draws the 30 objects (:func:`tless_models`). Fixed per layout, as a real dataset
+            has one catalogue, so that sets of other seeds share their objects (a network trained on one
+            is tested on another).
     """
 
     n_scenes: int = 2
     n_views: int = 10
-    n_objects: int = 6
     objects_per_scene: tuple[int, int] = (5, 8)
+    models_per_scene: tuple[int, int] = (3, 5)
     pbr_scenes: int = 1
     pbr_images: int = 4
     drop_every: int = 25
@@ -60,19 +73,30 @@ class TlessSpec:
     height: int = 540
     seed: int = 0
     contact_sheets: bool = True
+    catalogue_seed: int = TLESS_CATALOGUE_SEED
+
+    def __post_init__(self) -> None:
+        for name in ("objects_per_scene", "models_per_scene"):
+            lo, hi = getattr(self, name)
+            if not 1 <= lo <= hi:
+                raise ValueError(f"{name} must be (min, max) with 1 <= min <= max, got {(lo, hi)}")
+        if self.models_per_scene[1] > N_OBJECTS:
+            raise ValueError(f"models_per_scene: the catalogue has {N_OBJECTS} objects, got {self.models_per_scene}")
+        if self.seed < 0 or self.catalogue_seed < 0:
+            raise ValueError(f"seeds must be >= 0, got seed {self.seed}, catalogue_seed {self.catalogue_seed}")
 
 
-def tless_models(spec: TlessSpec) -> dict[int, Part]:
-    """Object models ids 1..n (mixed part types) and the render-only table."""
-    rng = np.random.default_rng([spec.seed, 7])
-    models = {i + 1: p for i, p in enumerate(make_part_set(rng, spec.n_objects))}
-    models[TABLE_ID] = make_carrier(rng, (600.0, 450.0, 30.0))
+def tless_models(catalogue_seed: int = TLESS_CATALOGUE_SEED) -> dict[int, Part]:
+    """The catalogue: 30 objects (ids 1..30, families of one part type at 2-4 sizes, see
+    :mod:`bop_cender.synth.catalogue`) and the render-only table (id 0), drawn by ``catalogue_seed``."""
+    models = catalogue_parts(catalogue_seed)
+    models[TABLE_ID] = make_carrier(np.random.default_rng([catalogue_seed, 9]), (600.0, 450.0, 30.0))
     return models
 
 
 def write_models(root: Path, spec: TlessSpec) -> dict[int, Part]:
     """Write ``models_cad/``, ``models_eval/`` and ``camera_primesense.json`` once; return the models."""
-    models = tless_models(spec)
+    models = tless_models(spec.catalogue_seed)
     root = Path(root)
     write_model_folders(root, {i: p for i, p in models.items() if i != TABLE_ID}, "tless")
     if not (root / "camera_primesense.json").is_file():
@@ -112,8 +136,10 @@ def write_scene(
         for start in range(0, n_images, step):
             lo, hi = spec.objects_per_scene
             n = int(rng.integers(lo, hi + 1))
+            k = min(int(rng.integers(spec.models_per_scene[0], spec.models_per_scene[1] + 1)), len(object_ids))
+            shown = sorted(int(i) for i in rng.choice(object_ids, size=k, replace=False))
             pile = make_pile(
-                models, object_ids, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=piles
+                models, shown, TABLE_ID, models[TABLE_ID], n, "mixed", rng, support_in_gt=False, cache=piles
             )
             ids = range(start, min(start + step, n_images))
             views = _write_images(tmp, kind, pile, [cameras[i] for i in ids], list(ids), spec, rng, meshes, records)

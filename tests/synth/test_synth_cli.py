@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import pytest
+
 from bop_cender.cli import main
+from bop_cender.synth.record import RECORD_FILE
+from bop_cender.synth.write_dimo import DIMO_CATALOGUE_SEED
+from bop_cender.synth.write_tless import TLESS_CATALOGUE_SEED
 
 
 def test_synth_writes_resumes_and_info_describes(tmp_path: Path, capsys) -> None:
@@ -15,6 +21,7 @@ def test_synth_writes_resumes_and_info_describes(tmp_path: Path, capsys) -> None
     assert "1 scene folders written, 0 already complete" in capsys.readouterr().err  # summary beside the bar
     assert main(args) == 0  # resumed: nothing to do
     assert "0 scene folders written, 1 already complete" in capsys.readouterr().err
+    assert (out / RECORD_FILE).is_file()  # the root record: the loaders behind info do not trip on it
     assert main(["info", "--dataset", "tless", "--data-root", str(out), "--split", "test"]) == 0
     assert "tless" in capsys.readouterr().out
 
@@ -24,3 +31,36 @@ def test_synth_into_a_path_that_cannot_be_a_folder_is_one_error(tmp_path: Path, 
     code = main(["synth", "--layout", "tless", "--out", str(tmp_path / "a_file" / "ds"), "--scenes", "1"])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def models_only(layout: str, out: Path, *extra: str) -> list[str]:
+    return ["synth", "--layout", layout, "--out", str(out), "--scenes", "0", "--pbr-scenes", "0", *extra]
+
+
+@pytest.mark.parametrize("layout, default", [("tless", TLESS_CATALOGUE_SEED), ("dimo", DIMO_CATALOGUE_SEED)])
+def test_catalogue_seed_flag(tmp_path: Path, capsys, layout: str, default: int) -> None:
+    models = "models_cad" if layout == "tless" else "models"
+    assert main(models_only(layout, tmp_path / "default", "--seed", "9")) == 0
+    assert main(models_only(layout, tmp_path / "other", "--catalogue-seed", "5")) == 0
+    records = [json.loads((tmp_path / d / RECORD_FILE).read_text()) for d in ("default", "other")]
+    assert [(r["seed"], r["catalogue_seed"]) for r in records] == [(9, default), (0, 5)]
+    info = [(tmp_path / d / models / "models_info.json").read_text() for d in ("default", "other")]
+    assert info[0] != info[1]
+
+
+def test_a_resume_with_another_seed_is_one_error_naming_the_record(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "ds"
+    assert main(models_only("tless", out)) == 0
+    capsys.readouterr()
+    for flag, field in (("--seed", "seed"), ("--catalogue-seed", "catalogue_seed")):
+        assert main(models_only("tless", out, flag, "1")) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        assert f"{out / RECORD_FILE}: {field}: this dataset was generated with {field}" in err
+
+
+@pytest.mark.parametrize("flag", ["--seed", "--catalogue-seed"])
+def test_negative_seeds_are_refused(tmp_path: Path, capsys, flag: str) -> None:
+    assert main(models_only("tless", tmp_path / "ds", flag, "-1")) == 2
+    err = capsys.readouterr().err
+    assert f"{flag}: must be >= 0" in err and not (tmp_path / "ds").exists()

@@ -9,8 +9,10 @@ import pytest
 
 from bop_cender.data.dimo import CARRIER_MIN_ID, DimoSelection, open_dimo
 from bop_cender.geometry.poses import invert_pose, pose_from_bop
+from bop_cender.synth.demo import DEMO_VERSION
 from bop_cender.synth.generate import generate
-from bop_cender.synth.write_dimo import DimoSpec
+from bop_cender.synth.record import RECORD_FILE
+from bop_cender.synth.write_dimo import DIMO_CATALOGUE_SEED, DimoSpec
 
 # Small images keep this fast; the layout does not depend on the size (the demo uses DIMO small, 320x256).
 SPEC = DimoSpec(
@@ -51,6 +53,15 @@ def test_only_the_files_real_dimo_has(dimo_root):
         assert sorted(p.name for p in (scene / "rgb").iterdir()) == [f"{i:06d}.png" for i in range(3)]
     assert not list(dimo_root.rglob("mask*")) and not list(dimo_root.rglob("scene_gt_info.json"))
     assert len(list((dimo_root / "contact_sheets").glob("*.png"))) == 8
+    # Beside the real layout only our record (which the loaders do not read: see the loader test below).
+    assert sorted(p.name for p in dimo_root.iterdir() if p.is_file()) == [RECORD_FILE]
+    assert load(dimo_root / RECORD_FILE) == {
+        "generator": "bop-cender synth",
+        "generator_version": DEMO_VERSION,
+        "layout": "dimo",
+        "seed": 5,
+        "catalogue_seed": DIMO_CATALOGUE_SEED,
+    }
 
 
 def test_invariants_of_datasets_md_6_1(dimo_root):
@@ -129,3 +140,16 @@ def test_deterministic_and_resumable(dimo_root, tmp_path):
     assert (report.written, report.skipped) == (1, 1)
     assert digest(a) == digest(b)
     assert not list(a.rglob("*.partial"))
+
+
+def test_the_catalogue_is_the_same_for_every_seed(dimo_root, tmp_path):
+    """DIMO has one catalogue (6 parts, 3 carriers): sets of two seeds share their models byte for byte."""
+    other = tmp_path / "seed6"
+    generate("dimo", other, DimoSpec(n_scenes=0, seed=6), progress=False)
+    for folder in ("models", "models_eval"):
+        assert digest(other / folder) == digest(dimo_root / folder)
+    assert sorted(int(k) for k in load(dimo_root / "models" / "models_info.json")) == [1, 2, 3, 4, 5, 6, 100, 101, 102]
+    another = tmp_path / "catalogue7"
+    generate("dimo", another, DimoSpec(n_scenes=0, seed=5, catalogue_seed=7), progress=False)
+    assert digest(another / "models") != digest(dimo_root / "models")
+    assert load(another / RECORD_FILE)["catalogue_seed"] == 7

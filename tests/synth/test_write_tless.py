@@ -1,5 +1,6 @@
 """A tiny T-LESS-layout dataset generated and loaded back, with the invariants of datasets.md 6.2."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -7,9 +8,12 @@ import pytest
 
 from bop_cender.data.bop_io import load_depth, load_mask
 from bop_cender.data.tless import open_tless
+from bop_cender.errors import ConfigError
 from bop_cender.geometry.poses import invert_pose, pose_from_bop
+from bop_cender.synth.demo import DEMO_VERSION
 from bop_cender.synth.generate import generate
-from bop_cender.synth.write_tless import TlessSpec
+from bop_cender.synth.record import RECORD_FILE
+from bop_cender.synth.write_tless import TLESS_CATALOGUE_SEED, TlessSpec
 
 SPEC = TlessSpec(n_scenes=1, n_views=4, pbr_scenes=1, pbr_images=2, width=160, height=120, seed=3)
 
@@ -116,3 +120,78 @@ def test_camera_file_matches_the_images_intrinsics_at_any_size(tless_root):
     K = load(tless_root / "test_primesense" / "000001" / "scene_camera.json")["0"]["cam_K"]
     assert (cam["width"], cam["height"]) == (SPEC.width, SPEC.height)
     assert cam["fx"] == pytest.approx(K[0]) and cam["fy"] == pytest.approx(K[4])
+
+
+MODEL_FILES = ("models_cad", "models_eval")
+
+
+def model_bytes(root) -> dict[str, bytes]:
+    """Every file of the model folders, by path: byte-identical models mean the same catalogue."""
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for folder in MODEL_FILES
+        for p in sorted((root / folder).rglob("*"))
+        if p.is_file()
+    }
+
+
+def models_only(spec: TlessSpec, **changes) -> TlessSpec:
+    """``spec`` with no scenes: what is written is the models, the camera file and the record (fast)."""
+    return dataclasses.replace(spec, n_scenes=0, pbr_scenes=0, **changes)
+
+
+def test_the_catalogue_is_the_same_for_every_seed(tless_root, tmp_path):
+    """Sets of two seeds share their 30 models byte for byte (a network trained on one is tested on the other)."""
+    other = tmp_path / "seed4"
+    generate("tless", other, models_only(SPEC, seed=4), progress=False)
+    ours = model_bytes(tless_root)
+    assert model_bytes(other) == ours
+    assert sorted(int(k) for k in load(tless_root / "models_cad" / "models_info.json")) == list(range(1, 31))
+    assert len([k for k in ours if k.endswith(".ply")]) == 2 * 30
+    another = tmp_path / "catalogue5"
+    generate("tless", another, models_only(SPEC, catalogue_seed=5), progress=False)
+    theirs = model_bytes(another)
+    assert theirs.keys() == ours.keys() and all(theirs[k] != ours[k] for k in ours)
+
+
+def test_piles_show_a_few_objects_of_the_catalogue(tless_root):
+    for split in ("test_primesense", "train_pbr"):
+        for scene in (tless_root / split).iterdir():
+            gt = load(scene / "scene_gt.json")
+            shown = {o["obj_id"] for o in gt["0"]}
+            assert shown <= set(range(1, 31)) and 1 <= len(shown) <= SPEC.models_per_scene[1]
+            assert len(shown) < len(gt["0"]) <= SPEC.objects_per_scene[1]  # some several times
+
+
+def test_the_record_names_the_seeds_and_a_mismatched_resume_is_refused(tless_root, tmp_path):
+    record = load(tless_root / RECORD_FILE)
+    assert record == {
+        "generator": "bop-cender synth",
+        "generator_version": DEMO_VERSION,
+        "layout": "tless",
+        "seed": 3,
+        "catalogue_seed": TLESS_CATALOGUE_SEED,
+    }
+    root = tmp_path / "ds"
+    generate("tless", root, models_only(SPEC), progress=False)
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    for changes, field in (({"seed": 4}, "seed"), ({"catalogue_seed": 5}, "catalogue_seed")):
+        with pytest.raises(ConfigError) as err:
+            generate("tless", root, models_only(SPEC, **changes), progress=False)
+        assert err.value.field == field and err.value.file == str(root / RECORD_FILE)
+        assert f"{RECORD_FILE}: {field}: this dataset was generated with {field}" in str(err.value)
+    from bop_cender.synth.write_dimo import DimoSpec
+
+    with pytest.raises(ConfigError, match="layout"):
+        generate("dimo", root, DimoSpec(n_scenes=0, seed=3), progress=False)
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before  # refused before writing anything
+    generate("tless", root, models_only(SPEC), progress=False)  # the same seeds resume
+
+
+def test_spec_is_validated():
+    with pytest.raises(ValueError, match="models_per_scene"):
+        TlessSpec(models_per_scene=(3, 31))
+    with pytest.raises(ValueError, match="objects_per_scene"):
+        TlessSpec(objects_per_scene=(5, 2))
+    with pytest.raises(ValueError, match="seeds"):
+        TlessSpec(catalogue_seed=-1)

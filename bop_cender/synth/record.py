@@ -1,0 +1,72 @@
+"""The record a synthetic dataset keeps at its root: which layout, seed and catalogue made it.
+
+Real DIMO and T-LESS have no such file; ours needs one because a dataset is made by several runs
+(``bop-cender synth`` resumes into the same folder) and two of its numbers decide what the folder
+means: the catalogue seed (which objects the models folders hold) and the seed (which scenes). A
+resumed run with another value would silently mix two datasets (scenes of other objects than the
+models, or two seeds' scenes), so :func:`check_or_write_record` refuses it with one error naming the
+file and the field. The loaders read only the folders and files of the real layouts, so they never
+look at it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from bop_cender.data.bop_io import save_json
+from bop_cender.errors import ConfigError, DatasetError
+from bop_cender.synth.demo import DEMO_VERSION
+
+RECORD_FILE = "bop_cender_synth.json"
+#: The fields a resumed run must match (the others, the generator version, only inform).
+CHECKED_FIELDS = ("layout", "seed", "catalogue_seed")
+#: The ``bop-cender synth`` option that sets each checked field.
+OPTIONS = {"layout": "--layout", "seed": "--seed", "catalogue_seed": "--catalogue-seed"}
+
+
+def dataset_record(layout: str, spec: Any) -> dict[str, Any]:
+    """What the record holds for a generation of ``layout`` with ``spec`` (a DimoSpec or TlessSpec)."""
+    return {
+        "generator": "bop-cender synth",
+        "generator_version": DEMO_VERSION,
+        "layout": layout,
+        "seed": int(spec.seed),
+        "catalogue_seed": int(spec.catalogue_seed),
+    }
+
+
+def check_or_write_record(root: str | Path, layout: str, spec: Any) -> Path:
+    """Write the record into ``root`` if it has none, else check that this run continues the same dataset.
+
+    A folder written before the record existed gets one with this run's values (there is nothing to
+    check them against). An existing record is never rewritten.
+
+    Returns:
+        the record's path.
+
+    Raises:
+        ConfigError: the record names another layout, seed or catalogue seed (``field``: which).
+        DatasetError: the record is not a JSON object with those fields.
+    """
+    path = Path(root) / RECORD_FILE
+    wanted = dataset_record(layout, spec)
+    if not path.is_file():
+        save_json(path, wanted)
+        return path
+    try:
+        found = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise DatasetError(f"cannot read the dataset record: {e}", file=path) from None
+    if not isinstance(found, dict) or any(f not in found for f in CHECKED_FIELDS):
+        raise DatasetError(f"expected a JSON object with the fields {', '.join(CHECKED_FIELDS)}", file=path)
+    for field in CHECKED_FIELDS:
+        if found[field] != wanted[field]:
+            raise ConfigError(
+                f"this dataset was generated with {field} {found[field]!r}, not {wanted[field]!r}: resuming it "
+                f"would mix two datasets (give {OPTIONS[field]} {found[field]}, or another --out)",
+                file=path,
+                field=field,
+            )
+    return path
