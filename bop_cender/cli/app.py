@@ -28,6 +28,7 @@ COMMANDS = (
     "bop_cender.cli.convert_pvnet",
     "bop_cender.cli.run",
     "bop_cender.cli.train",
+    "bop_cender.cli.heatmaps",
     "bop_cender.cli.crosscheck",
 )
 
@@ -52,7 +53,7 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
 
 #: Sub-commands that render a lot and gain from tcmalloc (see bop_cender/launcher.py); ``info`` may
 #: generate the embedded demo.
-HEAVY_COMMANDS = {"info", "synth", "score", "compare", "run", "train", "crosscheck"}
+HEAVY_COMMANDS = {"info", "synth", "score", "compare", "run", "train", "heatmaps", "crosscheck"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -96,7 +96,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         progress=not args.no_progress, announce=announce,
     )  # fmt: skip
     last = summary.history[-1] if summary.history else None
-    done = f"{summary.epochs_done} epochs" + (f" (resumed after {summary.resumed_from})" if summary.resumed_from else "")
+    done = f"{summary.epochs_done} epoch{'s' if summary.epochs_done != 1 else ''}" + (
+        f" (resumed after {summary.resumed_from})" if summary.resumed_from else ""
+    )
     print(f"trained {done} in {summary.wall_s:.0f} s" + (f"; last loss {last.train_loss:.4f}" if last else ""))
     print(f"wrote {summary.run_dir / 'weights.pt'} (use: --heatmaps net --weights {summary.run_dir / 'weights.pt'})")
     return 0

@@ -156,7 +156,9 @@ def train(
     device = torch.device(device)
     kind = "dimo" if config.dataset == "dimo" else "tless"
     targets = TargetConfig.for_dataset(kind)
-    train_set = _open_samples(config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress)
+    train_set = _open_samples(
+        config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress
+    )
     val_set = None
     if config.val_split is not None:
         val_root = config.val_data_root or config.data_root
@@ -267,7 +269,10 @@ def random_crop(
     h, w = min(size[0], H), min(size[1], W)
     top = torch.randint(0, H - h + 1, (B,), generator=gen).tolist()
     left = torch.randint(0, W - w + 1, (B,), generator=gen).tolist()
-    pick = lambda x: torch.stack([x[b, ..., t : t + h, l : l + w] for b, (t, l) in enumerate(zip(top, left))])  # noqa: E731
+
+    def pick(x: torch.Tensor) -> torch.Tensor:
+        return torch.stack([x[b, ..., y : y + h, u : u + w] for b, (y, u) in enumerate(zip(top, left, strict=True))])
+
     return pick(image), pick(center), pick(curvature)
 
 

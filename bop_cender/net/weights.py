@@ -115,7 +115,9 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
-        raise ConfigError(f"not a readable weights file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
+        raise ConfigError(
+            f"not a readable weights file ({type(exc).__name__}: {_first_line(exc)})", file=path
+        ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
     if payload.get("format_version") != FORMAT_VERSION:
@@ -146,7 +148,9 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     except (RuntimeError, TypeError) as exc:
         raise ConfigError(f"the weights do not fit their network spec: {_first_line(exc, 2)}", file=path) from None
     model.eval()
-    extra = {k: v for k, v in payload.items() if k not in ("spec", "dataset", "channel_obj_ids", "targets", "state_dict")}
+    extra = {
+        k: v for k, v in payload.items() if k not in ("spec", "dataset", "channel_obj_ids", "targets", "state_dict")
+    }
     return NetWeights(model, kind, channel_obj_ids, targets, path, extra)
 
 

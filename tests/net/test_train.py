@@ -15,8 +15,8 @@ from bop_cender.data.bop_io import write_image  # noqa: E402
 from bop_cender.data.registry import DatasetRequest, open_dataset  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.meshes import MeshCache  # noqa: E402
-from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
 from bop_cender.net import samples as samples_module  # noqa: E402
+from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
 from bop_cender.net.train import CHECKPOINT, METRICS, WEIGHTS, TrainConfig, random_crop, train  # noqa: E402
 from bop_cender.net.weights import load_weights  # noqa: E402
 

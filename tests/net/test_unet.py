@@ -32,12 +32,20 @@ def test_outputs_have_the_input_size_and_the_spec_channels(spec, size, device) -
 def test_paper_variants_follow_the_appendix_tables() -> None:
     dimo, tless = UNetSpec.dimo(), UNetSpec.tless()
     assert (dimo.channels, dimo.strides, dimo.head_channels, dimo.center_channels) == ((32, 32, 64), (1, 2, 2), 32, 1)
-    assert (tless.channels, tless.strides, tless.head_channels, tless.center_channels) == ((64, 128, 256), (3, 1, 3), 128, 30)
+    assert (tless.channels, tless.strides, tless.head_channels, tless.center_channels) == (
+        (64, 128, 256),
+        (3, 1, 3),
+        128,
+        30,
+    )
     assert dimo.total_stride == 4 and tless.total_stride == 9
     model = UNet(dimo)
     assert model.e1.body[0].out_channels == 32 and model.e3.body[0].out_channels == 64
     feats = {}
-    hooks = [getattr(model, n).register_forward_hook(lambda m, i, o, n=n: feats.__setitem__(n, o.shape)) for n in ("e1", "e2", "e3", "d1")]
+    hooks = [
+        getattr(model, n).register_forward_hook(lambda m, i, o, n=n: feats.__setitem__(n, o.shape))
+        for n in ("e1", "e2", "e3", "d1")
+    ]
     with torch.no_grad():
         model.eval()(torch.rand(1, 3, 256, 320))
     for h in hooks:

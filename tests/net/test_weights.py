@@ -78,7 +78,7 @@ def test_the_predictor_gives_probabilities_of_every_view(tmp_path) -> None:
     maps = predictor.predict(scene)
     V, H, W = len(scene.views), scene.views[0].height, scene.views[0].width
     assert maps.center.shape == (V, 1, H, W) and maps.curvature.shape == (V, H, W)
-    assert 0 <= float(maps.center.min()) and float(maps.center.max()) <= 1 and maps.im_ids == tuple(scene.im_ids)
+    assert float(maps.center.min()) >= 0 and float(maps.center.max()) <= 1 and maps.im_ids == tuple(scene.im_ids)
     assert predictor.last_seconds_per_view > 0
     request = RunRequest(dataset="dimo", data_root=str(root), split="real", out=tmp_path / "x_dimo-real.csv",
                          heatmaps="net", weights=str(tmp_path / "w.pt"))  # fmt: skip

@@ -1,0 +1,83 @@
+"""``bop-cender heatmaps``: stage 1 alone over a split: inference time, figures against the GT, PNGs."""
+
+from __future__ import annotations
+
+import argparse
+
+from bop_cender.cli.options import add_data_options, announce
+
+EPILOG = """examples:
+  bop-cender heatmaps --dataset dimo --split sim                  # shipped weights on the embedded demo
+  bop-cender heatmaps --dataset dimo --split real --data-root data/dimo_test --png --out heatmaps_real
+  bop-cender heatmaps --dataset dimo --split sim --weights runs/dimo/weights.pt --limit-scenes 3
+  bop-cender heatmaps --dataset dimo --split sim --weights oracle  # the GT heatmaps (figures all 1)
+Writes OUT/heatmaps_<dataset>-<split>.json (figures, ms per view) and, with --png, one PNG per view:
+input | predicted center | predicted curvature | GT center | GT curvature.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "heatmaps",
+        help="stage 1 alone: predict center and curvature heatmaps, score them against the GT, write PNGs",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_data_options(p)
+    p.add_argument("--weights", default=None, help="weights file, or 'oracle' (default: the shipped weights)")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--out", default="heatmaps", help="output folder (default: ./heatmaps)")
+    p.add_argument("--png", action="store_true", help="write one side-by-side PNG per view")
+    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_heatmaps)
+
+
+def cmd_heatmaps(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from bop_cender.cli.options import data_request
+    from bop_cender.cli.train import resolve_device
+    from bop_cender.data.bop_io import write_text_atomic
+    from bop_cender.datasets import open_with_demo
+    from bop_cender.errors import ConfigError
+    from bop_cender.meshes import MeshCache
+    from bop_cender.net.heatmap_eval import evaluate_heatmaps, format_report
+    from bop_cender.net.targets import TargetConfig
+
+    if args.limit_scenes is not None and args.limit_scenes < 1:
+        raise ConfigError(f"expected a positive number of scenes, got {args.limit_scenes}", field="--limit-scenes")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("exists and is not a directory", file=out, field="--out")
+    device = resolve_device(args.device)
+    kind = "dimo" if args.dataset == "dimo" else "tless"
+    dataset = open_with_demo(data_request(args), announce=announce)
+    meshes = MeshCache(dataset.models)
+    if args.weights == "oracle":
+        from bop_cender.net.oracle import OraclePredictor
+
+        targets = TargetConfig.for_dataset(kind)
+        predictor = OraclePredictor(dataset.models, meshes, targets, device=device)
+        source = "oracle"
+    else:
+        from bop_cender.net.predictor import NetPredictor
+        from bop_cender.net.weights import load_weights, shipped_weights_path
+
+        path = Path(args.weights) if args.weights else shipped_weights_path(kind)
+        weights = load_weights(path, dataset=args.dataset)
+        targets = weights.targets
+        predictor = NetPredictor(weights, device=device)
+        source = str(path)
+    keys = dataset.scene_keys[: args.limit_scenes] if args.limit_scenes else dataset.scene_keys
+    report = evaluate_heatmaps(
+        dataset, predictor, targets, meshes, source, keys, out / "png" if args.png else None,
+        progress=not args.no_progress,
+    )  # fmt: skip
+    json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(json_path, json.dumps(report.as_dict(), indent=2) + "\n")
+    print(format_report(report))
+    print(f"wrote {json_path}" + (f" and {len(report.pngs)} PNGs under {out / 'png'}" if report.pngs else ""))
+    return 0

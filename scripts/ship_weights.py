@@ -1,0 +1,70 @@
+"""Ship a training run's weights: copy RUN_DIR/weights.pt into the package with its JSON card.
+
+The card says what the weights are and how they were made: the data (roots, splits, the synth commands
+that made them), the seed, the exact training command, epochs, wall time and machine, the validation
+figures of the last epoch and the test figures measured by ``bop-cender heatmaps`` (pass their JSON files).
+
+    python scripts/ship_weights.py RUN_DIR --dataset dimo --command "$(cat runs/dimo/command.txt)" \
+        --data-note "synth --layout dimo ... --seed 9001" --test heatmaps_sim/heatmaps_dimo-sim.json ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import bench_machine
+import torch
+
+from bop_cender.net.weights import SHIPPED, load_weights
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run_dir", type=Path)
+    ap.add_argument("--dataset", choices=sorted(SHIPPED), required=True)
+    ap.add_argument("--command", required=True, help="the exact training command")
+    ap.add_argument("--data-note", action="append", default=[], help="how the data was made (repeatable)")
+    ap.add_argument("--test", action="append", default=[], type=Path, help="a heatmaps JSON to put on the card")
+    args = ap.parse_args(argv)
+    source = args.run_dir / "weights.pt"
+    weights = load_weights(source, dataset=args.dataset)
+    history = weights.extra.get("history", [])
+    config = weights.extra.get("config", {})
+    target = ROOT / "bop_cender" / "net" / "weights" / SHIPPED[args.dataset]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source, target)
+    size_mb = target.stat().st_size / 1e6
+    if size_mb > 20:
+        print(f"error: {target} is {size_mb:.1f} MB; shipped weights must be at most 20 MB", file=sys.stderr)
+        return 1
+    card = {
+        "weights": target.name,
+        "dataset": args.dataset,
+        "network": weights.model.spec.as_dict(),
+        "parameters": sum(p.numel() for p in weights.model.parameters()),
+        "targets": weights.targets.__dict__,
+        "channel_obj_ids": weights.channel_obj_ids,
+        "trained_on": {"data": args.data_note, "config": config},
+        "command": args.command,
+        "epochs": weights.extra.get("epoch"),
+        "wall_s": round(sum(h.get("wall_s", 0.0) for h in history), 1),
+        "machine": f"{bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores, torch {torch.__version__}",
+        "validation_last_epoch": history[-1].get("val", {}) if history else {},
+        "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],
+        "test": {str(p): json.loads(p.read_text()) for p in args.test},
+        "size_mb": round(size_mb, 2),
+    }
+    card_path = target.with_suffix(".json")
+    card_path.write_text(json.dumps(card, indent=2) + "\n")
+    print(f"wrote {target} ({size_mb:.2f} MB) and {card_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

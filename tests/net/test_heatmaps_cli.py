@@ -1,0 +1,83 @@
+"""``bop-cender heatmaps`` and ``bop-cender train`` from the command line: files, figures, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+import method_data  # noqa: E402
+
+from bop_cender.cli import main  # noqa: E402
+from bop_cender.net.targets import TargetConfig  # noqa: E402
+from bop_cender.net.unet import UNet, UNetSpec  # noqa: E402
+from bop_cender.net.weights import save_weights, weights_payload  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory) -> Path:
+    return method_data.build(tmp_path_factory.mktemp("hm") / "dimo")
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory) -> Path:
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("w") / "w.pt"
+    save_weights(
+        path, weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None, TargetConfig.for_dataset("dimo"))
+    )
+    return path
+
+
+def test_oracle_heatmaps_score_one_and_write_their_pngs(root, tmp_path, capsys) -> None:
+    out = tmp_path / "hm"
+    code = main(["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", "oracle",
+                 "--png", "--out", str(out), "--no-progress"])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0 and "center_f1           1.000" in printed and "curvature_ap        1.000" in printed
+    report = json.loads((out / "heatmaps_dimo-real.json").read_text())
+    assert report["views"] == len(method_data.VIEWPOINTS) and report["metrics"]["center_f1"] == 1.0
+    pngs = sorted((out / "png").glob("*.png"))
+    assert len(pngs) == len(method_data.VIEWPOINTS) and pngs[0].read_bytes()[:4] == b"\x89PNG"
+
+
+def test_network_heatmaps_report_their_time_and_figures(root, weights, tmp_path, capsys) -> None:
+    out = tmp_path / "hm"
+    code = main(["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights",
+                 str(weights), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0
+    report = json.loads((out / "heatmaps_dimo-real.json").read_text())
+    assert report["ms_per_view"] > 0 and report["source"] == str(weights)
+    assert report["metrics"]["center_recall"] < 1.0  # an untrained network finds nothing
+    assert "ms per view" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "field"),
+    [
+        (["heatmaps", "--weights", "missing.pt"], "not found"),
+        (["heatmaps", "--weights", "oracle", "--limit-scenes", "0"], "--limit-scenes"),
+        (["heatmaps", "--weights", "oracle", "--out", "afile"], "not a directory"),
+        (["train", "--epochs", "0", "--out", "run"], "--epochs"),
+        (["train", "--crop", "12by4", "--out", "run"], "--crop"),
+        (["train", "--out", "afile"], "not a directory"),
+    ],
+)
+def test_bad_options_are_one_line(root, tmp_path, capsys, monkeypatch, argv, field) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    code = main([*argv, "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and field in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_train_from_the_command_line_writes_a_run(root, tmp_path, capsys) -> None:
+    code = main(["train", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--epochs", "1",
+                 "--width", "0.25", "--batch-size", "4", "--out", str(tmp_path / "run"), "--no-progress"])  # fmt: skip
+    assert code == 0 and (tmp_path / "run" / "weights.pt").is_file()
+    assert "trained 1 epoch" in capsys.readouterr().out
