@@ -114,12 +114,14 @@ def main(argv=None) -> int:
                 f"  train {r['train_images_per_s']:6.1f} images/s at {r['train_size'][1]}x{r['train_size'][0]}",
                 flush=True,
             )
-    gpu = torch.cuda.get_device_name(0) if any(d.type == 'cuda' for d in devices) else None
+    gpu = torch.cuda.get_device_name(0) if any(d.type == "cuda" for d in devices) else None
     machine = bench_machine.machine_slug(gpu)
     lines = [
         "# Stage 1 (U-Net) benchmark",
         "",
-        f"Machine: {bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores" + (f", {gpu}" if gpu else "") + f"; torch {torch.__version__}, {torch.get_num_threads()} CPU threads.",
+        f"Machine: {bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores"
+        + (f", {gpu}" if gpu else "")
+        + f"; torch {torch.__version__}, {torch.get_num_threads()} CPU threads.",
         f"Command: `python scripts/bench_net.py --repeats {args.repeats} --devices {args.devices}`",
         "",
         "| device | variant | input | parameters | GMAC/view | ms/view (1 view) | ms/view (scene batch) | train images/s (size) |",
