@@ -90,7 +90,7 @@ def test_score_reads_the_run_with_no_flag(reference_csv, capsys):
 
 def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
-    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--split", "real", "--out", str(out),
+    code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--split", "real", "--out", str(out),
                  "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress", "--deterministic-time",
                  "--vis", str(tmp_path / "vis")])  # fmt: skip
     assert code == 0
@@ -114,7 +114,9 @@ def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
 )
 def test_bad_requests_are_one_line(mini_root, tmp_path, capsys, argv, field, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--no-progress", *argv])
+    code = main(
+        ["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--no-progress", *argv]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
     assert field in err
@@ -180,7 +182,20 @@ def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsy
 
     monkeypatch.setattr(method_module.CenDerNet, "run_scene", broken)
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
-    code = main(["run", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out), "--no-progress"])
+    code = main(
+        [
+            "run",
+            "--heatmaps",
+            "oracle",
+            "--dataset",
+            "dimo",
+            "--data-root",
+            str(mini_root),
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 1
     assert "every scene failed" in err and err.count("no estimates (RuntimeError: heatmaps of the wrong size)") == 2

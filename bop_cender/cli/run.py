@@ -8,11 +8,12 @@ import sys
 from bop_cender.cli.options import add_data_options, announce
 
 EPILOG = """examples:
-  bop-cender run --dataset dimo --split real            # the embedded demo, oracle heatmaps
+  bop-cender run --dataset dimo --split real            # the embedded demo, the shipped network
   bop-cender run --dataset dimo --split sim --data-root ~/dimo --workers 2 --out cendernet-oracle_dimo-sim.csv
   bop-cender run --dataset tless --data-root ~/bop/tless --split test --n-views 5 --score
   bop-cender run --dataset dimo --split sim --resume      # continue an interrupted run
-Heatmaps: --heatmaps oracle renders them from the ground truth (stages 2 and 3 alone, no network).
+Heatmaps: --heatmaps net (the default where weights are shipped for the dataset: --weights or the shipped ones);
+--heatmaps oracle renders them from the ground truth (stages 2 and 3 alone, no network).
 """
 
 
@@ -27,9 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_data_options(p)
     p.add_argument(
         "--heatmaps",
-        choices=("oracle", "net"),
-        default="oracle",
-        help="heatmap source: oracle (rendered from the GT) or net (the network: --weights, else the shipped weights)",
+        choices=("net", "oracle"),
+        default=None,
+        help="heatmap source: net (the network: --weights, else the shipped weights) or oracle (rendered from"
+        " the GT); default: net where weights are shipped for the dataset or --weights is given, else oracle",
     )
     p.add_argument("--weights", default=None, help="network weights (with --heatmaps net)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")
@@ -60,6 +62,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_run)
 
 
+def default_heatmaps(dataset: str, weights: str | None) -> str:
+    """``net`` where weights are given or shipped for the dataset kind, else ``oracle``."""
+    if weights is not None:
+        return "net"
+    from bop_cender.errors import ConfigError
+    from bop_cender.net.weights import shipped_weights_path
+
+    try:
+        shipped_weights_path("dimo" if dataset == "dimo" else "tless")
+    except ConfigError:
+        return "oracle"
+    return "net"
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -72,6 +88,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bop_cender.runner import RunRequest, run
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
+    if args.heatmaps is None:
+        args.heatmaps = default_heatmaps(args.dataset, args.weights)
+        if args.heatmaps == "oracle":
+            announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
     device = args.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
