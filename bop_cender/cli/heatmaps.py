@@ -29,12 +29,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="heatmaps", help="output folder (default: ./heatmaps)")
     p.add_argument("--png", action="store_true", help="write one side-by-side PNG per view")
     p.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes")
+    p.add_argument(
+        "--peak-threshold",
+        type=float,
+        default=None,
+        help="center peaks above this count (default: stage 2's, CenterConfig.peak_threshold)",
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_heatmaps)
 
 
 def cmd_heatmaps(args: argparse.Namespace) -> int:
     import json
+    from dataclasses import replace
     from pathlib import Path
 
     from bop_cender.cli.options import data_request
@@ -44,6 +51,7 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     from bop_cender.errors import ConfigError
     from bop_cender.meshes import MeshCache
     from bop_cender.net.heatmap_eval import evaluate_heatmaps, format_report
+    from bop_cender.net.metrics import HeatmapMetricsConfig
     from bop_cender.net.targets import TargetConfig
 
     if args.limit_scenes is not None and args.limit_scenes < 1:
@@ -71,8 +79,13 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
         predictor = NetPredictor(weights, device=device)
         source = str(path)
     keys = dataset.scene_keys[: args.limit_scenes] if args.limit_scenes else dataset.scene_keys
+    metrics_config = HeatmapMetricsConfig()
+    if args.peak_threshold is not None:
+        if not 0 < args.peak_threshold < 1:
+            raise ConfigError(f"expected a number in (0, 1), got {args.peak_threshold}", field="--peak-threshold")
+        metrics_config = replace(metrics_config, peak_threshold=args.peak_threshold)
     report = evaluate_heatmaps(
-        dataset, predictor, targets, meshes, source, keys, out / "png" if args.png else None,
+        dataset, predictor, targets, meshes, source, keys, out / "png" if args.png else None, metrics_config,
         progress=not args.no_progress,
     )  # fmt: skip
     json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"

@@ -62,6 +62,7 @@ def test_network_heatmaps_report_their_time_and_figures(root, weights, tmp_path,
         (["heatmaps", "--weights", "missing.pt"], "not found"),
         (["heatmaps", "--weights", "oracle", "--limit-scenes", "0"], "--limit-scenes"),
         (["heatmaps", "--weights", "oracle", "--out", "afile"], "not a directory"),
+        (["heatmaps", "--weights", "oracle", "--peak-threshold", "1.5"], "--peak-threshold"),
         (["train", "--epochs", "0", "--out", "run"], "--epochs"),
         (["train", "--crop", "12by4", "--out", "run"], "--crop"),
         (["train", "--out", "afile"], "not a directory"),
@@ -81,3 +82,15 @@ def test_train_from_the_command_line_writes_a_run(root, tmp_path, capsys) -> Non
                  "--width", "0.25", "--batch-size", "4", "--out", str(tmp_path / "run"), "--no-progress"])  # fmt: skip
     assert code == 0 and (tmp_path / "run" / "weights.pt").is_file()
     assert "trained 1 epoch" in capsys.readouterr().out
+
+
+def test_run_with_network_weights_estimates_every_scene(root, weights, tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code = main(["run", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", str(weights),
+                 "--candidates", "16", "--top-k", "1", "--no-progress", "--deterministic-time"])  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    out = tmp_path / "cendernet-net_dimo-real.csv"
+    assert out.is_file() and f"next: bop-cender score {out.name}" in captured.out
+    sidecar = json.loads(next(tmp_path.glob("*.json")).read_text())
+    assert sidecar["extra"]["weights"] == str(weights) and sidecar["extra"]["heatmaps"] == "net"
