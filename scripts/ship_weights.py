@@ -24,6 +24,34 @@ from bop_cender.net.weights import SHIPPED, load_weights
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def subset_figures(weights_path: Path, seed: int) -> dict:
+    """The figures of the weights on a fixed subset that a test regenerates: DIMO sim variant 0 of one scene."""
+    import tempfile
+
+    from bop_cender.data.registry import DatasetRequest, open_dataset
+    from bop_cender.meshes import MeshCache
+    from bop_cender.net.heatmap_eval import evaluate_heatmaps
+    from bop_cender.net.predictor import NetPredictor
+    from bop_cender.synth.generate import generate
+    from bop_cender.synth.write_dimo import DimoSpec
+
+    subset = {"scenes": 1, "variants": [0], "seed": seed, "split": "sim"}
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = DimoSpec(n_scenes=1, variants=(0,), seed=seed, write_real=False, contact_sheets=False)
+        generate("dimo", Path(tmp), spec, progress=False)
+        dataset = open_dataset(DatasetRequest("dimo", Path(tmp), "sim"))
+        weights = load_weights(weights_path, dataset="dimo")
+        report = evaluate_heatmaps(
+            dataset,
+            NetPredictor(weights),
+            weights.targets,
+            MeshCache(dataset.models),
+            str(weights_path),
+            progress=False,
+        )
+    return {**subset, "views": report.views, "metrics": report.metrics}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run_dir", type=Path)
@@ -31,6 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--command", required=True, help="the exact training command")
     ap.add_argument("--data-note", action="append", default=[], help="how the data was made (repeatable)")
     ap.add_argument("--test", action="append", default=[], type=Path, help="a heatmaps JSON to put on the card")
+    ap.add_argument("--subset-seed", type=int, default=9003, help="seed of the card's fixed subset (one DIMO scene)")
     args = ap.parse_args(argv)
     source = args.run_dir / "weights.pt"
     weights = load_weights(source, dataset=args.dataset)
@@ -58,6 +87,7 @@ def main(argv=None) -> int:
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],
         "test": {str(p): json.loads(p.read_text()) for p in args.test},
+        "subset": subset_figures(target, args.subset_seed) if args.dataset == "dimo" else None,
         "size_mb": round(size_mb, 2),
     }
     card_path = target.with_suffix(".json")
