@@ -7,6 +7,7 @@ so an interrupted run never leaves a half-written file.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -29,10 +30,38 @@ def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise error(f"{what} not found", file=path) from None
+    except IsADirectoryError:
+        raise error(f"is a directory, expected a {what}", file=path) from None
     except UnicodeDecodeError as e:
         raise error(f"not UTF-8 text (byte {e.start})", file=path) from None
     except OSError as e:
         raise error(f"cannot read: {e.strerror}", file=path) from None
+
+
+def require_file(
+    path: str | Path, what: str, error: type[BopCenderError] = DatasetError, field: str | None = None
+) -> Path:
+    """``path`` if it is a file; else one ``error`` that says what is there instead ("not found" or "is a
+    directory"), so that a folder given where a file is expected is not reported as missing."""
+    path = Path(path)
+    if path.is_dir():
+        raise error(f"is a directory, expected a {what}", file=path, field=field)
+    if not path.is_file():
+        raise error(f"{what} not found", file=path, field=field)
+    return path
+
+
+def require_dir(
+    path: str | Path, what: str, error: type[BopCenderError] = DatasetError, field: str | None = None
+) -> Path:
+    """``path`` if it is a folder; else one ``error`` that says what is there instead ("not found" or "is a
+    file"), so that a file given where a folder is expected is not reported as missing."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise error(f"is a file, expected a {what}", file=path, field=field)
+    if not path.is_dir():
+        raise error(f"{what} not found", file=path, field=field)
+    return path
 
 
 def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCenderError] = DatasetError) -> Any:
@@ -73,17 +102,79 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     tmp_path = Path(tmp)
     os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
     try:
-        yield tmp_path
-        os.replace(tmp_path, path)
+        try:
+            yield tmp_path
+            os.replace(tmp_path, path)
+        except OSError as e:
+            raise _naming(e, tmp_path, path) from None
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _naming(error: OSError, tmp: Path, path: Path) -> OSError:
+    """``error`` naming ``path`` where it names the temporary file ``tmp``: the user never asked for ``tmp``
+    (and it is gone by the time they read the message)."""
+    if error.filename is None or Path(error.filename) != tmp:
+        return error
+    return type(error)(error.errno, error.strerror, str(path))
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (UTF-8)."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def write_texts_atomic(files: Mapping[str | Path, str]) -> None:
+    """Write several files as one unit: all of them, or (on any error) none, the previous contents kept.
+
+    Files that belong together (a scores JSON and its errors CSV) must never be left half updated: a
+    new CSV beside an old JSON reads as one consistent result. Each text goes to a temporary file
+    first; only when every one is written are the targets replaced, the old ones moved aside until all
+    are in place and put back if one replacement fails.
+    """
+    targets = [Path(p) for p in files]
+    temps: list[Path] = []
+    moved: list[tuple[Path, Path]] = []  # (target, its previous content moved aside)
+    placed: list[Path] = []
+    try:
+        for target, text in zip(targets, files.values(), strict=True):
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix or ".tmp", dir=target.parent)
+            os.close(fd)
+            tmp = Path(name)
+            temps.append(tmp)
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            try:
+                tmp.write_text(text, encoding="utf-8")
+            except OSError as e:
+                raise _naming(e, tmp, target) from None
+        for target, tmp in zip(targets, temps, strict=True):
+            if target.is_dir():
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(target))
+            if target.exists():
+                fd, name = tempfile.mkstemp(prefix=f".{target.name}.old.", dir=target.parent)
+                os.close(fd)
+                os.replace(target, name)
+                moved.append((target, Path(name)))
+            try:
+                os.replace(tmp, target)
+            except OSError as e:
+                raise _naming(e, tmp, target) from None
+            placed.append(target)
+    except BaseException:
+        for target in placed:
+            target.unlink(missing_ok=True)
+        for target, old in moved:
+            os.replace(old, target)
+        moved = []
+        raise
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+        for _target, old in moved:
+            old.unlink(missing_ok=True)
 
 
 def _json_default(o: Any) -> Any:

@@ -14,10 +14,14 @@ from bop_cender.data.bop_io import (
     load_mask,
     load_ply,
     load_rgb,
+    require_dir,
+    require_file,
     save_depth,
     save_json,
     save_ply,
     write_image,
+    write_text_atomic,
+    write_texts_atomic,
 )
 from bop_cender.errors import DatasetError
 
@@ -53,6 +57,39 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path):
         raise RuntimeError("boom")
     assert not target.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_path_names_the_target_not_its_temporary_file(tmp_path):
+    (tmp_path / "out.txt").mkdir()  # the rename onto the target fails
+    with pytest.raises(IsADirectoryError) as info:
+        write_text_atomic(tmp_path / "out.txt", "x")
+    assert info.value.filename == str(tmp_path / "out.txt")
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_files_written_as_a_unit_are_all_or_none(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.json"
+    write_texts_atomic({a: "new a", b: "new b"})
+    assert (a.read_text(), b.read_text()) == ("new a", "new b")
+    c = tmp_path / "c.json"
+    c.mkdir()  # cannot be replaced: a, written first, is put back as it was
+    with pytest.raises(IsADirectoryError) as info:
+        write_texts_atomic({a: "newer a", c: "c"})
+    assert info.value.filename == str(c) and a.read_text() == "new a"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.json", "c.json"]
+
+
+def test_require_file_and_dir_say_what_is_there_instead(tmp_path):
+    (tmp_path / "f").write_text("x")
+    assert require_file(tmp_path / "f", "results file") == tmp_path / "f"
+    with pytest.raises(DatasetError, match="is a directory, expected a results file"):
+        require_file(tmp_path, "results file")
+    with pytest.raises(DatasetError, match="nope: results file not found"):
+        require_file(tmp_path / "nope", "results file")
+    with pytest.raises(DatasetError, match="f: is a file, expected a dataset root folder"):
+        require_dir(tmp_path / "f", "dataset root folder")
+    with pytest.raises(DatasetError, match="nope: dataset root folder not found"):
+        require_dir(tmp_path / "nope", "dataset root folder")
 
 
 def test_depth_round_trip(tmp_path):
@@ -108,7 +145,7 @@ def test_json_that_is_not_utf8_or_not_a_file_is_one_error(tmp_path):
     with pytest.raises(DatasetError, match="not UTF-8 text"):
         load_json(tmp_path / "latin.json")
     (tmp_path / "folder.json").mkdir()
-    with pytest.raises(DatasetError, match="cannot read"):
+    with pytest.raises(DatasetError, match="folder.json: is a directory, expected a file"):
         load_json(tmp_path / "folder.json")
 
 
