@@ -21,7 +21,16 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
     """
     if from_results:
         p.add_argument("--dataset", default=None, help="dimo | tless | bop (default: from the file name or sidecar)")
-        p.add_argument("--data-root", default=None, help="dataset root (default: sidecar, else the embedded demo)")
+        p.add_argument(
+            "--data-root",
+            default=None,
+            help="dataset root (default: the one the run sidecar names; without a sidecar it must be given, or --demo)",
+        )
+        p.add_argument(
+            "--demo",
+            action="store_true",
+            help="score against the embedded synthetic dimo / tless demo (generated once); never used unasked",
+        )
         p.add_argument("--split", default=None, help="split (default: from the file name or sidecar)")
         p.add_argument("--n-views", type=int, default=None, help="views per multi-view group of BOP test splits")
         p.add_argument(
@@ -51,12 +60,16 @@ def data_request(args: argparse.Namespace) -> DatasetRequest:
 
 def data_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """A results command's data options, as the keyword arguments of :func:`bop_cender.eval.score_file.score_file`
-    (and of compare, crosscheck), with the embedded demo for a dataset without a root."""
-    from bop_cender.datasets import open_with_demo
+    (and of compare, crosscheck): the embedded demo only with ``--demo`` or a sidecar naming the demo's root
+    (:func:`bop_cender.datasets.open_results_data`)."""
+    from bop_cender.datasets import open_results_data
+    from bop_cender.errors import ConfigError
 
+    if args.demo and args.data_root is not None:
+        raise ConfigError("give --data-root DIR or --demo, not both", field="--demo")
     return dict(
         dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views, seed=args.seed,
-        model_type=args.model_type, open_data=functools.partial(open_with_demo, announce=announce),
+        model_type=args.model_type, open_data=functools.partial(open_results_data, demo=args.demo, announce=announce),
     )  # fmt: skip
 
 

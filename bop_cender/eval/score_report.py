@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import load_json, write_text_atomic
+from bop_cender.data.bop_io import load_json, write_text_atomic, write_texts_atomic
 
 #: The scores, in the order they are printed and written.
 SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
@@ -178,9 +178,20 @@ class ScoreReport:
         return {**{k: self.scores.get(k) for k in SCORE_KEYS}, "recalls": recalls, "metadata": meta}
 
 
+def scores_json_text(report: ScoreReport) -> str:
+    """:meth:`ScoreReport.to_json` as strict JSON text (non-finite numbers become null)."""
+    return json.dumps(_finite(report.to_json()), indent=1) + "\n"
+
+
 def write_scores_json(path: str | Path, report: ScoreReport) -> None:
-    """Write :meth:`ScoreReport.to_json` atomically (strict JSON: non-finite numbers become null)."""
-    write_text_atomic(path, json.dumps(_finite(report.to_json()), indent=1) + "\n")
+    """Write :func:`scores_json_text` atomically."""
+    write_text_atomic(path, scores_json_text(report))
+
+
+def write_score_files(scores_path: str | Path, errors_path: str | Path, report: ScoreReport) -> None:
+    """Write the scores JSON and the errors CSV of one report as a unit: both, or neither (the previous
+    pair kept), so that a scores file never sits beside the errors of another scoring."""
+    write_texts_atomic({errors_path: errors_csv_text(report), scores_path: scores_json_text(report)})
 
 
 def read_scores_json(path: str | Path) -> dict[str, Any]:

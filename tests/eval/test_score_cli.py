@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from bop_cender.cli import main
-from bop_cender.errors import ConfigError
-from bop_cender.eval.score_file import choose_data
+from bop_cender.errors import ConfigError, ResultsWarning
+from bop_cender.eval.score_file import choose_data, score_file
 from bop_cender.eval.score_report import SCORE_KEYS
 from bop_cender.results.bop_csv import write_bop_results
 from bop_cender.results.files import write_run_sidecar
@@ -112,3 +112,100 @@ def test_file_system_errors_and_missing_results_are_one_line(small_fixture, resu
                  str(results_dir / "a_file" / "out"), "--no-progress"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def non_target_rows(built) -> list:
+    """One row per GT instance of the images that are on disk but not targets (the split does not select them)."""
+    targets = set(built.target_images)
+    return [
+        row(s, i, o, 1.0, T, -1) for (s, i), gts in sorted(built.gt.items()) if (s, i) not in targets for _, o, T in gts
+    ]
+
+
+def test_score_without_a_data_root_does_not_use_the_demo(results_dir, tmp_path, capsys, monkeypatch) -> None:
+    """No --data-root and no sidecar: refused (the demo would ignore every row and score 0), nothing generated."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("BOP_CENDER_CACHE", str(cache))
+    csv_path = results_dir / "gt_dimo-real.csv"
+    csv_path.write_text("scene_id,im_id,obj_id,score,R,t,time\n0,0,1,1.0,1 0 0 0 1 0 0 0 1,0 0 500,-1\n")
+    assert main(["score", str(csv_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --data-root: no data root") and "--demo" in err and err.count("\n") == 1
+    assert not cache.exists() and sorted(p.name for p in results_dir.iterdir()) == [csv_path.name]
+
+
+def test_score_uses_the_demo_when_asked(small_fixture, results_dir, capsys, monkeypatch) -> None:
+    """--demo, or a sidecar naming the demo's root (a run on the demo), is asking for it."""
+    import bop_cender.synth.demo as demo
+
+    generated = []
+    monkeypatch.setattr(demo, "demo_root", lambda layout: small_fixture.root)
+    monkeypatch.setattr(demo, "ensure_demo", lambda layout, **kw: generated.append(layout) or small_fixture.root)
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    assert main(["score", str(csv_path), "--demo", "--no-progress"]) == 0
+    assert "embedded synthetic tless demo" in capsys.readouterr().err and generated == ["tless"]
+    assert main(["score", str(csv_path), "--demo", "--data-root", str(small_fixture.root)]) == 2
+    assert "give --data-root DIR or --demo, not both" in capsys.readouterr().err
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0)
+    assert main(["score", str(csv_path), "--no-progress"]) == 0  # the sidecar names the demo: made there if missing
+    assert generated == ["tless", "tless"]
+
+
+def test_score_refuses_a_file_that_matches_no_target(small_fixture, results_dir, capsys) -> None:
+    """Every row names an image on disk that the split does not select: an error, not AR 0 with exit 0."""
+    rows = non_target_rows(small_fixture)
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, rows)
+    out = results_dir / "out"
+    code = main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"0 of {len(rows)} rows match a target of dataset tless test" in err
+    assert f"{len(rows)} for images the split does not select" in err and "wrong --data-root" in err
+    assert not out.exists()
+
+
+def test_score_warns_when_only_a_fraction_matches(small_fixture, results_dir) -> None:
+    matching = gt_rows(small_fixture)[:1]
+    ignored = non_target_rows(small_fixture)
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, matching + ignored)
+    total = len(matching) + len(ignored)
+    with pytest.warns(ResultsWarning, match=f"only 1 of {total} rows .* match a target of dataset tless test"):
+        scored = score_file(csv_path, data_root=small_fixture.root, progress=False)
+    assert any(f"only 1 of {total} rows" in n for n in json.loads(scored.scores_path.read_text())["metadata"]["notes"])
+
+
+@pytest.mark.parametrize("content", ["", "\n\n  \n", "scene_id,im_id,obj_id,score,R,t,time\n"])
+def test_score_refuses_a_results_file_without_estimates(small_fixture, results_dir, capsys, content) -> None:
+    csv_path = results_dir / "gt_tless-test.csv"
+    csv_path.write_text(content)
+    code = main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "no estimates (the file is empty or holds only the header)" in err and err.count("\n") == 1
+    assert sorted(p.name for p in results_dir.iterdir()) == [csv_path.name]
+
+
+def test_a_directory_given_as_the_results_file_is_named_as_such(results_dir, capsys) -> None:
+    folder = results_dir / "gt_tless-test.csv"
+    folder.mkdir()
+    assert main(["score", str(folder), "--no-progress"]) == 2
+    assert capsys.readouterr().err == f"error: {folder}: is a directory, expected a results file\n"
+
+
+def test_score_writes_its_two_files_as_a_unit(small_fixture, results_dir, capsys) -> None:
+    """The scores JSON cannot be written: the errors CSV of an earlier scoring stays as it was, and the
+    error names the JSON, not a temporary file."""
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    errors = results_dir / "errors_gt_tless-test.csv"
+    errors.write_text("earlier\n")
+    (results_dir / "scores_gt_tless-test.json").mkdir()
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {results_dir / 'scores_gt_tless-test.json'}: ") and err.count("\n") == 1, err
+    assert errors.read_text() == "earlier\n"
+    assert sorted(p.name for p in results_dir.iterdir()) == sorted(
+        [csv_path.name, errors.name, "scores_gt_tless-test.json"]
+    )
