@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_keys
+from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_dir, require_keys
 from bop_cender.data.bop_io import image_size as read_image_size
 from bop_cender.data.bop_scene import (
     IMAGE_SUFFIXES,
@@ -222,10 +222,7 @@ def resolve_split_folder(root: Path, split: str, split_type: str | None = None) 
 
 
 def _require_root(root: str | Path) -> Path:
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError("dataset root folder not found", file=root)
-    return root
+    return require_dir(root, "dataset root folder")
 
 
 def _split_folders(root: Path) -> list[str]:

@@ -209,3 +209,10 @@ def test_score_writes_its_two_files_as_a_unit(small_fixture, results_dir, capsys
     assert sorted(p.name for p in results_dir.iterdir()) == sorted(
         [csv_path.name, errors.name, "scores_gt_tless-test.json"]
     )
+
+
+def test_a_file_given_as_the_data_root_is_named_as_such(small_fixture, results_dir, capsys) -> None:
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    assert main(["score", str(csv_path), "--data-root", str(csv_path), "--no-progress"]) == 2
+    assert capsys.readouterr().err == f"error: {csv_path}: --data-root: is a file, expected the dataset root folder\n"
