@@ -16,8 +16,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_convert_pvnet(args: argparse.Namespace) -> int:
+    from bop_cender.data.bop_io import check_output_file
     from bop_cender.results.convert_pvnet import convert_pvnet
 
+    check_output_file(args.out)
     known = None
     if args.dataset_root is not None:
         known = _model_ids(args.dataset_root)

@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_crosscheck(args: argparse.Namespace) -> int:
+    from bop_cender.data.bop_io import check_output_dir
     from bop_toolkit_adapters.crosscheck import (
         ToolkitUnavailable,
         crosscheck_file,
@@ -40,7 +41,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         write_pair_differences,
     )
 
-    out = args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}"
+    out = check_output_dir(args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}")
     try:
         check = crosscheck_file(
             args.results, out, args.toolkit, **data_overrides(args), vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import announce
+from bop_cender.cli.options import announce, count, positive_number
 
 EPILOG = """examples:
   bop-cender train --dataset dimo --epochs 1 --out runs/smoke          # one epoch on the embedded demo
@@ -29,22 +29,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default=None, help="training split (default: dimo train, tless/bop train_pbr)")
     p.add_argument("--val-split", default=None, help="validation split, scored every epoch (default: none)")
     p.add_argument("--val-data-root", default=None, help="root of the validation split (default: --data-root)")
-    p.add_argument("--epochs", type=int, default=10, help="epochs in all (with --resume: up to this many)")
-    p.add_argument("--batch-size", type=int, default=8)
-    p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (paper: 3e-4)")
+    p.add_argument(
+        "--epochs", type=count("--epochs"), default=10, help="epochs in all (with --resume: up to this many)"
+    )
+    p.add_argument("--batch-size", type=count("--batch-size"), default=8)
+    p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
         choices=("dimo", "dimo-lean", "tless", "tless-lean"),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean)",
     )
-    p.add_argument("--width", type=float, default=1.0, help="channel multiplier (default 1)")
+    p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
     p.add_argument("--no-augment", action="store_true", help="no data augmentation (ablation)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--seed", type=int, default=0, help="everything random derives from it (default 0)")
-    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K training scenes")
-    p.add_argument("--val-limit-scenes", type=int, default=None, help="only the first K validation scenes")
+    p.add_argument("--seed", type=count("--seed", 0), default=0, help="everything random derives from it (default 0)")
+    p.add_argument(
+        "--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K training scenes"
+    )
+    p.add_argument(
+        "--val-limit-scenes", type=count("--val-limit-scenes"), default=None, help="only the first K validation scenes"
+    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

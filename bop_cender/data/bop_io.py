@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.errors import BopCenderError, DatasetError
+from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
 def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what: str = "file") -> str:
@@ -61,6 +61,33 @@ def require_dir(
         raise error(f"is a file, expected a {what}", file=path, field=field)
     if not path.is_dir():
         raise error(f"{what} not found", file=path, field=field)
+    return path
+
+
+def check_output_dir(path: str | Path, field: str = "--out") -> Path:
+    """``path`` if a folder can be written there: refused (ConfigError) when it, or a folder above it, is a
+    file. Called before any work, so that a command does not compute for minutes and then fail to write."""
+    path = Path(path)
+    _check_folders_above(path, (path, *path.parents), field)
+    return path
+
+
+def _check_folders_above(path: Path, folders: Iterable[Path], field: str) -> None:
+    for above in folders:
+        if above.exists():
+            if not above.is_dir():
+                where = "exists and is not a directory" if above == path else f"{above} is a file, not a folder"
+                raise ConfigError(where, file=path, field=field)
+            return
+
+
+def check_output_file(path: str | Path, field: str = "--out") -> Path:
+    """``path`` if a file can be written there: refused (ConfigError) when it is a directory or a folder above
+    it is a file (see :func:`check_output_dir`)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError("is a directory, expected an output file", file=path, field=field)
+    _check_folders_above(path, path.parents, field)
     return path
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.bop_io import require_file
+from bop_cender.data.bop_io import check_output_dir, require_file
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
@@ -164,6 +164,8 @@ def score_file(
         ResultsError: the file is missing, a directory, malformed, holds no estimate, or matches no target.
     """
     csv_path = require_file(csv_path, "results file", ResultsError)  # before the data is opened
+    if out_dir is not None:
+        check_output_dir(out_dir)
     clock = time.perf_counter()
     rows = read_bop_results(csv_path)  # every line checked before the data is opened (or the demo generated)
     if not rows:

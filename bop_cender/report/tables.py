@@ -27,7 +27,7 @@ from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from bop_cender.data.bop_io import atomic_path, require_file, write_text_atomic
+from bop_cender.data.bop_io import atomic_path, check_output_dir, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
@@ -118,9 +118,7 @@ def compare(
             datasets or splits, the reference table is missing or malformed, or ``out_dir`` is a file.
         ResultsError: an input is missing, a directory or malformed (or cannot be scored).
     """
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ConfigError("exists and is not a directory", file=out_dir, field="--out")
+    out_dir = check_output_dir(out_dir)
     paths = _check_inputs(inputs)
     table = None
     if reference is not None:
