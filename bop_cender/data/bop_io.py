@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from bop_cender.data.ply_ascii import check_mesh
 from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
@@ -239,6 +240,8 @@ def save_json(path: str | Path, content: Any) -> None:
 def load_ply(path: str | Path):
     """Load a triangle mesh (mm) with trimesh, keeping vertices exactly as stored (no merging).
 
+    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices).
+
     Returns:
         trimesh.Trimesh with ``vertices (N, 3)`` float64 and ``faces (F, 3)``.
     """
@@ -251,12 +254,9 @@ def load_ply(path: str | Path):
         mesh = trimesh.load(path, process=False, force="mesh")
     except Exception as e:  # trimesh raises many types on corrupt input
         raise DatasetError(f"cannot read PLY: {e}", file=path) from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
-        raise DatasetError("expected a triangle mesh with vertices", file=path)
-    if len(mesh.faces) == 0:
-        raise DatasetError("expected a triangle mesh with faces", file=path)
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise DatasetError("vertex coordinates contain NaN or inf", file=path, field="vertex")
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise DatasetError("expected a triangle mesh", file=path)
+    check_mesh(mesh.vertices, mesh.faces, path)  # the checks of the scorer's own reader (ply_ascii)
     return mesh
 
 

@@ -1,4 +1,5 @@
 import json
+import re
 
 import numpy as np
 import pytest
@@ -178,3 +179,29 @@ def test_differing_image_ids_name_the_file_and_a_few_ids(tmp_path):
         DatasetError, match=r"b.json: image ids: .*missing 0, 1, 2, 3, 4, 5, 6, 7, \.\.\. \(40 in all\)"
     ):
         check_same_image_ids({tmp_path / "a.json": range(50), tmp_path / "b.json": range(40, 50)})
+
+
+@pytest.mark.parametrize("binary", [False, True], ids=["ascii", "binary"])
+def test_every_model_reader_checks_the_same_things(tmp_path, binary):
+    """load_ply (trimesh, binary or ASCII) and the scorer's ASCII reader refuse the same broken meshes."""
+    from bop_cender.data.ply_ascii import ascii_mesh
+
+    def write(name, vertices, faces):
+        mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+        path = tmp_path / f"{name}.ply"
+        path.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary" if binary else "ascii"))
+        return path
+
+    box = trimesh.creation.box()
+    nan = np.array(box.vertices)
+    nan[3, 1] = np.nan
+    cases = {
+        "nan": (write("nan", nan, box.faces), "vertex: 1 vertex coordinate(s) NaN or infinite (first: vertex 3)"),
+        "out": (write("out", box.vertices, np.vstack([box.faces, [[0, 1, 8]]])), "index vertices outside 0..7"),
+    }
+    for path, message in cases.values():
+        with pytest.raises(DatasetError, match=re.escape(message)):
+            load_ply(path)
+        if not binary:
+            with pytest.raises(DatasetError, match=re.escape(message)):
+                ascii_mesh(path)

@@ -216,3 +216,52 @@ def test_a_file_given_as_the_data_root_is_named_as_such(small_fixture, results_d
     write_bop_results(csv_path, gt_rows(small_fixture))
     assert main(["score", str(csv_path), "--data-root", str(csv_path), "--no-progress"]) == 2
     assert capsys.readouterr().err == f"error: {csv_path}: --data-root: is a file, expected the dataset root folder\n"
+
+
+def _no_faces(text: str) -> str:
+    head, body = text.split("end_header\n")
+    n = int(next(h for h in head.splitlines() if h.startswith("element vertex")).split()[-1])
+    head = "\n".join("element face 0" if h.startswith("element face") else h for h in head.splitlines()) + "\n"
+    return head + "end_header\n" + "".join(body.splitlines(keepends=True)[:n])
+
+
+def _nan_vertex(text: str) -> str:
+    head, body = text.split("end_header\n")
+    lines = body.splitlines(keepends=True)
+    lines[0] = "nan " + lines[0].split(" ", 1)[1]
+    return head + "end_header\n" + "".join(lines)
+
+
+def _index_out_of_range(text: str) -> str:
+    lines = text.splitlines(keepends=True)
+    lines[-1] = "3 0 1 99999\n"
+    return "".join(lines)
+
+
+@pytest.mark.parametrize(
+    ("broken", "message"),
+    [
+        (_no_faces, "face: expected a triangle mesh: the file has no faces"),
+        (_nan_vertex, "vertex: 1 vertex coordinate(s) NaN or infinite (first: vertex 0)"),
+        (_index_out_of_range, "face: 1 face(s) index vertices outside 0.."),
+        (lambda text: "".join(text.splitlines(keepends=True)[:40]), "line 41: truncated: the file ends before vertex"),
+        (lambda text: text[: len(text) // 2], "(the file ends there: truncated?)"),
+        (lambda text: "".join(text.splitlines(keepends=True)[:-3]), "truncated: the file ends before face 93 of 96"),
+        (lambda text: text[: len(text) - 4], "indices for face 95 (the file ends there: truncated?)"),
+    ],
+    ids=["no faces", "nan", "index out of range", "truncated", "cut in a line", "truncated faces", "cut in a face"],
+)
+def test_a_broken_model_is_one_error_naming_it(small_fixture, tmp_path, capsys, broken, message) -> None:
+    """The scorer's own PLY reader checks what the loader's (trimesh) does: no traceback, no plausible score."""
+    import shutil
+
+    root = tmp_path / "tless"
+    shutil.copytree(small_fixture.root, root)
+    ply = root / "models_eval" / "obj_000001.ply"
+    ply.write_text(broken(ply.read_text()))
+    csv_path = tmp_path / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    assert main(["score", str(csv_path), "--data-root", str(root), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {ply}: ") and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "scores_gt_tless-test.json").exists()
