@@ -11,7 +11,9 @@ import errno
 import json
 import math
 import os
+import sys
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -32,11 +34,15 @@ def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what
     except FileNotFoundError:
         raise error(f"{what} not found", file=path) from None
     except IsADirectoryError:
-        raise error(f"is a directory, expected a {what}", file=path) from None
+        raise error(f"is a directory, expected {_a(what)}", file=path) from None
     except UnicodeDecodeError as e:
         raise error(f"not UTF-8 text (byte {e.start})", file=path) from None
     except OSError as e:
         raise error(f"cannot read: {e.strerror}", file=path) from None
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[:1] in 'aeiou' else 'a'} {noun}"
 
 
 def require_file(
@@ -46,7 +52,7 @@ def require_file(
     directory"), so that a folder given where a file is expected is not reported as missing."""
     path = Path(path)
     if path.is_dir():
-        raise error(f"is a directory, expected a {what}", file=path, field=field)
+        raise error(f"is a directory, expected {_a(what)}", file=path, field=field)
     if not path.is_file():
         raise error(f"{what} not found", file=path, field=field)
     return path
@@ -59,7 +65,7 @@ def require_dir(
     file"), so that a file given where a folder is expected is not reported as missing."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise error(f"is a file, expected a {what}", file=path, field=field)
+        raise error(f"is a file, expected {_a(what)}", file=path, field=field)
     if not path.is_dir():
         raise error(f"{what} not found", file=path, field=field)
     return path
@@ -271,24 +277,72 @@ def save_ply(path: str | Path, mesh, binary: bool = False) -> None:
         tmp.write_bytes(data)
 
 
+_QUIET_LOCK = threading.Lock()
+_quiet_depth = 0  # how many threads are inside quiet_stderr()
+_saved_stderr: int | None = None
+
+
+@contextmanager
+def quiet_stderr() -> Iterator[None]:
+    """Silence what C libraries write to the process's stderr (file descriptor 2) inside the block.
+
+    The image decoders print their own lines (``libpng error: IDAT: CRC error``) before returning the
+    failure that we report as one error: the user would read a stray line first. Python's own
+    ``sys.stderr`` writes of other threads are silenced too while a decode runs (a progress bar misses
+    an update), which is why the block is kept to the decode alone. Nested and concurrent blocks share
+    one redirection (counted under a lock), so that the first to leave never restores too early and
+    the last always restores.
+    """
+    global _quiet_depth, _saved_stderr
+    with _QUIET_LOCK:
+        if _quiet_depth == 0:
+            try:
+                sys.stderr.flush()
+                saved = os.dup(2)
+            except (OSError, ValueError, AttributeError):  # no stderr to silence (closed, or replaced)
+                saved = None
+            if saved is not None:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, 2)
+                os.close(devnull)
+            _saved_stderr = saved
+        _quiet_depth += 1
+    try:
+        yield
+    finally:
+        with _QUIET_LOCK:
+            _quiet_depth -= 1
+            if _quiet_depth == 0 and _saved_stderr is not None:
+                os.dup2(_saved_stderr, 2)
+                os.close(_saved_stderr)
+                _saved_stderr = None
+
+
 def _imread(path: Path, flags: int) -> np.ndarray:
     import cv2
 
-    if not path.is_file():
-        raise DatasetError("image not found", file=path)
-    img = cv2.imread(str(path), flags)
+    require_file(path, "image")
+    with quiet_stderr():  # libpng's own message would come before ours
+        img = cv2.imread(str(path), flags)
     if img is None:
         raise DatasetError("cannot decode image", file=path)
     return img
 
 
 def load_depth(path: str | Path, depth_scale: float) -> np.ndarray:
-    """Depth image in mm ``(H, W)`` float32 from a 16-bit PNG: ``png * depth_scale`` (0 = no depth)."""
+    """Depth image in mm ``(H, W)`` float32 from a 16-bit PNG: ``png * depth_scale`` (0 = no depth).
+
+    Only a single-channel 16-bit image is depth: an 8-bit one (a visualisation, a mask, a re-save
+    that lost the bit depth) holds values of another unit entirely, and VSD would score against it
+    without a word.
+    """
     import cv2
 
     img = _imread(Path(path), cv2.IMREAD_UNCHANGED)
     if img.ndim != 2:
         raise DatasetError(f"expected a single-channel depth image, got shape {img.shape}", file=path)
+    if img.dtype != np.uint16:
+        raise DatasetError(f"expected a 16-bit depth image, got {8 * img.dtype.itemsize}-bit ({img.dtype})", file=path)
     return img.astype(np.float32) * np.float32(depth_scale)
 
 

@@ -205,3 +205,19 @@ def test_every_model_reader_checks_the_same_things(tmp_path, binary):
         if not binary:
             with pytest.raises(DatasetError, match=re.escape(message)):
                 ascii_mesh(path)
+
+
+def test_quiet_stderr_silences_fd_2_and_restores_it_after_nested_and_threaded_use(capfd):
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bop_cender.data.bop_io import quiet_stderr
+
+    def inside(k):
+        with quiet_stderr(), quiet_stderr():
+            os.write(2, f"hidden {k}\n".encode())
+
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(inside, range(16)))
+    os.write(2, b"shown\n")
+    assert capfd.readouterr().err == "shown\n"

@@ -265,3 +265,36 @@ def test_a_broken_model_is_one_error_naming_it(small_fixture, tmp_path, capsys, 
     err = capsys.readouterr().err
     assert err.startswith(f"error: {ply}: ") and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "scores_gt_tless-test.json").exists()
+
+
+def _eight_bit(path: Path) -> None:
+    import cv2
+
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(path), (depth >> 8).astype("uint8"))
+
+
+def _bad_crc(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[60] ^= 0xFF  # inside the first IDAT chunk: libpng prints "libpng error: IDAT: CRC error" itself
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize(
+    ("spoil", "message"),
+    [(_eight_bit, "expected a 16-bit depth image, got 8-bit (uint8)"), (_bad_crc, "cannot decode image")],
+    ids=["8-bit", "corrupt"],
+)
+def test_a_bad_depth_image_is_one_line_and_nothing_else(small_fixture, tmp_path, capfd, spoil, message) -> None:
+    """On the file descriptor, not just sys.stderr: the decoder's own 'libpng error' line is not printed."""
+    import shutil
+
+    root = tmp_path / "tless"
+    shutil.copytree(small_fixture.root, root)
+    scene, im = small_fixture.target_images[0]
+    depth = root / "test_primesense" / f"{scene:06d}" / "depth" / f"{im:06d}.png"
+    spoil(depth)
+    csv_path = tmp_path / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    assert main(["score", str(csv_path), "--data-root", str(root), "--no-progress"]) == 2
+    assert capfd.readouterr().err == f"error: {depth}: {message}\n"
