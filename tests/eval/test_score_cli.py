@@ -298,3 +298,20 @@ def test_a_bad_depth_image_is_one_line_and_nothing_else(small_fixture, tmp_path,
     write_bop_results(csv_path, gt_rows(small_fixture))
     assert main(["score", str(csv_path), "--data-root", str(root), "--no-progress"]) == 2
     assert capfd.readouterr().err == f"error: {depth}: {message}\n"
+
+
+def test_score_errors_point_only_to_options_score_has(small_fixture, results_dir, capsys) -> None:
+    """--dataset lm on a T-LESS folder: the message names the option to fix it with, and score has it."""
+    import re
+
+    from bop_cender.cli import build_parser
+
+    score = build_parser()._subparsers._group_actions[0].choices["score"]
+    options = {o for a in score._actions for o in a.option_strings}
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    for extra in (["--dataset", "lm"], ["--split", "nope"], ["--model-type", "recon"]):
+        assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), *extra, "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        named = set(re.findall(r"--[a-z][a-z-]+", err))
+        assert named and named <= options and err.count("\n") == 1, err
