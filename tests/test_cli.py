@@ -71,3 +71,11 @@ def test_version(capsys) -> None:
     with pytest.raises(SystemExit) as info:
         main(["--version"])
     assert info.value.code == 0 and capsys.readouterr().out == f"bop-cender {__version__}\n"
+
+
+@pytest.mark.parametrize("command", ["score", "compare", "crosscheck"])
+def test_a_directory_given_as_a_results_file_is_named_as_such(workdir: Path, capsys, command: str) -> None:
+    (workdir / "x_dimo-real.csv").mkdir()
+    assert main([command, "x_dimo-real.csv"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: x_dimo-real.csv: is a directory, expected a ") and err.count("\n") == 1, err

@@ -39,7 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_crosscheck(args: argparse.Namespace) -> int:
-    from bop_cender.data.bop_io import check_output_dir
+    from bop_cender.data.bop_io import check_output_dir, require_file
+    from bop_cender.errors import ResultsError
+
+    require_file(args.results, "results file", ResultsError)  # said before whether the toolkit is there
     from bop_toolkit_adapters.crosscheck import (
         ToolkitUnavailable,
         crosscheck_file,

@@ -171,3 +171,16 @@ def test_compare_checks_everything_before_writing_anything(small_fixture, result
     folder.mkdir()
     assert main(["compare", str(folder), *args]) == 2
     assert "folder.csv: is a directory" in capsys.readouterr().err and not out.exists()
+
+
+def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir, capsys) -> None:
+    """compare scores through score: a file of another data set's images is an error, not a 0.000 row."""
+    targets = set(small_fixture.target_images)
+    ignored = [
+        row(s, i, o, 1.0, T) for (s, i), gts in small_fixture.gt.items() if (s, i) not in targets for _, o, T in gts
+    ]
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, ignored)
+    out = results_dir / "tables"
+    assert main(["compare", str(csv_path), "--data-root", str(small_fixture.root), "--out", str(out)]) == 2
+    assert f"0 of {len(ignored)} rows match a target" in capsys.readouterr().err and not out.exists()
