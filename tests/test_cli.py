@@ -39,6 +39,7 @@ def workdir(tmp_path: Path, monkeypatch) -> Path:
         (["train", "--dataset", "dimo", "--out", "r", "--width", "-1"], "--width: must be a finite number > 0"),
         (["train", "--dataset", "dimo", "--out", "r", "--batch-size", "0"], "--batch-size: must be >= 1, got 0"),
         (["heatmaps", "--dataset", "dimo", "--limit-scenes", "-4"], "--limit-scenes: must be >= 1, got -4"),
+        (["train", "--dataset", "dimo", "--out", "r", "--crop", "0x16"], "--crop: expected a positive height and"),
     ],
 )
 def test_numbers_that_make_no_sense_are_refused_as_they_are_read(workdir: Path, capsys, argv, message) -> None:

@@ -66,6 +66,8 @@ def parse_crop(text: str | None) -> tuple[int, int] | None:
         h, w = (int(x) for x in text.lower().split("x"))
     except ValueError:
         raise ConfigError(f"expected HxW (e.g. 128x160), got {text!r}", field="--crop") from None
+    if h < 1 or w < 1:
+        raise ConfigError(f"expected a positive height and width, got {text!r}", field="--crop")
     return h, w
 
 
@@ -84,16 +86,19 @@ def resolve_device(name: str):
 def cmd_train(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from bop_cender.data.bop_io import check_output_dir
     from bop_cender.datasets import resolve_data_root
     from bop_cender.net.train import TrainConfig, train
     from bop_cender.synth.demo import cache_dir
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
+    crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
+    check_output_dir(args.out)
     root = resolve_data_root(args.dataset, args.data_root, announce)
     config = TrainConfig(
         dataset=args.dataset, data_root=str(root), split=args.split or ("train" if kind == "dimo" else "train_pbr"),
         val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
-        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=parse_crop(args.crop),
+        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes,
     )  # fmt: skip
