@@ -72,6 +72,11 @@ class ScoreCounts:
         evaluated: rows kept by the top-n cut. beyond_top_n: rows of targets beyond their top-n.
         pairs: (estimate, GT) pairs scored. targets: (image, object) targets. target_instances: recall's
         denominator. target_images: images with a target.
+        missed_instances: target instances no estimate matches at the loosest MSSD threshold.
+        unmatched_not_visible, unmatched_duplicate, unmatched_far: why evaluated estimates match nothing at
+        that threshold: their closest instance is not a target (too little of it visible, or beyond its
+        image's ``inst_count`` most visible), another estimate took it, or it is farther than every threshold.
+        Why perfect poses can score below 1 (:func:`bop_cender.eval.score_rows.unmatched_reasons`).
     """
 
     rows: int
@@ -83,6 +88,10 @@ class ScoreCounts:
     targets: int
     target_instances: int
     target_images: int
+    missed_instances: int = 0
+    unmatched_not_visible: int = 0
+    unmatched_duplicate: int = 0
+    unmatched_far: int = 0
 
 
 @dataclass(frozen=True)

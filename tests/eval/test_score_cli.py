@@ -14,7 +14,7 @@ from bop_cender.eval.score_file import choose_data, score_file
 from bop_cender.eval.score_report import SCORE_KEYS
 from bop_cender.results.bop_csv import write_bop_results
 from bop_cender.results.files import write_run_sidecar
-from tests.eval.scoring_data import gt_rows, row
+from tests.eval.scoring_data import gt_rows, row, target_instances
 
 
 def test_score_infers_dataset_and_split_from_the_file_name(small_fixture, results_dir, capsys) -> None:
@@ -315,3 +315,48 @@ def test_score_errors_point_only_to_options_score_has(small_fixture, results_dir
         err = capsys.readouterr().err
         named = set(re.findall(r"--[a-z][a-z-]+", err))
         assert named and named <= options and err.count("\n") == 1, err
+
+
+def test_score_says_why_ground_truth_poses_score_below_1(small_fixture, results_dir, capsys) -> None:
+    """Every GT instance's own pose, the barely visible ones first: they take two targets' top-n places."""
+    rows = [
+        row(s, i, o, 1.0, T)
+        for (s, i) in small_fixture.target_images
+        for _g, o, T in sorted(small_fixture.gt[(s, i)], key=lambda x: -x[0])
+    ]
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, rows, sort=False)
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    n = len(target_instances(small_fixture))
+    assert f"why not 1 (MSSD, loosest threshold): 2 of {n} target instances matched by no estimate" in out
+    assert "  2 closest to an instance that is not a target (too little of it visible" in out
+    assert f"  and {len(rows) - n} rows beyond the top-n cut were not evaluated" in out
+    counts = json.loads((results_dir / "scores_gt_tless-test.json").read_text())["metadata"]["counts"]
+    assert (counts["missed_instances"], counts["unmatched_not_visible"], counts["unmatched_duplicate"]) == (2, 2, 0)
+
+
+def test_the_causes_of_unmatched_estimates_are_counted_apart(small_fixture, results_dir) -> None:
+    rows = gt_rows(small_fixture)
+    k1, k2 = next(
+        (a, b)
+        for a in range(len(rows))
+        for b in range(a + 1, len(rows))
+        if (rows[a].scene_id, rows[a].im_id, rows[a].obj_id) == (rows[b].scene_id, rows[b].im_id, rows[b].obj_id)
+    )
+    rows[k2] = row(rows[k2].scene_id, rows[k2].im_id, rows[k2].obj_id, 0.5, rows[k1].T_cam_model)  # a duplicate
+    far = rows[-1].T_cam_model.copy()
+    far[:3, 3] += 5000.0
+    rows[-1] = row(rows[-1].scene_id, rows[-1].im_id, rows[-1].obj_id, 1.0, far)
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, rows)
+    c = score_file(csv_path, data_root=small_fixture.root, progress=False).report.metadata.counts
+    assert (c.missed_instances, c.unmatched_not_visible, c.unmatched_duplicate, c.unmatched_far) == (2, 0, 1, 1)
+    assert c.beyond_top_n == 0
+
+
+def test_perfect_results_need_no_explanation(small_fixture, results_dir, capsys) -> None:
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 0
+    assert "why not 1" not in capsys.readouterr().out
