@@ -51,3 +51,40 @@ def resolve_data_root(
 def open_with_demo(request: DatasetRequest, announce: Callable[[str], None] | None = None) -> Dataset:
     """:func:`~bop_cender.data.registry.open_dataset`, with no root resolved to the embedded demo."""
     return open_dataset(replace(request, root=resolve_data_root(request.dataset, request.root, announce)))
+
+
+def is_demo_root(dataset: str, root: str | Path) -> bool:
+    """Whether ``root`` is where the embedded demo of ``dataset`` lives (a run on the demo names it in its sidecar)."""
+    if dataset not in DEMO_LAYOUTS:
+        return False
+    from bop_cender.synth.demo import demo_root
+
+    return Path(root).expanduser().resolve() == demo_root(dataset).expanduser().resolve()
+
+
+def open_results_data(
+    request: DatasetRequest, *, demo: bool = False, announce: Callable[[str], None] | None = None
+) -> Dataset:
+    """Open the data a results file is scored on, using the embedded demo only where the user asked for it.
+
+    Results scored on data they were not made on give a meaningless score (every row ignored), so a
+    missing data root is not quietly replaced by the demo, as it is for ``run`` or ``info``. The user
+    asks for the demo with ``demo`` (``--demo``), or by scoring a run made on it (its sidecar names the
+    demo's root, regenerated here if the cache was cleared).
+
+    Raises:
+        ConfigError: no root and no ``demo``, or ``demo`` for a dataset without one.
+    """
+    if demo:
+        return open_dataset(replace(request, root=resolve_data_root(request.dataset, None, announce)))
+    if request.root is None:
+        raise ConfigError(
+            "no data root (no --data-root, and no run sidecar naming one): give --data-root DIR, the dataset the "
+            f"results were made on, or --demo to score against the embedded synthetic {request.dataset} demo",
+            field="--data-root",
+        )
+    if is_demo_root(request.dataset, request.root):
+        from bop_cender.synth.demo import ensure_demo
+
+        ensure_demo(request.dataset, announce=announce)
+    return open_dataset(request)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import atomic_path
+from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file
 from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
@@ -413,6 +413,9 @@ def _check_request(request: RunRequest) -> None:
     out = Path(request.out)
     if out.is_dir():
         raise ConfigError(f"{out} is a directory; expected a results CSV path", field="--out")
+    check_output_file(out)
+    if request.vis_dir is not None:
+        check_output_dir(request.vis_dir, "--vis")
     if out.suffix != ".csv":
         raise ConfigError(f"expected a .csv file name, got {out.name!r}", field="--out")
     parse_result_filename(out.name)

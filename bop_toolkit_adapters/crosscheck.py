@@ -5,8 +5,8 @@ environment), the results and the data are exported (:mod:`bop_toolkit_adapters.
 toolkit's own ``eval_calc_errors.py`` / ``eval_calc_scores.py`` run on them in this process
 (:mod:`bop_toolkit_adapters.runtime`). VSD needs the toolkit's vispy renderer (headless through Mesa
 EGL, ``EGL_PLATFORM=surfaceless``); without it VSD is skipped and said so. Where the toolkit is not
-importable, :func:`crosscheck` raises :class:`ToolkitUnavailable` and the CLI prints why and exits 0:
-the toolkit is never a dependency.
+importable, :func:`crosscheck` raises :class:`ToolkitUnavailable` and the CLI prints why and exits 2
+(not run is not passed): the toolkit is never a dependency.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 
+from bop_cender import __version__
 from bop_cender.cli.info import EPILOG
 from bop_cender.errors import BopCenderError
 
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"bop-cender {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         importlib.import_module(name).register(sub)
@@ -64,7 +66,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         reexec_with_tcmalloc(sys.argv[1:])
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except BopCenderError as e:  # an option's value refused as it is read (cli.options.count, positive_number)
+        print(f"error: {e.format()}", file=sys.stderr)
+        return 2
     warnings.formatwarning = _format_warning
     try:
         return int(args.func(args) or 0)

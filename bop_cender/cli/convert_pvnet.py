@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -11,28 +12,60 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("convert-pvnet", help="PVNet-style 3x4 poses (t in metres) -> BOP results CSV (mm)")
     p.add_argument("input", type=Path, help="folder of {scene}_{im}_{obj}.npy / {scene}/{im}_{obj}.npy, or a JSON file")
     p.add_argument("--out", type=Path, required=True, help="output CSV, a BOP name such as pvnet_tless-test.csv")
-    p.add_argument("--dataset-root", type=Path, default=None, help="check object ids against this dataset's models")
+    p.add_argument(
+        "--data-root",
+        type=Path,
+        default=None,
+        help="dataset root: check object ids against its models, and the units of t against their diameters",
+    )
+    # The name this option had before every command named the dataset root --data-root; kept, announced.
+    p.add_argument("--dataset-root", type=Path, default=None, dest="old_dataset_root", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_convert_pvnet)
 
 
 def cmd_convert_pvnet(args: argparse.Namespace) -> int:
+    from bop_cender.data.bop_io import check_output_file
+    from bop_cender.errors import ConfigError
     from bop_cender.results.convert_pvnet import convert_pvnet
 
-    known = None
-    if args.dataset_root is not None:
-        known = _model_ids(args.dataset_root)
-    rows = convert_pvnet(args.input, args.out, known_obj_ids=known)
+    root = args.data_root
+    if args.old_dataset_root is not None:
+        if root is not None:
+            raise ConfigError("give --data-root alone (--dataset-root is its old name)", field="--dataset-root")
+        print("warning: --dataset-root is deprecated: use --data-root", file=sys.stderr)
+        root = args.old_dataset_root
+    check_output_file(args.out)
+    known = diameters = None
+    if root is not None:
+        diameters = _model_diameters(root)
+        known = sorted(diameters)
+    rows = convert_pvnet(args.input, args.out, known_obj_ids=known, diameters=diameters)
     print(f"wrote {len(rows)} estimates to {args.out}")
     return 0
 
 
-def _model_ids(root: Path) -> list[int]:
-    """Object ids of a dataset's evaluation models (``models_eval/``, else ``models/`` or ``models_cad/``)."""
-    from bop_cender.data.bop_io import as_int, load_json
-    from bop_cender.errors import DatasetError
+def _model_diameters(root: Path) -> dict[int, float]:
+    """Object ids of a dataset's evaluation models (``models_eval/``, else ``models/`` or ``models_cad/``) and
+    their diameters (mm; 0 where ``models_info.json`` gives none)."""
+    from bop_cender.data.bop_io import as_int, as_number, load_json, require_dir
+    from bop_cender.errors import ConfigError, DatasetError
 
+    require_dir(root, "dataset root folder", ConfigError, field="--data-root")
     for name in ("models_eval", "models", "models_cad"):
         path = root / name / "models_info.json"
         if path.is_file():
-            return sorted(as_int(k, path, repr(k), strings=True) for k in load_json(path))
+            info = load_json(path)
+            if not isinstance(info, dict):
+                raise DatasetError(f"expected an object keyed by object id, got {type(info).__name__}", file=path)
+            out = {}
+            for key, entry in info.items():
+                obj_id = as_int(key, path, repr(key), strings=True)
+                value = entry.get("diameter") if isinstance(entry, dict) else None
+                diameter = 0.0 if value is None else as_number(value, path, f"{key}.diameter")
+                if value is not None and diameter <= 0:
+                    raise DatasetError(
+                        f"expected a positive number (mm), got {value!r}", file=path, field=f"{key}.diameter"
+                    )
+                out[obj_id] = diameter
+            return dict(sorted(out.items()))
     raise DatasetError("no models_eval/, models/ or models_cad/ with a models_info.json", file=root)

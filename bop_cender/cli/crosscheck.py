@@ -1,6 +1,7 @@
 """``bop-cender crosscheck``: score a results file with bop-cender and with the official BOP toolkit.
 
-The toolkit itself is optional (:mod:`bop_toolkit_adapters`): without it the command says so and exits 0.
+The toolkit itself is optional (:mod:`bop_toolkit_adapters`): without it the command says so and exits 2
+(:data:`CROSSCHECK_NOT_RUN`), since a cross-check that did not run has checked nothing.
 """
 
 from __future__ import annotations
@@ -14,7 +15,12 @@ from bop_cender.cli.options import add_data_options, add_scoring_options, data_o
 CROSSCHECK_EPILOG = """examples:
   bop-cender crosscheck cendernet_tless-test.csv --data-root ~/bop/tless --toolkit ~/src/bop_toolkit
   EGL_PLATFORM=surfaceless bop-cender crosscheck cendernet_dimo-sim.csv --data-root ~/dimo --toolkit ~/src/bop_toolkit
+Exits 2 when the toolkit cannot be imported (the cross-check did not run: not a pass).
 """
+
+
+#: The exit status when the cross-check could not run (no toolkit): not 0, which would read as a pass.
+CROSSCHECK_NOT_RUN = 2
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_crosscheck(args: argparse.Namespace) -> int:
+    from bop_cender.data.bop_io import check_output_dir, require_file
+    from bop_cender.errors import ResultsError
+
+    require_file(args.results, "results file", ResultsError)  # said before whether the toolkit is there
     from bop_toolkit_adapters.crosscheck import (
         ToolkitUnavailable,
         crosscheck_file,
@@ -40,20 +50,17 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         write_pair_differences,
     )
 
-    out = args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}"
+    out = check_output_dir(args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}")
     try:
         check = crosscheck_file(
             args.results, out, args.toolkit, **data_overrides(args), vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,
             progress=not args.no_progress,
         )  # fmt: skip
     except ToolkitUnavailable as e:
-        print(f"crosscheck not run: {e}", file=sys.stderr)
-        if args.toolkit is not None:  # a toolkit was asked for and is not there: a failure, not an optional skip
-            return 2
-        print(
-            "(the official toolkit is optional: pass --toolkit DIR, a checkout of thodan/bop_toolkit)", file=sys.stderr
-        )
-        return 0
+        # Not run is not passed: a CI script reading exit 0 would take a skipped cross-check for agreement.
+        hint = "" if args.toolkit is not None else " (pass --toolkit DIR, a checkout of thodan/bop_toolkit)"
+        print(f"error: crosscheck not run: {e}{hint}", file=sys.stderr)
+        return CROSSCHECK_NOT_RUN
     print(format_crosscheck(check))
     if check.differences:
         listed = out / "pair_differences.csv"

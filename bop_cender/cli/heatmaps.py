@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import add_data_options, announce
+from bop_cender.cli.options import add_data_options, announce, count
 
 EPILOG = """examples:
   bop-cender heatmaps --dataset dimo --split sim                  # shipped weights on the embedded demo
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--out", default="heatmaps", help="output folder (default: ./heatmaps)")
     p.add_argument("--png", action="store_true", help="write one side-by-side PNG per view")
-    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes")
+    p.add_argument("--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K scenes")
     p.add_argument(
         "--peak-threshold",
         type=float,
@@ -46,7 +46,7 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
 
     from bop_cender.cli.options import data_request
     from bop_cender.cli.train import resolve_device
-    from bop_cender.data.bop_io import write_text_atomic
+    from bop_cender.data.bop_io import check_output_dir, write_text_atomic
     from bop_cender.datasets import open_with_demo
     from bop_cender.errors import ConfigError
     from bop_cender.meshes import MeshCache
@@ -56,9 +56,7 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
 
     if args.limit_scenes is not None and args.limit_scenes < 1:
         raise ConfigError(f"expected a positive number of scenes, got {args.limit_scenes}", field="--limit-scenes")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError("exists and is not a directory", file=out, field="--out")
+    out = check_output_dir(args.out)
     device = resolve_device(args.device)
     kind = "dimo" if args.dataset == "dimo" else "tless"
     dataset = open_with_demo(data_request(args), announce=announce)

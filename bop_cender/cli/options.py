@@ -4,11 +4,56 @@ from __future__ import annotations
 
 import argparse
 import functools
+import math
 import sys
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from bop_cender.data.registry import DatasetRequest
+
+
+def count(option: str, minimum: int = 1) -> Callable[[str], int]:
+    """An argparse ``type`` for an integer option that must be ``>= minimum`` (a number of scenes, views,
+    workers; a seed, ``minimum=0``).
+
+    A value that makes no sense is refused when the command line is read, before any work, with the
+    same one-line error as every other (a :class:`~bop_cender.errors.ConfigError` naming the option,
+    printed by :func:`bop_cender.cli.app.main`), rather than deep inside the command or not at all.
+    """
+
+    def parse(text: str) -> int:
+        from bop_cender.errors import ConfigError
+
+        try:
+            value = int(text)
+        except ValueError:
+            raise ConfigError(f"expected an integer, got {text!r}", field=option) from None
+        if value < minimum:
+            raise ConfigError(f"must be >= {minimum}, got {value}", field=option)
+        return value
+
+    parse.__name__ = "integer"  # argparse names the type in its own messages
+    return parse
+
+
+def positive_number(option: str) -> Callable[[str], float]:
+    """An argparse ``type`` for a float option that must be finite and > 0 (a VSD delta, a learning rate);
+    see :func:`count`."""
+
+    def parse(text: str) -> float:
+        from bop_cender.errors import ConfigError
+
+        try:
+            value = float(text)
+        except ValueError:
+            raise ConfigError(f"expected a number, got {text!r}", field=option) from None
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"must be a finite number > 0, got {text!r}", field=option)
+        return value
+
+    parse.__name__ = "number"
+    return parse
 
 
 def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) -> None:
@@ -21,11 +66,25 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
     """
     if from_results:
         p.add_argument("--dataset", default=None, help="dimo | tless | bop (default: from the file name or sidecar)")
-        p.add_argument("--data-root", default=None, help="dataset root (default: sidecar, else the embedded demo)")
-        p.add_argument("--split", default=None, help="split (default: from the file name or sidecar)")
-        p.add_argument("--n-views", type=int, default=None, help="views per multi-view group of BOP test splits")
         p.add_argument(
-            "--seed", type=int, default=None, help="seed of the view-grouping shuffle (default: sidecar, else 0)"
+            "--data-root",
+            default=None,
+            help="dataset root (default: the one the run sidecar names; without a sidecar it must be given, or --demo)",
+        )
+        p.add_argument(
+            "--demo",
+            action="store_true",
+            help="score against the embedded synthetic dimo / tless demo (generated once); never used unasked",
+        )
+        p.add_argument("--split", default=None, help="split (default: from the file name or sidecar)")
+        p.add_argument(
+            "--n-views", type=count("--n-views"), default=None, help="views per multi-view group of BOP test splits"
+        )
+        p.add_argument(
+            "--seed",
+            type=count("--seed", 0),
+            default=None,
+            help="seed of the view-grouping shuffle (default: sidecar, else 0)",
         )
         p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
         return
@@ -34,8 +93,13 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
         "--data-root", default=None, help="dataset root folder (default: the embedded synthetic demo, generated once)"
     )
     p.add_argument("--split", default=None, help="dimo: real | sim | train; tless/bop: test | train_pbr | <folder>")
-    p.add_argument("--n-views", type=int, default=None, help="views per multi-view group for test splits (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the view-grouping shuffle (default 0)")
+    p.add_argument(
+        "--n-views",
+        type=count("--n-views"),
+        default=None,
+        help="views per multi-view group for test splits (default 5)",
+    )
+    p.add_argument("--seed", type=count("--seed", 0), default=0, help="seed of the view-grouping shuffle (default 0)")
     p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
 
 
@@ -51,18 +115,24 @@ def data_request(args: argparse.Namespace) -> DatasetRequest:
 
 def data_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """A results command's data options, as the keyword arguments of :func:`bop_cender.eval.score_file.score_file`
-    (and of compare, crosscheck), with the embedded demo for a dataset without a root."""
-    from bop_cender.datasets import open_with_demo
+    (and of compare, crosscheck): the embedded demo only with ``--demo`` or a sidecar naming the demo's root
+    (:func:`bop_cender.datasets.open_results_data`)."""
+    from bop_cender.datasets import open_results_data
+    from bop_cender.errors import ConfigError
 
+    if args.demo and args.data_root is not None:
+        raise ConfigError("give --data-root DIR or --demo, not both", field="--demo")
     return dict(
         dataset=args.dataset, data_root=args.data_root, split=args.split, n_views=args.n_views, seed=args.seed,
-        model_type=args.model_type, open_data=functools.partial(open_with_demo, announce=announce),
+        model_type=args.model_type, open_data=functools.partial(open_results_data, demo=args.demo, announce=announce),
     )  # fmt: skip
 
 
 def add_scoring_options(p: argparse.ArgumentParser) -> None:
     """Add ``--vsd-delta`` and ``--no-progress`` (the commands that score)."""
-    p.add_argument("--vsd-delta", type=float, default=None, help="VSD delta in mm (default: 15, ITODD 5)")
+    p.add_argument(
+        "--vsd-delta", type=positive_number("--vsd-delta"), default=None, help="VSD delta in mm (default: 15, ITODD 5)"
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bop_cender.cli.options import add_data_options, announce
+from bop_cender.cli.options import add_data_options, announce, count
 
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, the shipped network
@@ -36,11 +36,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--weights", default=None, help="network weights (with --heatmaps net)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")
     p.add_argument("--out", default=None, help="results CSV (default: cendernet-<heatmaps>_<dataset>-<split>.csv here)")
-    p.add_argument("--workers", type=int, default=1, help="processes, one torch thread each (default 1)")
-    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
+    p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")
+    p.add_argument(
+        "--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K scenes of the split"
+    )
     p.add_argument("--resume", action="store_true", help="keep the finished scenes of an interrupted run")
-    p.add_argument("--candidates", type=int, default=None, help="random pose candidates per object (default 2000)")
-    p.add_argument("--top-k", type=int, default=None, help="candidates refined by Nelder-Mead (default 3)")
+    p.add_argument(
+        "--candidates",
+        type=count("--candidates"),
+        default=None,
+        help="random pose candidates per object (default 2000)",
+    )
+    p.add_argument("--top-k", type=count("--top-k"), default=None, help="candidates refined by Nelder-Mead (default 3)")
     p.add_argument("--no-occlusion", action="store_true", help="do not let placed objects occlude the next (ablation)")
     p.add_argument(
         "--deterministic-time", action="store_true", help="write -1 as every row's time (reproducible files)"
@@ -49,7 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--vis", default=None, metavar="DIR", help="write a figure per scene (views, heatmaps, centres, contours)"
     )
     p.add_argument(
-        "--max-views", type=int, default=None, help="estimate from the first K views of each scene (ablation)"
+        "--max-views",
+        type=count("--max-views"),
+        default=None,
+        help="estimate from the first K views of each scene (ablation)",
     )
     p.add_argument(
         "--set",

@@ -8,9 +8,13 @@ from pathlib import Path
 from bop_cender.cli.options import add_data_options, add_scoring_options, data_overrides
 
 SCORE_EPILOG = """examples:
-  bop-cender score results/cendernet_tless-test.csv                # dataset, split from the name / sidecar
+  bop-cender score results/cendernet_tless-test.csv                # dataset, split, data root from the sidecar
   bop-cender score run/cendernet_dimo-sim.csv --data-root ~/dimo    # DIMO: no depth, so no VSD / AR
   bop-cender score my_lmo-test.csv --dataset bop --data-root ~/bop/lmo --out scores/
+  bop-cender score mine_dimo-real.csv --demo                        # against the embedded synthetic demo
+The data root comes from --data-root, else the run sidecar beside the CSV (written by bop-cender run); the
+embedded demo is used only with --demo or a sidecar naming it. A file with no estimate, or none of whose
+rows names a target of the data (wrong --data-root?), is refused; under half matching gives a warning.
 """
 
 

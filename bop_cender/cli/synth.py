@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bop_cender.cli.options import count
 from bop_cender.errors import ConfigError
 
 EXAMPLES = """examples:
@@ -15,7 +16,8 @@ EXAMPLES = """examples:
 Running the same command again resumes: complete scene folders are kept, the rest is generated. Each
 layout has one object catalogue (DIMO: 6 parts and 3 carriers; T-LESS: 30 objects), the same for every
 --seed, so sets of two seeds share their models; --catalogue-seed draws another catalogue. Both seeds are
-recorded in OUT/bop_cender_synth.json, and a resume with other values is refused.
+recorded in OUT/bop_cender_synth.json, and a resume with other values is refused. A non-empty --out folder
+without that record (not a dataset bop-cender synth made) is refused unless --force.
 """
 
 
@@ -32,11 +34,17 @@ def register(sub) -> None:
     p.add_argument("--layout", choices=("dimo", "tless"), required=True)
     p.add_argument("--out", required=True, help="output dataset root")
     p.add_argument(
-        "--scenes", type=int, required=True, help="dimo: scene numbers (each real + sim variants); tless: test scenes"
+        "--scenes",
+        type=count("--scenes", 0),
+        default=None,
+        help="dimo: scene numbers (each real + sim variants); tless: test scenes (required unless --models-only)",
+    )
+    p.add_argument(
+        "--models-only", action="store_true", help="write the models folders (and the record) alone, no scene"
     )
     p.add_argument(
         "--views",
-        type=int,
+        type=count("--views"),
         default=None,
         help="dimo: viewpoints per scene (default 13); tless: images per test scene (default 10)",
     )
@@ -45,17 +53,22 @@ def register(sub) -> None:
     )
     p.add_argument("--carriers", default="2", help="dimo: carrier ids cycled over scenes (0..2)")
     p.add_argument("--compositions", default="1,2,4", help="dimo: composition ids cycled over scenes (0..4)")
-    p.add_argument("--pbr-scenes", type=int, default=1, help="tless: train_pbr scenes")
-    p.add_argument("--pbr-images", type=int, default=4, help="tless: images per train_pbr scene")
-    p.add_argument("--seed", type=int, default=0, help="draws the scenes, poses, light and materials (default 0)")
+    p.add_argument("--pbr-scenes", type=count("--pbr-scenes", 0), default=1, help="tless: train_pbr scenes")
+    p.add_argument("--pbr-images", type=count("--pbr-images"), default=4, help="tless: images per train_pbr scene")
+    p.add_argument(
+        "--seed", type=count("--seed", 0), default=0, help="draws the scenes, poses, light and materials (default 0)"
+    )
     p.add_argument(
         "--catalogue-seed",
-        type=int,
+        type=count("--catalogue-seed", 0),
         default=None,
         help="draws the object catalogue (default: the layout's one catalogue, the same for every --seed)",
     )
-    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--workers", type=count("--workers"), default=1, help="processes (default 1)")
     p.add_argument("--no-contact-sheets", action="store_true")
+    p.add_argument(
+        "--force", action="store_true", help="write into a non-empty --out folder that bop-cender synth did not make"
+    )
     p.set_defaults(func=cmd_synth)
 
 
@@ -71,14 +84,24 @@ def _ints(text: str, option: str) -> tuple[int, ...]:
 
 def cmd_synth(args: argparse.Namespace) -> int:
     from bop_cender.synth.generate import generate
+    from bop_cender.synth.record import check_output_folder
     from bop_cender.synth.write_dimo import DIMO_CATALOGUE_SEED, DimoSpec
     from bop_cender.synth.write_tless import TLESS_CATALOGUE_SEED, TlessSpec
 
-    if args.scenes < 0 or args.workers < 1 or (args.views is not None and args.views < 1):
-        raise ConfigError("--scenes must be >= 0, --workers and --views >= 1")
-    for option, value in (("--seed", args.seed), ("--catalogue-seed", args.catalogue_seed)):
-        if value is not None and value < 0:
-            raise ConfigError(f"must be >= 0, got {value}", field=option)
+    # Each number is checked as the command line is read (options.count); what is left needs several.
+    if args.models_only:
+        if args.scenes:
+            raise ConfigError(f"--models-only writes no scene; got --scenes {args.scenes}", field="--scenes")
+        args.scenes, args.pbr_scenes = 0, 0
+    elif args.scenes is None:
+        raise ConfigError("required: the number of scenes (--models-only for the models alone)", field="--scenes")
+    elif args.scenes + (args.pbr_scenes if args.layout == "tless" else 0) < 1:
+        other = " or --pbr-scenes N" if args.layout == "tless" else ""
+        raise ConfigError(
+            f"a dataset with no scene: give --scenes N{other} (N >= 1), or --models-only for the models alone",
+            field="--scenes",
+        )
+    check_output_folder(args.out, force=args.force)
     default_catalogue = DIMO_CATALOGUE_SEED if args.layout == "dimo" else TLESS_CATALOGUE_SEED
     catalogue_seed = default_catalogue if args.catalogue_seed is None else args.catalogue_seed
     try:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import announce
+from bop_cender.cli.options import announce, count, positive_number
 
 EPILOG = """examples:
   bop-cender train --dataset dimo --epochs 1 --out runs/smoke          # one epoch on the embedded demo
@@ -29,22 +29,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", default=None, help="training split (default: dimo train, tless/bop train_pbr)")
     p.add_argument("--val-split", default=None, help="validation split, scored every epoch (default: none)")
     p.add_argument("--val-data-root", default=None, help="root of the validation split (default: --data-root)")
-    p.add_argument("--epochs", type=int, default=10, help="epochs in all (with --resume: up to this many)")
-    p.add_argument("--batch-size", type=int, default=8)
-    p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (paper: 3e-4)")
+    p.add_argument(
+        "--epochs", type=count("--epochs"), default=10, help="epochs in all (with --resume: up to this many)"
+    )
+    p.add_argument("--batch-size", type=count("--batch-size"), default=8)
+    p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
         choices=("dimo", "dimo-lean", "tless", "tless-lean"),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean)",
     )
-    p.add_argument("--width", type=float, default=1.0, help="channel multiplier (default 1)")
+    p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
     p.add_argument("--no-augment", action="store_true", help="no data augmentation (ablation)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    p.add_argument("--seed", type=int, default=0, help="everything random derives from it (default 0)")
-    p.add_argument("--limit-scenes", type=int, default=None, help="only the first K training scenes")
-    p.add_argument("--val-limit-scenes", type=int, default=None, help="only the first K validation scenes")
+    p.add_argument("--seed", type=count("--seed", 0), default=0, help="everything random derives from it (default 0)")
+    p.add_argument(
+        "--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K training scenes"
+    )
+    p.add_argument(
+        "--val-limit-scenes", type=count("--val-limit-scenes"), default=None, help="only the first K validation scenes"
+    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -60,6 +66,8 @@ def parse_crop(text: str | None) -> tuple[int, int] | None:
         h, w = (int(x) for x in text.lower().split("x"))
     except ValueError:
         raise ConfigError(f"expected HxW (e.g. 128x160), got {text!r}", field="--crop") from None
+    if h < 1 or w < 1:
+        raise ConfigError(f"expected a positive height and width, got {text!r}", field="--crop")
     return h, w
 
 
@@ -78,16 +86,19 @@ def resolve_device(name: str):
 def cmd_train(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from bop_cender.data.bop_io import check_output_dir
     from bop_cender.datasets import resolve_data_root
     from bop_cender.net.train import TrainConfig, train
     from bop_cender.synth.demo import cache_dir
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
+    crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
+    check_output_dir(args.out)
     root = resolve_data_root(args.dataset, args.data_root, announce)
     config = TrainConfig(
         dataset=args.dataset, data_root=str(root), split=args.split or ("train" if kind == "dimo" else "train_pbr"),
         val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
-        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=parse_crop(args.crop),
+        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes,
     )  # fmt: skip

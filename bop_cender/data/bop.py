@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_keys
+from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_dir, require_keys
 from bop_cender.data.bop_io import image_size as read_image_size
 from bop_cender.data.bop_scene import (
     IMAGE_SUFFIXES,
@@ -130,11 +130,13 @@ def open_bop_split(
     root = _require_root(root)
     n_views = DEFAULT_N_VIEWS if n_views is None else n_views
     if isinstance(n_views, bool) or not isinstance(n_views, int | np.integer) or n_views < 1:
-        raise ConfigError(f"expected a positive integer, got {n_views!r}", field="n_views")
+        raise ConfigError(f"expected a positive integer, got {n_views!r}", field="--n-views")
     split_dir = root / layout.folder
     if not split_dir.is_dir():
         raise ConfigError(
-            f"split folder {layout.folder}/ not found; split folders: {_split_folders(root)}", file=root, field="split"
+            f"split folder {layout.folder}/ not found; split folders: {_split_folders(root)}",
+            file=root,
+            field="--split",
         )
     notes = [f"split {split!r}: folder {layout.folder}/"]
     models, eval_models = _load_model_sets(root, layout, notes)
@@ -205,7 +207,7 @@ def resolve_split_folder(root: Path, split: str, split_type: str | None = None) 
     if split_type:
         folder = f"{split}_{split_type}"
         if folder not in folders:
-            raise ConfigError(f"split folder {folder}/ not found; split folders: {folders}", file=root, field="split")
+            raise ConfigError(f"split folder {folder}/ not found; split folders: {folders}", file=root, field="--split")
         return folder
     if split in folders:
         return split
@@ -214,18 +216,15 @@ def resolve_split_folder(root: Path, split: str, split_type: str | None = None) 
         return matches[0]
     if matches:
         raise ConfigError(
-            f"split {split!r} is ambiguous ({', '.join(matches)}): name the folder or give a split type",
+            f"split {split!r} is ambiguous ({', '.join(matches)}): give the folder as the split, e.g. --split {matches[0]}",
             file=root,
-            field="split",
+            field="--split",
         )
-    raise ConfigError(f"unknown split {split!r}; split folders: {folders or 'none'}", file=root, field="split")
+    raise ConfigError(f"unknown split {split!r}; split folders: {folders or 'none'}", file=root, field="--split")
 
 
 def _require_root(root: str | Path) -> Path:
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError("dataset root folder not found", file=root)
-    return root
+    return require_dir(root, "dataset root folder")
 
 
 def _split_folders(root: Path) -> list[str]:
@@ -249,9 +248,9 @@ def _load_model_sets(
         found = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith("models"))
         raise ConfigError(
             f"models folder {layout.models_dir}/ not found; models folders: {found or 'none'}"
-            " (choose one with model_type, e.g. 'cad' for models_cad/)",
+            " (choose one with --model-type, e.g. --model-type cad for models_cad/)",
             file=root,
-            field="model_type",
+            field="--model-type",
         )
     models = load_models(models_dir)
     eval_dir = root / layout.eval_models_dir

@@ -7,10 +7,13 @@ so an interrupted run never leaves a half-written file.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
+import sys
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.errors import BopCenderError, DatasetError
+from bop_cender.data.ply_ascii import check_mesh
+from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
 def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what: str = "file") -> str:
@@ -29,10 +33,69 @@ def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise error(f"{what} not found", file=path) from None
+    except IsADirectoryError:
+        raise error(f"is a directory, expected {_a(what)}", file=path) from None
     except UnicodeDecodeError as e:
         raise error(f"not UTF-8 text (byte {e.start})", file=path) from None
     except OSError as e:
         raise error(f"cannot read: {e.strerror}", file=path) from None
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[:1] in 'aeiou' else 'a'} {noun}"
+
+
+def require_file(
+    path: str | Path, what: str, error: type[BopCenderError] = DatasetError, field: str | None = None
+) -> Path:
+    """``path`` if it is a file; else one ``error`` that says what is there instead ("not found" or "is a
+    directory"), so that a folder given where a file is expected is not reported as missing."""
+    path = Path(path)
+    if path.is_dir():
+        raise error(f"is a directory, expected {_a(what)}", file=path, field=field)
+    if not path.is_file():
+        raise error(f"{what} not found", file=path, field=field)
+    return path
+
+
+def require_dir(
+    path: str | Path, what: str, error: type[BopCenderError] = DatasetError, field: str | None = None
+) -> Path:
+    """``path`` if it is a folder; else one ``error`` that says what is there instead ("not found" or "is a
+    file"), so that a file given where a folder is expected is not reported as missing."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise error(f"is a file, expected {_a(what)}", file=path, field=field)
+    if not path.is_dir():
+        raise error(f"{what} not found", file=path, field=field)
+    return path
+
+
+def check_output_dir(path: str | Path, field: str = "--out") -> Path:
+    """``path`` if a folder can be written there: refused (ConfigError) when it, or a folder above it, is a
+    file. Called before any work, so that a command does not compute for minutes and then fail to write."""
+    path = Path(path)
+    _check_folders_above(path, (path, *path.parents), field)
+    return path
+
+
+def _check_folders_above(path: Path, folders: Iterable[Path], field: str) -> None:
+    for above in folders:
+        if above.exists():
+            if not above.is_dir():
+                where = "exists and is not a directory" if above == path else f"{above} is a file, not a folder"
+                raise ConfigError(where, file=path, field=field)
+            return
+
+
+def check_output_file(path: str | Path, field: str = "--out") -> Path:
+    """``path`` if a file can be written there: refused (ConfigError) when it is a directory or a folder above
+    it is a file (see :func:`check_output_dir`)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError("is a directory, expected an output file", file=path, field=field)
+    _check_folders_above(path, path.parents, field)
+    return path
 
 
 def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCenderError] = DatasetError) -> Any:
@@ -73,17 +136,79 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     tmp_path = Path(tmp)
     os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
     try:
-        yield tmp_path
-        os.replace(tmp_path, path)
+        try:
+            yield tmp_path
+            os.replace(tmp_path, path)
+        except OSError as e:
+            raise _naming(e, tmp_path, path) from None
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _naming(error: OSError, tmp: Path, path: Path) -> OSError:
+    """``error`` naming ``path`` where it names the temporary file ``tmp``: the user never asked for ``tmp``
+    (and it is gone by the time they read the message)."""
+    if error.filename is None or Path(error.filename) != tmp:
+        return error
+    return type(error)(error.errno, error.strerror, str(path))
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (UTF-8)."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def write_texts_atomic(files: Mapping[str | Path, str]) -> None:
+    """Write several files as one unit: all of them, or (on any error) none, the previous contents kept.
+
+    Files that belong together (a scores JSON and its errors CSV) must never be left half updated: a
+    new CSV beside an old JSON reads as one consistent result. Each text goes to a temporary file
+    first; only when every one is written are the targets replaced, the old ones moved aside until all
+    are in place and put back if one replacement fails.
+    """
+    targets = [Path(p) for p in files]
+    temps: list[Path] = []
+    moved: list[tuple[Path, Path]] = []  # (target, its previous content moved aside)
+    placed: list[Path] = []
+    try:
+        for target, text in zip(targets, files.values(), strict=True):
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix or ".tmp", dir=target.parent)
+            os.close(fd)
+            tmp = Path(name)
+            temps.append(tmp)
+            os.chmod(tmp, 0o666 & ~_UMASK)
+            try:
+                tmp.write_text(text, encoding="utf-8")
+            except OSError as e:
+                raise _naming(e, tmp, target) from None
+        for target, tmp in zip(targets, temps, strict=True):
+            if target.is_dir():
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(target))
+            if target.exists():
+                fd, name = tempfile.mkstemp(prefix=f".{target.name}.old.", dir=target.parent)
+                os.close(fd)
+                os.replace(target, name)
+                moved.append((target, Path(name)))
+            try:
+                os.replace(tmp, target)
+            except OSError as e:
+                raise _naming(e, tmp, target) from None
+            placed.append(target)
+    except BaseException:
+        for target in placed:
+            target.unlink(missing_ok=True)
+        for target, old in moved:
+            os.replace(old, target)
+        moved = []
+        raise
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+        for _target, old in moved:
+            old.unlink(missing_ok=True)
 
 
 def _json_default(o: Any) -> Any:
@@ -121,6 +246,8 @@ def save_json(path: str | Path, content: Any) -> None:
 def load_ply(path: str | Path):
     """Load a triangle mesh (mm) with trimesh, keeping vertices exactly as stored (no merging).
 
+    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices).
+
     Returns:
         trimesh.Trimesh with ``vertices (N, 3)`` float64 and ``faces (F, 3)``.
     """
@@ -133,12 +260,9 @@ def load_ply(path: str | Path):
         mesh = trimesh.load(path, process=False, force="mesh")
     except Exception as e:  # trimesh raises many types on corrupt input
         raise DatasetError(f"cannot read PLY: {e}", file=path) from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
-        raise DatasetError("expected a triangle mesh with vertices", file=path)
-    if len(mesh.faces) == 0:
-        raise DatasetError("expected a triangle mesh with faces", file=path)
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise DatasetError("vertex coordinates contain NaN or inf", file=path, field="vertex")
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise DatasetError("expected a triangle mesh", file=path)
+    check_mesh(mesh.vertices, mesh.faces, path)  # the checks of the scorer's own reader (ply_ascii)
     return mesh
 
 
@@ -153,24 +277,72 @@ def save_ply(path: str | Path, mesh, binary: bool = False) -> None:
         tmp.write_bytes(data)
 
 
+_QUIET_LOCK = threading.Lock()
+_quiet_depth = 0  # how many threads are inside quiet_stderr()
+_saved_stderr: int | None = None
+
+
+@contextmanager
+def quiet_stderr() -> Iterator[None]:
+    """Silence what C libraries write to the process's stderr (file descriptor 2) inside the block.
+
+    The image decoders print their own lines (``libpng error: IDAT: CRC error``) before returning the
+    failure that we report as one error: the user would read a stray line first. Python's own
+    ``sys.stderr`` writes of other threads are silenced too while a decode runs (a progress bar misses
+    an update), which is why the block is kept to the decode alone. Nested and concurrent blocks share
+    one redirection (counted under a lock), so that the first to leave never restores too early and
+    the last always restores.
+    """
+    global _quiet_depth, _saved_stderr
+    with _QUIET_LOCK:
+        if _quiet_depth == 0:
+            try:
+                sys.stderr.flush()
+                saved = os.dup(2)
+            except (OSError, ValueError, AttributeError):  # no stderr to silence (closed, or replaced)
+                saved = None
+            if saved is not None:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, 2)
+                os.close(devnull)
+            _saved_stderr = saved
+        _quiet_depth += 1
+    try:
+        yield
+    finally:
+        with _QUIET_LOCK:
+            _quiet_depth -= 1
+            if _quiet_depth == 0 and _saved_stderr is not None:
+                os.dup2(_saved_stderr, 2)
+                os.close(_saved_stderr)
+                _saved_stderr = None
+
+
 def _imread(path: Path, flags: int) -> np.ndarray:
     import cv2
 
-    if not path.is_file():
-        raise DatasetError("image not found", file=path)
-    img = cv2.imread(str(path), flags)
+    require_file(path, "image")
+    with quiet_stderr():  # libpng's own message would come before ours
+        img = cv2.imread(str(path), flags)
     if img is None:
         raise DatasetError("cannot decode image", file=path)
     return img
 
 
 def load_depth(path: str | Path, depth_scale: float) -> np.ndarray:
-    """Depth image in mm ``(H, W)`` float32 from a 16-bit PNG: ``png * depth_scale`` (0 = no depth)."""
+    """Depth image in mm ``(H, W)`` float32 from a 16-bit PNG: ``png * depth_scale`` (0 = no depth).
+
+    Only a single-channel 16-bit image is depth: an 8-bit one (a visualisation, a mask, a re-save
+    that lost the bit depth) holds values of another unit entirely, and VSD would score against it
+    without a word.
+    """
     import cv2
 
     img = _imread(Path(path), cv2.IMREAD_UNCHANGED)
     if img.ndim != 2:
         raise DatasetError(f"expected a single-channel depth image, got shape {img.shape}", file=path)
+    if img.dtype != np.uint16:
+        raise DatasetError(f"expected a 16-bit depth image, got {8 * img.dtype.itemsize}-bit ({img.dtype})", file=path)
     return img.astype(np.float32) * np.float32(depth_scale)
 
 

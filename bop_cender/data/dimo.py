@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.bop_io import check_same_image_ids, image_size, load_image_dict
+from bop_cender.data.bop_io import check_same_image_ids, image_size, load_image_dict, require_dir
 from bop_cender.data.consistency import ResidualTracker
 from bop_cender.data.dimo_files import (
     CAMERA_FILE,
@@ -162,9 +162,7 @@ def open_dimo(root: str | Path, split: str, selection: DimoSelection = PAPER_SEL
     """
     if split not in SPLITS:
         raise ConfigError(f"unknown DIMO split {split!r}; expected one of {', '.join(SPLITS)}", field="--split")
-    root = Path(root)
-    if not root.is_dir():
-        raise DatasetError("DIMO root folder not found", file=root)
+    root = require_dir(root, "DIMO root folder")
     models = load_models(root / "models", is_target=lambda obj_id: obj_id < CARRIER_MIN_ID)
     camera_dir = root / _camera_folder(split, selection.camera)
     folders, notes = list_dimo_scenes(camera_dir, split, selection)

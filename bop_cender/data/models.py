@@ -11,6 +11,7 @@ from bop_cender.errors import DatasetError
 from bop_cender.geometry.symmetry import symmetries_from_model_info
 
 _INFO_KEYS = ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z")
+_POSITIVE_KEYS = ("diameter", "size_x", "size_y", "size_z")
 
 
 def model_path(models_dir: Path, obj_id: int) -> Path:
@@ -45,6 +46,11 @@ def load_models(
         where = f"{key}"
         require_keys(entry, _INFO_KEYS, info_path, where)
         vals = {k: as_number(entry[k], info_path, f"{where}.{k}") for k in _INFO_KEYS}
+        for k in _POSITIVE_KEYS:  # a negative size or diameter: every threshold and centre derived from it is wrong
+            if vals[k] <= 0:
+                raise DatasetError(
+                    f"expected a positive number (mm), got {entry[k]!r}", file=info_path, field=f"{where}.{k}"
+                )
         try:
             discrete, continuous = symmetries_from_model_info(entry)
         except ValueError as e:

@@ -40,12 +40,53 @@ def ascii_vertices(path: str) -> np.ndarray | None:
     return None if parsed is None else parsed[0]
 
 
+def check_mesh(vertices: np.ndarray, faces: np.ndarray | None, path: str | Path) -> None:
+    """Refuse a model no evaluation can use, whichever reader read it (this one or trimesh, ``load_ply``).
+
+    Every reader of a model file applies the same checks, so that a broken model fails as one error
+    naming the file rather than as a traceback deep in the renderer or, worse, a plausible score (NaN
+    vertices make every MSSD NaN, which no threshold accepts; out-of-range indices read other memory).
+
+    Raises:
+        DatasetError: no vertices, NaN or infinite coordinates, no faces (with ``faces`` given), faces
+            that are not triangles, or vertex indices outside ``[0, vertices)``.
+    """
+    vertices = np.asarray(vertices)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
+        raise DatasetError(f"expected a mesh with vertices (N, 3), got shape {vertices.shape}", file=path)
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(bad):
+        raise DatasetError(
+            f"{len(bad)} vertex coordinate(s) NaN or infinite (first: vertex {bad[0]})", file=path, field="vertex"
+        )
+    if faces is None:
+        return
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise DatasetError(f"expected triangles (F, 3), got shape {faces.shape}", file=path, field="face")
+    if len(faces) == 0:
+        raise DatasetError("expected a triangle mesh: the file has no faces", file=path, field="face")
+    out = np.flatnonzero(((faces < 0) | (faces >= len(vertices))).any(axis=1))
+    if len(out):
+        raise DatasetError(
+            f"{len(out)} face(s) index vertices outside 0..{len(vertices) - 1} (first: face {out[0]},"
+            f" {faces[out[0]].tolist()})",
+            file=path,
+            field="face",
+        )
+
+
 @lru_cache(maxsize=64)
 def _ascii_ply(path: str) -> tuple[np.ndarray, np.ndarray | None] | None:
     """``(vertices, faces)`` of an ASCII PLY, vertices parsed with ``float()``; None for a binary PLY.
 
-    ``faces`` is None when the file has no triangle list right after the vertices (other layouts are
-    left to trimesh).
+    ``faces`` is None when the file has no triangle list right after the vertices (other layouts, such as
+    polygons, are left to trimesh, which :func:`check_mesh` checks in turn). Everything read here is
+    checked (:func:`check_mesh`), a truncated or malformed line included.
+
+    Raises:
+        DatasetError: not a PLY, a malformed header or line, a truncated file, or a mesh that fails
+            :func:`check_mesh`.
     """
     with open(path, "rb") as f:
         header = []
@@ -57,31 +98,74 @@ def _ascii_ply(path: str) -> tuple[np.ndarray, np.ndarray | None] | None:
             header.append(text)
             if text == "end_header":
                 break
+        if header[0] != "ply":
+            raise DatasetError("not a PLY file (expected 'ply' on the first line)", file=path)
         if not any(h.startswith("format ascii") for h in header):
             return None
-        elements = [h.split() for h in header if h.startswith("element")]
-        n_pts, props, in_vertex = 0, [], False
-        for h in header:
-            if h.startswith("element"):
-                in_vertex = h.startswith("element vertex")
-                if in_vertex:
-                    n_pts = int(h.split()[-1])
-            elif h.startswith("property") and in_vertex:
-                props.append(h.split()[-1])
+        elements: list[tuple[str, int]] = []
+        props: list[str] = []
+        for n, h in enumerate(header, start=1):
+            words = h.split()
+            if words[:1] == ["element"]:
+                if len(words) != 3 or not words[2].isdigit():
+                    raise DatasetError(f"expected 'element NAME COUNT', got {h!r}", file=path, field=f"line {n}")
+                elements.append((words[1], int(words[2])))
+            elif words[:1] == ["property"] and elements and elements[-1][0] == "vertex":
+                if words[1:2] == ["list"]:
+                    return None  # vertices of varying length: left to trimesh
+                props.append(words[-1])
         try:
             cols = [props.index(a) for a in ("x", "y", "z")]
         except ValueError:
             raise DatasetError("PLY vertices have no x, y, z properties", file=path) from None
+        counts = dict(elements)
+        n_pts = counts.get("vertex", 0)
+        if elements[:1] != [("vertex", n_pts)]:
+            return None  # another element first: left to trimesh
+        line_no = len(header)
         pts = np.empty((n_pts, 3), dtype=np.float64)
         for i in range(n_pts):
-            fields = f.readline().split()
-            pts[i] = [float(fields[c]) for c in cols]
+            line_no += 1
+            fields = _line(f, path, line_no, f"vertex {i} of {n_pts}")
+            if len(fields) != len(props):
+                end = " (the file ends there: truncated?)" if not f.peek(1) else ""
+                raise DatasetError(
+                    f"expected {len(props)} values for vertex {i}, got {len(fields)}{end}",
+                    file=path,
+                    field=f"line {line_no}",
+                )
+            try:
+                pts[i] = [float(fields[c]) for c in cols]
+            except ValueError:
+                raise DatasetError(f"expected numbers for vertex {i}", file=path, field=f"line {line_no}") from None
         pts.setflags(write=False)
         faces = None
-        names = [e[1] for e in elements]
-        if names[:2] == ["vertex", "face"]:
-            n_faces = int(elements[1][2])
-            rows = [f.readline().split() for _ in range(n_faces)]
-            if all(len(r) >= 4 and r[0] == b"3" for r in rows):
-                faces = np.array([r[1:4] for r in rows], dtype=np.int64).reshape(-1, 3)
+        if [e[0] for e in elements[:2]] == ["vertex", "face"]:
+            n_faces = elements[1][1]
+            rows = []
+            for k in range(n_faces):
+                line_no += 1
+                row = _line(f, path, line_no, f"face {k} of {n_faces}")
+                if not row or not row[0].isdigit() or len(row) != int(row[0]) + 1:
+                    end = " (the file ends there: truncated?)" if not f.peek(1) else ""
+                    raise DatasetError(
+                        f"expected a vertex count and that many indices for face {k}{end}",
+                        file=path,
+                        field=f"line {line_no}",
+                    )
+                rows.append(row)
+            if all(len(r) == 4 and r[0] == b"3" for r in rows):
+                try:
+                    faces = np.array([r[1:4] for r in rows], dtype=np.int64).reshape(-1, 3)
+                except ValueError:
+                    raise DatasetError("expected integer vertex indices in the faces", file=path) from None
+    check_mesh(pts, faces, path)
     return pts, faces
+
+
+def _line(f, path: str, line_no: int, what: str) -> list[bytes]:
+    """The next line's fields; a missing line is a truncated file (else an IndexError, or a shorter mesh)."""
+    line = f.readline()
+    if not line:
+        raise DatasetError(f"truncated: the file ends before {what}", file=path, field=f"line {line_no}")
+    return line.split()

@@ -52,6 +52,15 @@ class DatasetRequest:
         """``dimo``, ``tless`` or ``bop`` (the generic BOP loader)."""
         return self.dataset if self.dataset in ("dimo", "tless") else "bop"
 
+    @property
+    def split_name(self) -> str:
+        """The split the opened Dataset will be named by: the default one where none is given, T-LESS
+        ``test`` with another sensor than primesense as ``test_{split_type}``."""
+        split = self.split or DEFAULT_SPLIT[self.loader]
+        if self.loader == "tless" and split == "test" and self.split_type not in (None, "primesense"):
+            split = f"test_{self.split_type}"
+        return split
+
 
 def open_dataset(request: DatasetRequest) -> Dataset:
     """Open the split ``request`` names.
@@ -61,10 +70,12 @@ def open_dataset(request: DatasetRequest) -> Dataset:
         DatasetError: the data on disk is missing or inconsistent.
     """
     loader = request.loader
-    split = request.split or DEFAULT_SPLIT[loader]
+    split = request.split_name
     if request.root is None:
         raise ConfigError(f"--dataset {request.dataset} needs --data-root DIR", field="--data-root")
     root = request.root
+    if root.exists() and not root.is_dir():  # said here, where the option is known, not as a missing folder
+        raise ConfigError("is a file, expected the dataset root folder", file=root, field="--data-root")
     if loader == "dimo":
         from bop_cender.data.dimo import open_dimo
 
@@ -72,8 +83,6 @@ def open_dataset(request: DatasetRequest) -> Dataset:
     if loader == "tless":
         from bop_cender.data.tless import open_tless
 
-        if split == "test" and request.split_type not in (None, "primesense"):
-            split = f"test_{request.split_type}"
         return open_tless(root, split, n_views=request.n_views, seed=request.seed, model_type=request.model_type)
     from bop_cender.data.bop import open_bop
 

@@ -79,7 +79,7 @@ def open_tless(
     model_type = model_type or DEFAULT_MODEL_TYPE
     if model_type not in MODEL_TYPES:
         raise ConfigError(
-            f"unknown T-LESS model type {model_type!r}; expected one of {', '.join(MODEL_TYPES)}", field="model_type"
+            f"unknown T-LESS model type {model_type!r}; expected one of {', '.join(MODEL_TYPES)}", field="--model-type"
         )
     layout = SplitLayout(
         folder=spec.folder,
@@ -98,4 +98,4 @@ def tless_split(split: str) -> TlessSplit:
     for spec in SPLITS.values():
         if spec.folder == split:
             return spec
-    raise ConfigError(f"unknown T-LESS split {split!r}; expected one of {', '.join(SPLITS)}", field="split")
+    raise ConfigError(f"unknown T-LESS split {split!r}; expected one of {', '.join(SPLITS)}", field="--split")

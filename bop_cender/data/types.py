@@ -157,6 +157,12 @@ class ObjectModel:
             )
         self.bbox_min = check_matrix(self.bbox_min, (3,), f"{what}: min_x/min_y/min_z", self.source)
         self.bbox_size = check_matrix(self.bbox_size, (3,), f"{what}: size_x/size_y/size_z", self.source)
+        if not (self.bbox_size > 0).all():  # a negative or zero extent: the centre and the box are wrong
+            raise DatasetError(
+                f"bounding-box sizes must be positive, got {self.bbox_size.tolist()}",
+                file=self.source,
+                field=f"{what}: size_x/size_y/size_z",
+            )
 
     @property
     def center(self) -> np.ndarray:

@@ -8,26 +8,30 @@ Where the data comes from, first found wins for each setting:
 3. the BOP file name ``{method}_{dataset}-{split}[-{split_type}]...csv``: ``dimo`` and ``tless`` map
    to our loaders, any other name to the generic BOP loader (which then needs a data root);
 4. no data root at all for ``dimo`` / ``tless``: what ``open_data`` does with a request without a root
-   (the CLI's: the embedded demo dataset, :func:`bop_cender.datasets.open_with_demo`).
+   (the default refuses it; the CLI opens the embedded demo only when asked to, ``--demo``, because a
+   results file scored on data it was not made on gives a meaningless 0 rather than an error).
 
-A sidecar that names another dataset than the file name is refused, and rows naming scenes, images or
-objects that are not in the data are refused by the scorer (each bad line listed).
+A sidecar that names another dataset than the file name is refused, rows naming scenes, images or
+objects that are not in the data are refused by the scorer (each bad line listed), and so is a file
+none of whose rows names a target of the data (:func:`check_matching`).
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from bop_cender.data.bop_io import check_output_dir, require_file
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
-from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 from bop_cender.eval.render_process import RenderProcess, render_process_useful
-from bop_cender.eval.score_report import ScoreReport, write_errors_csv, write_scores_json
+from bop_cender.eval.score_report import ScoreReport, write_score_files
 from bop_cender.eval.scoring import score_results
 from bop_cender.results.bop_csv import read_bop_results
 from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar, sidecar_path
@@ -133,8 +137,15 @@ def score_file(
     progress: bool = True,
     render_process: RenderProcess | bool | None = None,
     open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
+    write: bool = True,
 ) -> ScoredFile:
     """Score one BOP results CSV and write ``scores_<stem>.json`` and ``errors_<stem>.csv`` into ``out_dir``.
+
+    A file that cannot be a meaningful score is refused rather than scored 0: one with no estimate
+    (empty, blank, header only), and one none of whose rows names a target of the data (results of
+    other data, or the wrong data root). When fewer than :data:`MIN_MATCHING_FRACTION` of the rows
+    match a target, a :class:`~bop_cender.errors.ResultsWarning` says so (the score stands: the rest
+    are ignored, as the toolkit ignores them).
 
     Args:
         csv_path: the results file.
@@ -145,12 +156,21 @@ def score_file(
             one already started (left open), True to start one, False for threads of this process;
             None = start one where it helps: ``fork`` exists and torch is not imported yet (a cold start).
         open_data: opens the chosen request (default :func:`~bop_cender.data.registry.open_dataset`, which
-            needs a data root; the CLI passes :func:`bop_cender.datasets.open_with_demo`).
+            needs a data root; the CLI passes :func:`bop_cender.datasets.open_with_demo` for ``--demo``).
+        write: write the two files (both or neither, :func:`write_score_files`); False = only score
+            (``compare`` writes once every input has been scored).
+
+    Raises:
+        ResultsError: the file is missing, a directory, malformed, holds no estimate, or matches no target.
     """
-    csv_path = Path(csv_path)
-    if not csv_path.is_file():  # before the data is opened (the demo may have to be generated first)
-        raise ResultsError("results file not found", file=csv_path)
+    csv_path = require_file(csv_path, "results file", ResultsError)  # before the data is opened
+    if out_dir is not None:
+        check_output_dir(out_dir)
     clock = time.perf_counter()
+    rows = read_bop_results(csv_path)  # every line checked before the data is opened (or the demo generated)
+    if not rows:
+        raise ResultsError("no estimates (the file is empty or holds only the header): nothing to score", file=csv_path)
+    read = time.perf_counter()
     if isinstance(render_process, RenderProcess):
         process = nullcontext(render_process)
     elif render_process or (render_process is None and render_process_useful()):
@@ -165,18 +185,58 @@ def score_file(
         )  # fmt: skip
         ds = restrict_scenes(open_data(choice.request), choice.scene_keys, csv_path)
         opened = time.perf_counter()
-        rows = read_bop_results(csv_path, known_obj_ids=ds.models.keys())
-        read = time.perf_counter()
         report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path, renderer=renderer)
-    report.timings.update(open_dataset=opened - clock, read_results=read - opened)
+    report.timings.update(read_results=read - clock, open_dataset=opened - read)
     report = replace(report, metadata=replace(report.metadata, data_origin=choice.origin, method=method_name(csv_path)))
+    check_matching(report, csv_path, choice)
     out = Path(out_dir) if out_dir is not None else csv_path.parent
     stem = csv_path.name.split(".")[0]
-    scores_path, errors_path = out / f"scores_{stem}.json", out / f"errors_{stem}.csv"
-    write_errors_csv(errors_path, report)
+    scored = ScoredFile(report, choice, ds, out / f"scores_{stem}.json", out / f"errors_{stem}.csv")
     report.timings["total"] = time.perf_counter() - clock
-    write_scores_json(scores_path, report)
-    return ScoredFile(report, choice, ds, scores_path, errors_path)
+    if write:
+        write_scored(scored)
+    return scored
+
+
+def write_scored(scored: ScoredFile) -> None:
+    """Write a scored file's scores JSON and errors CSV, both or neither."""
+    write_score_files(scored.scores_path, scored.errors_path, scored.report)
+
+
+#: Below this fraction of rows naming a target, scoring warns (the rest are ignored): a file made on other
+#: data, or scored on the wrong split, would otherwise give a low score without a word.
+MIN_MATCHING_FRACTION = 0.5
+
+
+def check_matching(report: ScoreReport, csv_path: Path, choice: DataChoice) -> None:
+    """Refuse a file none of whose rows names a target of the data; warn when only a fraction does.
+
+    Rows that name no target (images the split does not select, objects that are not targets of their
+    image) are ignored, as the toolkit ignores them; when that is every row the score is 0 whatever the
+    poses, which only says that the file and the data do not belong together.
+
+    Raises:
+        ResultsError: no row names a target.
+    """
+    meta, counts = report.metadata, report.metadata.counts
+    matching = counts.rows - counts.not_target
+    if counts.rows == 0 or matching / counts.rows >= MIN_MATCHING_FRACTION:
+        return
+    where = f"dataset {meta.dataset} {meta.split} at {meta.root}"
+    ignored = f"{counts.unselected_images} for images the split does not select" if counts.unselected_images else ""
+    other = counts.not_target - counts.unselected_images
+    ignored = "; ".join(
+        p for p in (ignored, f"{other} for images or objects that are not targets" if other else "") if p
+    )
+    hint = f"the data came from {choice.origin}: wrong --data-root or --split?"
+    if matching == 0:
+        raise ResultsError(f"0 of {counts.rows} rows match a target of {where} ({ignored}); {hint}", file=csv_path)
+    message = (
+        f"only {matching} of {counts.rows} rows ({100 * matching / counts.rows:.0f} %) match a target of {where}; "
+        f"the other {counts.not_target} are ignored ({ignored}); {hint}"
+    )
+    report.notes.append(message)
+    warnings.warn(f"{csv_path}: {message}", ResultsWarning, stacklevel=3)
 
 
 def restrict_scenes(ds: Dataset, keys: tuple[str, ...] | None, csv_path: Path) -> Dataset:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import load_json, write_text_atomic
+from bop_cender.data.bop_io import load_json, write_text_atomic, write_texts_atomic
 
 #: The scores, in the order they are printed and written.
 SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
@@ -72,6 +72,11 @@ class ScoreCounts:
         evaluated: rows kept by the top-n cut. beyond_top_n: rows of targets beyond their top-n.
         pairs: (estimate, GT) pairs scored. targets: (image, object) targets. target_instances: recall's
         denominator. target_images: images with a target.
+        missed_instances: target instances no estimate matches at the loosest MSSD threshold.
+        unmatched_not_visible, unmatched_duplicate, unmatched_far: why evaluated estimates match nothing at
+        that threshold: their closest instance is not a target (too little of it visible, or beyond its
+        image's ``inst_count`` most visible), another estimate took it, or it is farther than every threshold.
+        Why perfect poses can score below 1 (:func:`bop_cender.eval.score_rows.unmatched_reasons`).
     """
 
     rows: int
@@ -83,6 +88,10 @@ class ScoreCounts:
     targets: int
     target_instances: int
     target_images: int
+    missed_instances: int = 0
+    unmatched_not_visible: int = 0
+    unmatched_duplicate: int = 0
+    unmatched_far: int = 0
 
 
 @dataclass(frozen=True)
@@ -178,9 +187,20 @@ class ScoreReport:
         return {**{k: self.scores.get(k) for k in SCORE_KEYS}, "recalls": recalls, "metadata": meta}
 
 
+def scores_json_text(report: ScoreReport) -> str:
+    """:meth:`ScoreReport.to_json` as strict JSON text (non-finite numbers become null)."""
+    return json.dumps(_finite(report.to_json()), indent=1) + "\n"
+
+
 def write_scores_json(path: str | Path, report: ScoreReport) -> None:
-    """Write :meth:`ScoreReport.to_json` atomically (strict JSON: non-finite numbers become null)."""
-    write_text_atomic(path, json.dumps(_finite(report.to_json()), indent=1) + "\n")
+    """Write :func:`scores_json_text` atomically."""
+    write_text_atomic(path, scores_json_text(report))
+
+
+def write_score_files(scores_path: str | Path, errors_path: str | Path, report: ScoreReport) -> None:
+    """Write the scores JSON and the errors CSV of one report as a unit: both, or neither (the previous
+    pair kept), so that a scores file never sits beside the errors of another scoring."""
+    write_texts_atomic({errors_path: errors_csv_text(report), scores_path: scores_json_text(report)})
 
 
 def read_scores_json(path: str | Path) -> dict[str, Any]:

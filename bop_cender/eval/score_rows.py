@@ -60,6 +60,37 @@ def count_not_target(rows: Sequence[BopEstimate], targets: list[Target]) -> int:
     return sum(1 for r in rows if (r.scene_id, r.im_id, r.obj_id) not in keys)
 
 
+def unmatched_reasons(records: Sequence[EstimateRecord], valid: Matches) -> dict[str, int]:
+    """Why evaluated estimates match no target instance at the loosest MSSD threshold, counted per cause.
+
+    Ground-truth poses themselves can score below 1, correctly (the toolkit agrees): a target keeps its
+    ``inst_count`` best estimates (ties in file order), so the pose of an instance that is too little
+    visible to be a target can take the place of a target instance's. Each unmatched estimate is put
+    under one cause by its closest instance (lowest MSSD): not a valid target (``not_visible``), valid
+    but matched by another estimate (``duplicate``), or valid and farther than every threshold (``far``).
+
+    Returns:
+        ``missed`` (valid instances matched by none) and the three causes.
+    """
+    loosest = float(valid.thresholds[-1])
+    valid_keys = {g.key for g in valid.gts}
+    counts = {"missed": int(np.count_nonzero(valid.est_ids[0, -1] < 0)), "not_visible": 0, "duplicate": 0, "far": 0}
+    for r in records:
+        if r.mssd_match[-1] >= 0:
+            continue
+        if len(r.gt_ids) == 0:
+            counts["far"] += 1
+            continue
+        j = r.best_gt()
+        if (r.scene_id, r.im_id, int(r.gt_ids[j])) not in valid_keys:
+            counts["not_visible"] += 1
+        elif r.mssd[j] < loosest:
+            counts["duplicate"] += 1
+        else:
+            counts["far"] += 1
+    return counts
+
+
 def estimate_records(kept, pairs, raw, mssd_n, mspd_n, m_mssd, m_mspd, m_vsd) -> list[EstimateRecord]:
     """One EstimateRecord per kept estimate, with the gt_id it matched per threshold."""
     group_of = {(s.estimate.scene_id, s.estimate.im_id, s.estimate.obj_id, s.est_id): k for k, s in enumerate(kept)}

@@ -47,7 +47,7 @@ from bop_cender.eval.matching import (
 from bop_cender.eval.pair_errors import PairErrors, Pairs, pair_errors
 from bop_cender.eval.render_process import DepthRenderer
 from bop_cender.eval.score_report import ScoreCounts, ScoreMetadata, ScoreReport
-from bop_cender.eval.score_rows import check_rows, count_not_target, estimate_records
+from bop_cender.eval.score_rows import check_rows, count_not_target, estimate_records, unmatched_reasons
 from bop_cender.eval.targets import TargetSet, resolve_targets
 from bop_cender.eval.toolkit_constants import Choice, mspd_width, vsd_delta_for
 from bop_cender.eval.visibility import rendered_visib_fracts
@@ -236,6 +236,7 @@ def build_report(
     gt, targets, kept, pairs, raw = gathered.gt, gathered.targets, paired.kept, paired.pairs, errors.raw
     not_target = count_not_target(rows, targets.targets)
     records = estimate_records(kept, pairs, raw, errors.mssd, errors.mspd, matched.mssd, matched.mspd, matched.vsd)
+    why = unmatched_reasons(records, matched.mssd)
     notes = [f"GT poses: {gt.pose_source}"]
     if errors.delta is None:
         notes.append("no test depth: VSD, AR_VSD and AR are not available; MSSD and MSPD stand alone")
@@ -249,6 +250,10 @@ def build_report(
         targets=len(targets.targets),
         target_instances=matched.n_targets,
         target_images=len({(t.scene_id, t.im_id) for t in targets.targets}),
+        missed_instances=why["missed"],
+        unmatched_not_visible=why["not_visible"],
+        unmatched_duplicate=why["duplicate"],
+        unmatched_far=why["far"],
     )
     metadata = ScoreMetadata(
         dataset=dataset.name,

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from bop_cender.data.bop_io import write_text_atomic
+from bop_cender.data.bop_io import check_output_dir, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import ConfigError
 from bop_cender.meshes import MeshCache
@@ -148,8 +148,7 @@ def train(
     """
     say = announce or (lambda _msg: None)
     run_dir = Path(run_dir)
-    if run_dir.exists() and not run_dir.is_dir():
-        raise ConfigError("exists and is not a directory", file=run_dir, field="--out")
+    check_output_dir(run_dir)
     checkpoint_path = run_dir / CHECKPOINT
     if checkpoint_path.exists() and not resume:
         raise ConfigError("holds a training run already: pass --resume to continue it, or another --out", file=run_dir)

@@ -28,7 +28,39 @@ def summary_lines(report: ScoreReport) -> list[str]:
         + ("n/a" if m.vsd_delta is None else f"{m.vsd_delta:g} mm ({m.vsd_delta_source})"),
         "time per image: " + ("n/a (a row has time < 0)" if m.time_per_image is None else f"{m.time_per_image:.3f} s"),
     ]
-    return lines + [f"note: {n}" for n in report.notes]
+    return lines + why_lines(report) + [f"note: {n}" for n in report.notes]
+
+
+def why_lines(report: ScoreReport) -> list[str]:
+    """Why the recall is below 1, per cause with counts (none when every target instance is matched).
+
+    Said because the reasons are surprising but correct: ground-truth poses score below 1 where an
+    instance too little visible to be a target takes a target's top-n place (equal scores keep file
+    order), and a user would otherwise take the scorer for broken.
+    """
+    c = report.metadata.counts
+    causes = (c.unmatched_not_visible, c.unmatched_duplicate, c.unmatched_far)
+    if not c.missed_instances and not any(causes):
+        return []
+    lines = [
+        f"why not 1 (MSSD, loosest threshold): {c.missed_instances} of {c.target_instances} target instances"
+        f" matched by no estimate; {sum(causes)} of {c.evaluated} evaluated estimates match none:"
+    ]
+    if c.unmatched_not_visible:
+        lines.append(
+            f"  {c.unmatched_not_visible} closest to an instance that is not a target (too little of it visible,"
+            " under 10 %, or beyond its image's inst_count most visible)"
+        )
+    if c.unmatched_duplicate:
+        lines.append(f"  {c.unmatched_duplicate} duplicates: their instance was matched by a higher-ranked estimate")
+    if c.unmatched_far:
+        lines.append(f"  {c.unmatched_far} farther from every instance than the loosest threshold")
+    if c.beyond_top_n:
+        lines.append(
+            f"  and {c.beyond_top_n} rows beyond the top-n cut were not evaluated (a target keeps its inst_count"
+            " highest-scored estimates; equal scores keep file order)"
+        )
+    return lines
 
 
 def _fmt(value: float | None, digits: int) -> str:

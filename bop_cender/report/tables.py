@@ -11,23 +11,27 @@ Inputs, any mix:
   filtered to the table's dataset and split (one row per method, its tables merged).
 
 Outputs: a markdown table (returned and written), a CSV and a bar chart PNG (matplotlib, Agg) of the scores.
+A table holds one dataset and split (inputs of several are refused before anything is scored), each row
+has a name of its own (two results of one method are told apart by their files), and nothing is written
+unless every input was read and scored.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from bop_cender.data.bop_io import atomic_path, write_text_atomic
+from bop_cender.data.bop_io import atomic_path, check_output_dir, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
-from bop_cender.eval.score_file import method_name, score_file
+from bop_cender.eval.score_file import ScoredFile, choose_data, method_name, score_file, write_scored
 from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
 
 #: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
@@ -96,6 +100,11 @@ def compare(
 ) -> Comparison:
     """Build, write and return the comparison of ``inputs`` (see the module docstring).
 
+    Nothing is written unless everything succeeds: every input, its dataset and split and the reference
+    table are checked before any input is scored, and the scores of the CSV inputs are written with the
+    table once all are scored. A table holds one dataset and split (inputs of several are refused), and
+    each row has a name of its own (a method given twice is told apart by its file).
+
     Args:
         inputs: results CSVs and/or scores JSONs, one row each, in this order.
         reference: ``"paper"`` (or a CSV in the paper tables' format) to add reference rows.
@@ -105,24 +114,47 @@ def compare(
         out_dir: where the scores of CSV inputs and the comparison files are written.
 
     Raises:
-        ConfigError: an input is neither ``.csv`` nor ``.json``, or the reference table is missing.
+        ConfigError: an input is neither ``.csv`` nor ``.json`` or is given twice, the inputs are for several
+            datasets or splits, the reference table is missing or malformed, or ``out_dir`` is a file.
+        ResultsError: an input is missing, a directory or malformed (or cannot be scored).
     """
-    out_dir = Path(out_dir)
-    _check_inputs(inputs)
+    out_dir = check_output_dir(out_dir)
+    paths = _check_inputs(inputs)
+    table = None
+    if reference is not None:
+        table = read_reference_table(PAPER_TABLES if reference == "paper" else Path(reference))
+    planned: dict[Path, tuple[str | None, str | None]] = {}
+    jsons: dict[Path, dict] = {}
+    for path in paths:
+        if path.suffix == ".csv":
+            choice = choose_data(
+                path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+                model_type=model_type,
+            )  # fmt: skip
+            request = choice.request
+            known = request.dataset != "bop"  # named after its folder: told only once it is opened
+            planned[path] = (request.dataset, request.split_name) if known else (None, None)
+        else:
+            jsons[path] = read_scores_json(path)
+            meta = jsons[path].get("metadata") or {}
+            planned[path] = (meta.get("dataset"), meta.get("split"))
+    _one_dataset_and_split(planned)  # before anything is scored
     rows: list[MethodRow] = []
-    for item in inputs:
-        path = Path(item)
+    scored_files: list[ScoredFile] = []
+    for path in paths:
         if path.suffix == ".csv":
             scored = score_file(
                 path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
                 model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
+                write=False,
             )  # fmt: skip
+            scored_files.append(scored)
             meta = scored.report.metadata
             rows.append(
                 MethodRow(method_name(path), f"scored {path.name}", scored.report.scores, meta.dataset, meta.split)
             )
-        elif path.suffix == ".json":
-            data = read_scores_json(path)
+        else:
+            data = jsons[path]
             meta = data.get("metadata") or {}
             scores = {k: data[k] for k in SCORE_KEYS}
             rows.append(
@@ -134,13 +166,12 @@ def compare(
                     meta.get("split"),
                 )
             )
-        else:
-            raise ConfigError(f"expected a results .csv or a scores .json, got {path.name}", field="inputs")
-    table_dataset = dataset if dataset in ("dimo", "tless") else next((r.dataset for r in rows if r.dataset), dataset)
-    table_split = split or next((r.split for r in rows if r.split), None)
-    if reference is not None:
-        path = PAPER_TABLES if reference == "paper" else Path(reference)
-        rows += reference_rows(path, table_dataset, table_split)
+    _one_dataset_and_split({path: (r.dataset, r.split) for path, r in zip(paths, rows, strict=True)})
+    rows = _named_apart(rows, paths)
+    table_dataset = next((r.dataset for r in rows if r.dataset), None if dataset == "bop" else dataset)
+    table_split = next((r.split for r in rows if r.split), split)
+    if table is not None:
+        rows += reference_rows_of(table, table_dataset, table_split)
     comparison = Comparison(rows, table_dataset, table_split)
     stem = f"comparison_{table_dataset or 'results'}-{table_split or 'all'}"
     comparison.files = {
@@ -148,15 +179,48 @@ def compare(
         "csv": out_dir / f"{stem}.csv",
         "png": out_dir / f"{stem}.png",
     }
+    for scored in scored_files:  # every input scored: now the files
+        write_scored(scored)
     write_text_atomic(comparison.files["markdown"], comparison.markdown())
     write_text_atomic(comparison.files["csv"], comparison.csv_text())
     bar_chart(comparison, comparison.files["png"])
     return comparison
 
 
-def reference_rows(path: Path | Traversable, dataset: str | None, split: str | None) -> list[MethodRow]:
-    """Rows of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are comments)
-    for ``dataset`` / ``split`` (None: any), one per method, its tables merged.
+def _one_dataset_and_split(found: dict[Path, tuple[str | None, str | None]]) -> None:
+    """Refuse inputs of several datasets or splits: one table compares methods on one split (the scores of
+    two splits side by side read as one comparison). Inputs that do not say (a bare scores JSON) fit any."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for path, (ds, sp) in found.items():
+        if ds is not None or sp is not None:
+            groups.setdefault((ds or "?", sp or "?"), []).append(path.name)
+    if len(groups) > 1:
+        listed = "; ".join(f"{', '.join(names)}: {ds} {sp}" for (ds, sp), names in groups.items())
+        raise ConfigError(
+            f"a table holds one dataset and split, and the inputs are for {len(groups)}: {listed}"
+            " (compare each dataset and split on its own)",
+            field="inputs",
+        )
+
+
+def _named_apart(rows: list[MethodRow], paths: list[Path]) -> list[MethodRow]:
+    """Rows whose method names are shared (two ``gt`` results, a CSV and its scores JSON) named by their file
+    too: ``gt (gt_dimo-real)``; by the path as given where even the file names are the same."""
+    counts = Counter(r.method for r in rows)
+    named = [
+        replace(r, method=f"{r.method} ({p.name.split('.')[0]})") if counts[r.method] > 1 else r
+        for r, p in zip(rows, paths, strict=True)
+    ]
+    counts = Counter(r.method for r in named)
+    return [
+        replace(n, method=f"{r.method} ({p})") if counts[n.method] > 1 else n
+        for r, n, p in zip(rows, named, paths, strict=True)
+    ]
+
+
+def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
+    """Every record of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are
+    comments), each checked (a number, a known metric), so that a bad table fails before anything is scored.
 
     Raises:
         ConfigError: the file is missing or malformed.
@@ -166,24 +230,43 @@ def reference_rows(path: Path | Traversable, dataset: str | None, split: str | N
             "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
         )
     lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
-    merged: dict[tuple[str, str, str], dict[str, float]] = {}
-    sources: dict[tuple[str, str, str], list[str]] = {}
+    records = []
     for n, rec in enumerate(csv.DictReader(lines), start=2):
         try:
-            value = float(rec["value"])
-            key = (rec["dataset"], rec["split"], rec["method"])
-            metric = rec["metric"]
+            float(rec["value"])
+            if not all(isinstance(rec[k], str) for k in ("dataset", "split", "method", "source", "metric")):
+                raise TypeError
         except (KeyError, TypeError, ValueError):
             raise ConfigError(
                 f"expected dataset,split,method,source,metric,value; bad row {n}", field=str(path)
             ) from None
-        if metric not in SCORE_KEYS:
+        if rec["metric"] not in SCORE_KEYS:
             raise ConfigError(
-                f"unknown metric {metric!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
+                f"unknown metric {rec['metric']!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
             )
+        records.append(rec)
+    return records
+
+
+def reference_rows(path: Path | Traversable, dataset: str | None, split: str | None) -> list[MethodRow]:
+    """Rows of a paper-tables CSV (:func:`read_reference_table`) for ``dataset`` / ``split`` (None: any), one
+    per method, its tables merged.
+
+    Raises:
+        ConfigError: the file is missing or malformed.
+    """
+    return reference_rows_of(read_reference_table(path), dataset, split)
+
+
+def reference_rows_of(records: list[dict[str, str]], dataset: str | None, split: str | None) -> list[MethodRow]:
+    """:func:`reference_rows` of records already read."""
+    merged: dict[tuple[str, str, str], dict[str, float]] = {}
+    sources: dict[tuple[str, str, str], list[str]] = {}
+    for rec in records:
+        key = (rec["dataset"], rec["split"], rec["method"])
         if (dataset and key[0] != dataset) or (split and key[1] != split):
             continue
-        merged.setdefault(key, {})[metric] = value
+        merged.setdefault(key, {})[rec["metric"]] = float(rec["value"])
         if rec["source"] not in sources.setdefault(key, []):
             sources[key].append(rec["source"])
     return [
@@ -219,7 +302,20 @@ def bar_chart(comparison: Comparison, path: Path) -> None:
     plt.close(fig)
 
 
-def _check_inputs(inputs: list[str | Path]) -> None:
-    missing = [str(p) for p in inputs if not Path(p).is_file()]
+def _check_inputs(inputs: list[str | Path]) -> list[Path]:
+    """The inputs as paths, each an existing ``.csv`` or ``.json`` file given once."""
+    paths = [Path(p) for p in inputs]
+    for path in paths:
+        if path.suffix not in (".csv", ".json"):
+            raise ConfigError(f"expected a results .csv or a scores .json, got {path.name}", field="inputs")
+    missing = [str(p) for p in paths if not p.exists()]
     if missing:
         raise ResultsError(f"input file(s) not found: {', '.join(missing)}")
+    for path in paths:
+        require_file(path, "results .csv or scores .json file", ResultsError)
+    seen: dict[Path, Path] = {}
+    for path in paths:
+        first = seen.setdefault(path.resolve(), path)
+        if first is not path:
+            raise ConfigError(f"{path} is given twice (as {first}): one row per input", field="inputs")
+    return paths

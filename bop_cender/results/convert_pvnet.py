@@ -22,13 +22,14 @@ input forms are accepted:
    (seconds for the whole image; all estimates of an image must agree) to -1.
 
 Scene folder names become BOP int ids through :func:`bop_cender.data.scene_ids.scene_folder_to_int`.
+Translations that cannot be in metres (millimetres given instead) are refused (:func:`check_units`).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,10 @@ _IMAGE_FOLDERS = {"rgb", "gray", "depth", "images", "image"}
 
 
 def convert_pvnet(
-    source: str | Path, out_csv: str | Path, known_obj_ids: Collection[int] | None = None
+    source: str | Path,
+    out_csv: str | Path,
+    known_obj_ids: Collection[int] | None = None,
+    diameters: Mapping[int, float] | None = None,
 ) -> list[BopEstimate]:
     """Read PVNet-style outputs from ``source`` (a folder of ``.npy`` or a JSON file) and write a BOP CSV.
 
@@ -54,13 +58,16 @@ def convert_pvnet(
         source: see the module docstring.
         out_csv: output path; must be a BOP result name (``pvnet_tless-test.csv``).
         known_obj_ids: if given, every obj_id must be one of these.
+        diameters: model diameters (mm) by obj_id, if known: the unit check (:func:`check_units`) then
+            measures distances in diameters, which holds for any camera set-up.
 
     Returns:
         The rows written (in mm).
 
     Raises:
         ResultsError: an unreadable or misnamed input, a pose of the wrong shape or not a rotation,
-            an unknown object, or an image whose estimates disagree on its time.
+            an unknown object, translations that are not in metres, or an image whose estimates
+            disagree on its time.
     """
     source = Path(source)
     if source.is_dir():
@@ -74,8 +81,49 @@ def convert_pvnet(
         bad = sorted({r.obj_id for r in rows} - known)
         if bad:
             raise ResultsError(f"unknown object id(s) {bad}; known: {sorted(known)}", file=source, field="obj_id")
+    check_units(rows, source, diameters)
     write_bop_results(out_csv, rows)
     return rows
+
+
+#: Farther than this many diameters, an object is a few pixels wide at best: translations in millimetres
+#: read as metres put it 1000 times farther (a 50 mm part at 0.8 m would be 16,000 diameters away).
+MAX_DISTANCE_IN_DIAMETERS = 500.0
+#: Without the models, a median camera distance above this (m) is taken for millimetres read as metres.
+MAX_DISTANCE_M = 20.0
+
+
+def check_units(rows: list[BopEstimate], source: Path, diameters: Mapping[int, float] | None = None) -> None:
+    """Refuse translations that cannot be in metres (PVNet's unit), which would convert to parts kilometres away.
+
+    A file written in millimetres converts without any other sign (the poses are valid rotations and finite
+    numbers) and scores 0 everywhere. The median distance is judged, so that one wild estimate does
+    not refuse a file: against the model diameters where they are known (objects farther than
+    :data:`MAX_DISTANCE_IN_DIAMETERS` diameters), else against :data:`MAX_DISTANCE_M`.
+
+    Raises:
+        ResultsError: the median distance is implausible for metres.
+    """
+    if not rows:
+        return
+    distance_m = np.median([float(np.linalg.norm(r.t)) / METRES_TO_MM for r in rows])
+    known = [r for r in rows if diameters and diameters.get(r.obj_id, 0) > 0]
+    hint = "expected t in metres, as PVNet writes it; were they in millimetres? divide them by 1000"
+    if known:
+        in_diameters = float(np.median([np.linalg.norm(r.t) / diameters[r.obj_id] for r in known]))  # type: ignore[index]
+        if in_diameters > MAX_DISTANCE_IN_DIAMETERS:
+            raise ResultsError(
+                f"implausible translations: the objects would lie a median {in_diameters:,.0f} model diameters"
+                f" ({distance_m:,.0f} m) from the camera; {hint}",
+                file=source,
+                field="t",
+            )
+    elif distance_m > MAX_DISTANCE_M:
+        raise ResultsError(
+            f"implausible translations: the objects would lie a median {distance_m:,.0f} m from the camera; {hint}",
+            file=source,
+            field="t",
+        )
 
 
 def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:

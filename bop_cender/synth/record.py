@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.bop_io import save_json
+from bop_cender.data.bop_io import check_output_dir, save_json
 from bop_cender.errors import ConfigError, DatasetError
 from bop_cender.synth.demo import DEMO_VERSION
 
@@ -35,6 +35,31 @@ def dataset_record(layout: str, spec: Any) -> dict[str, Any]:
         "seed": int(spec.seed),
         "catalogue_seed": int(spec.catalogue_seed),
     }
+
+
+def check_output_folder(root: str | Path, force: bool = False) -> Path:
+    """``root`` if ``bop-cender synth`` may write there: a new or empty folder, or a dataset it made (a record).
+
+    A non-empty folder without a record is someone else's (a real download, a home directory given by
+    mistake): the generator would write its models and scenes among what is there, and a later resume
+    would take it for a dataset of its own. It is refused unless ``force``.
+
+    Raises:
+        ConfigError: ``root`` (or a folder above it) is a file, or a non-empty folder without a record.
+    """
+    root = check_output_dir(root)
+    if force or not root.is_dir() or (root / RECORD_FILE).is_file():
+        return root
+    found = sorted(p.name for p in root.iterdir())
+    if found:
+        listed = ", ".join(found[:3]) + (f", ... ({len(found)} in all)" if len(found) > 3 else "")
+        raise ConfigError(
+            f"not empty ({listed}) and not a dataset bop-cender synth made (no {RECORD_FILE}): give a new or "
+            "empty folder, or --force to write into it anyway",
+            file=root,
+            field="--out",
+        )
+    return root
 
 
 def check_or_write_record(root: str | Path, layout: str, spec: Any) -> Path:

@@ -90,7 +90,7 @@ def test_registry_opens_bop(built):
 
 @pytest.mark.parametrize("n_views", [0, -1, 2.5])
 def test_bad_n_views(built, n_views):
-    with pytest.raises(ConfigError, match="n_views"):
+    with pytest.raises(ConfigError, match="--n-views: expected a positive integer"):
         open_bop(built.root, "test", n_views=n_views)
 
 

@@ -1,4 +1,5 @@
 import json
+import re
 
 import numpy as np
 import pytest
@@ -14,10 +15,14 @@ from bop_cender.data.bop_io import (
     load_mask,
     load_ply,
     load_rgb,
+    require_dir,
+    require_file,
     save_depth,
     save_json,
     save_ply,
     write_image,
+    write_text_atomic,
+    write_texts_atomic,
 )
 from bop_cender.errors import DatasetError
 
@@ -53,6 +58,39 @@ def test_atomic_path_leaves_nothing_on_error(tmp_path):
         raise RuntimeError("boom")
     assert not target.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_path_names_the_target_not_its_temporary_file(tmp_path):
+    (tmp_path / "out.txt").mkdir()  # the rename onto the target fails
+    with pytest.raises(IsADirectoryError) as info:
+        write_text_atomic(tmp_path / "out.txt", "x")
+    assert info.value.filename == str(tmp_path / "out.txt")
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_files_written_as_a_unit_are_all_or_none(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.json"
+    write_texts_atomic({a: "new a", b: "new b"})
+    assert (a.read_text(), b.read_text()) == ("new a", "new b")
+    c = tmp_path / "c.json"
+    c.mkdir()  # cannot be replaced: a, written first, is put back as it was
+    with pytest.raises(IsADirectoryError) as info:
+        write_texts_atomic({a: "newer a", c: "c"})
+    assert info.value.filename == str(c) and a.read_text() == "new a"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.json", "c.json"]
+
+
+def test_require_file_and_dir_say_what_is_there_instead(tmp_path):
+    (tmp_path / "f").write_text("x")
+    assert require_file(tmp_path / "f", "results file") == tmp_path / "f"
+    with pytest.raises(DatasetError, match="is a directory, expected a results file"):
+        require_file(tmp_path, "results file")
+    with pytest.raises(DatasetError, match="nope: results file not found"):
+        require_file(tmp_path / "nope", "results file")
+    with pytest.raises(DatasetError, match="f: is a file, expected a dataset root folder"):
+        require_dir(tmp_path / "f", "dataset root folder")
+    with pytest.raises(DatasetError, match="nope: dataset root folder not found"):
+        require_dir(tmp_path / "nope", "dataset root folder")
 
 
 def test_depth_round_trip(tmp_path):
@@ -108,7 +146,7 @@ def test_json_that_is_not_utf8_or_not_a_file_is_one_error(tmp_path):
     with pytest.raises(DatasetError, match="not UTF-8 text"):
         load_json(tmp_path / "latin.json")
     (tmp_path / "folder.json").mkdir()
-    with pytest.raises(DatasetError, match="cannot read"):
+    with pytest.raises(DatasetError, match="folder.json: is a directory, expected a file"):
         load_json(tmp_path / "folder.json")
 
 
@@ -141,3 +179,45 @@ def test_differing_image_ids_name_the_file_and_a_few_ids(tmp_path):
         DatasetError, match=r"b.json: image ids: .*missing 0, 1, 2, 3, 4, 5, 6, 7, \.\.\. \(40 in all\)"
     ):
         check_same_image_ids({tmp_path / "a.json": range(50), tmp_path / "b.json": range(40, 50)})
+
+
+@pytest.mark.parametrize("binary", [False, True], ids=["ascii", "binary"])
+def test_every_model_reader_checks_the_same_things(tmp_path, binary):
+    """load_ply (trimesh, binary or ASCII) and the scorer's ASCII reader refuse the same broken meshes."""
+    from bop_cender.data.ply_ascii import ascii_mesh
+
+    def write(name, vertices, faces):
+        mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+        path = tmp_path / f"{name}.ply"
+        path.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary" if binary else "ascii"))
+        return path
+
+    box = trimesh.creation.box()
+    nan = np.array(box.vertices)
+    nan[3, 1] = np.nan
+    cases = {
+        "nan": (write("nan", nan, box.faces), "vertex: 1 vertex coordinate(s) NaN or infinite (first: vertex 3)"),
+        "out": (write("out", box.vertices, np.vstack([box.faces, [[0, 1, 8]]])), "index vertices outside 0..7"),
+    }
+    for path, message in cases.values():
+        with pytest.raises(DatasetError, match=re.escape(message)):
+            load_ply(path)
+        if not binary:
+            with pytest.raises(DatasetError, match=re.escape(message)):
+                ascii_mesh(path)
+
+
+def test_quiet_stderr_silences_fd_2_and_restores_it_after_nested_and_threaded_use(capfd):
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bop_cender.data.bop_io import quiet_stderr
+
+    def inside(k):
+        with quiet_stderr(), quiet_stderr():
+            os.write(2, f"hidden {k}\n".encode())
+
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(inside, range(16)))
+    os.write(2, b"shown\n")
+    assert capfd.readouterr().err == "shown\n"

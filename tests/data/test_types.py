@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 
@@ -107,6 +109,13 @@ def test_load_models_errors(tmp_path):
     (d / "models_info.json").write_text('{"1": {' + entry + "}}")
     with pytest.raises(DatasetError, match=r"1.size_z: expected a number"):
         load_models(d)
+    good = {"diameter": 10, "min_x": 0, "min_y": 0, "min_z": 0, "size_x": 1, "size_y": 1, "size_z": 1}
+    for key, bad in (("size_z", -1), ("diameter", 0), ("size_x", -0.5)):
+        (d / "models_info.json").write_text(json.dumps({"1": {**good, key: bad}}))
+        with pytest.raises(
+            DatasetError, match=rf"models_info.json: 1.{key}: expected a positive number \(mm\), got {bad}"
+        ):
+            load_models(d)
     entry = entry.replace('"x"', "1")
     (d / "models_info.json").write_text('{"1": {' + entry + "}}")
     with pytest.raises(DatasetError, match=r"obj_000001.ply: model of object 1"):

@@ -119,3 +119,68 @@ def test_a_malformed_scores_json_is_one_error_naming_the_field(tmp_path: Path, c
         path.write_text(json.dumps({**scores, **json.loads(content)}))
     with pytest.raises(ResultsError, match=message):
         compare([path], out_dir=tmp_path)
+
+
+def test_compare_refuses_inputs_of_two_datasets_before_scoring_any(small_fixture, results_dir, capsys) -> None:
+    """A DIMO row under a T-LESS heading is refused, and nothing is scored or written."""
+    tless = results_dir / "gt_tless-test.csv"
+    write_bop_results(tless, gt_rows(small_fixture))
+    dimo = results_dir / "gt_dimo-real.csv"
+    write_bop_results(dimo, gt_rows(small_fixture)[:2])
+    out = results_dir / "tables"
+    assert main(["compare", str(tless), str(dimo), "--data-root", str(small_fixture.root), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "a table holds one dataset and split, and the inputs are for 2" in err and err.count("\n") == 1, err
+    assert "gt_tless-test.csv: tless test; gt_dimo-real.csv: dimo real" in err
+    assert not out.exists()
+
+
+def test_compare_names_rows_of_one_method_by_their_file(small_fixture, results_dir) -> None:
+    first = results_dir / "gt_tless-test.csv"
+    write_bop_results(first, gt_rows(small_fixture))
+    (results_dir / "b").mkdir()
+    second = results_dir / "b" / "gt_tless-test.csv"
+    write_bop_results(second, gt_rows(small_fixture, {3: "t_5.5%"}))
+    scored = score_file(first, data_root=small_fixture.root, out_dir=results_dir / "scores", progress=False)
+    comparison = compare(
+        [first, second, scored.scores_path], data_root=small_fixture.root, out_dir=results_dir / "t", progress=False
+    )
+    names = [r.method for r in comparison.rows]
+    assert names == [f"gt ({first})", f"gt ({second})", "gt (scores_gt_tless-test)"]
+    assert len(set(names)) == len(names)
+    with pytest.raises(ConfigError, match="is given twice"):
+        compare([first, first], data_root=small_fixture.root, out_dir=results_dir / "u", progress=False)
+
+
+def test_compare_checks_everything_before_writing_anything(small_fixture, results_dir, capsys) -> None:
+    good = results_dir / "gt_tless-test.csv"
+    write_bop_results(good, gt_rows(small_fixture))
+    bad = results_dir / "bad_tless-test.csv"
+    bad.write_text("scene_id,im_id,obj_id,score,R,t,time\n1,0,1,x\n")  # malformed: found when it is scored
+    out = results_dir / "tables"
+    args = ["--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"]
+    assert main(["compare", str(good), str(bad), *args]) == 2
+    assert "bad_tless-test.csv: 1 bad line(s)" in capsys.readouterr().err and not out.exists()
+    (results_dir / "ref.csv").write_text("dataset,split,method,source,metric,value\ntless,test,x,y,AR,high\n")
+    assert main(["compare", str(good), "--reference", str(results_dir / "ref.csv"), *args]) == 2
+    assert "bad row 2" in capsys.readouterr().err and not out.exists()
+    (results_dir / "a_file").write_text("x")
+    assert main(["compare", str(good), *args[:2], "--out", str(results_dir / "a_file")]) == 2
+    assert "a_file: --out: exists and is not a directory" in capsys.readouterr().err
+    folder = results_dir / "folder.csv"
+    folder.mkdir()
+    assert main(["compare", str(folder), *args]) == 2
+    assert "folder.csv: is a directory" in capsys.readouterr().err and not out.exists()
+
+
+def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir, capsys) -> None:
+    """compare scores through score: a file of another data set's images is an error, not a 0.000 row."""
+    targets = set(small_fixture.target_images)
+    ignored = [
+        row(s, i, o, 1.0, T) for (s, i), gts in small_fixture.gt.items() if (s, i) not in targets for _, o, T in gts
+    ]
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, ignored)
+    out = results_dir / "tables"
+    assert main(["compare", str(csv_path), "--data-root", str(small_fixture.root), "--out", str(out)]) == 2
+    assert f"0 of {len(ignored)} rows match a target" in capsys.readouterr().err and not out.exists()

@@ -82,9 +82,42 @@ def test_unknown_objects_and_the_cli(tmp_path: Path, capsys) -> None:
     root.mkdir(parents=True)
     (root / "models_info.json").write_text(json.dumps({"9": {}}))
     out = tmp_path / "pvnet_tless-test.csv"
-    assert main(["convert-pvnet", str(src), "--out", str(out), "--dataset-root", str(tmp_path / "ds")]) == 0
+    assert main(["convert-pvnet", str(src), "--out", str(out), "--data-root", str(tmp_path / "ds")]) == 0
     assert "wrote 1 estimates" in capsys.readouterr().out
     assert read_bop_results(out)[0].t[2] == pytest.approx(1000.0)
+    out.unlink()
+    assert main(["convert-pvnet", str(src), "--out", str(out), "--dataset-root", str(tmp_path / "ds")]) == 0
+    assert "warning: --dataset-root is deprecated: use --data-root" in capsys.readouterr().err and out.is_file()
+    both = ["--data-root", str(tmp_path / "ds"), "--dataset-root", str(tmp_path / "ds")]
+    assert main(["convert-pvnet", str(src), "--out", str(out), *both]) == 2
+    assert "--dataset-root: give --data-root alone" in capsys.readouterr().err
+    assert main(["convert-pvnet", str(src), "--out", str(out), "--data-root", str(out)]) == 2
+    assert capsys.readouterr().err == f"error: {out}: --data-root: is a file, expected a dataset root folder\n"
+
+
+def test_translations_in_millimetres_are_refused(tmp_path: Path, capsys) -> None:
+    """821 m parts: t written in mm where metres are documented. Refused, with the models' diameters where
+    known (a 20 mm part 15 m away is 750 diameters: implausible, though 15 m alone is not)."""
+    src = tmp_path / "in"
+    src.mkdir()
+    mm = [pose([120.0, -40.0, 812.0]), pose([110.0, -30.0, 815.0]), pose([0.1, 0.0, 0.8])]  # one plausible
+    np.save(src / "000001_000000_000001.npy", np.stack(mm))
+    out = tmp_path / "pvnet_tless-test.csv"
+    with pytest.raises(ResultsError, match=r"t: implausible translations: .* a median 822 m from the camera; .*metres"):
+        convert_pvnet(src, out)
+    np.save(src / "000001_000000_000001.npy", pose([0.0, 0.0, 15.0]))
+    convert_pvnet(src, out)  # 15 m: plausible for some camera, without the models
+    with pytest.raises(ResultsError, match=r"a median 750 model diameters \(15 m\)"):
+        convert_pvnet(src, out, diameters={1: 20.0})
+    np.save(src / "000001_000000_000001.npy", pose([0.0, 0.0, 0.8]))
+    assert len(convert_pvnet(src, out, diameters={1: 20.0})) == 1  # 40 diameters
+    models = tmp_path / "ds" / "models_eval"
+    models.mkdir(parents=True)
+    (models / "models_info.json").write_text(json.dumps({"1": {"diameter": 0.02}}))  # a diameter in metres
+    assert main(["convert-pvnet", str(src), "--out", str(out), "--data-root", str(tmp_path / "ds")]) == 2
+    assert (
+        "t: implausible translations: the objects would lie a median 40,000 model diameters" in capsys.readouterr().err
+    )
 
 
 def test_a_non_finite_object_id_is_one_error(tmp_path: Path) -> None:

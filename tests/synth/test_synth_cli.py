@@ -34,7 +34,7 @@ def test_synth_into_a_path_that_cannot_be_a_folder_is_one_error(tmp_path: Path, 
 
 
 def models_only(layout: str, out: Path, *extra: str) -> list[str]:
-    return ["synth", "--layout", layout, "--out", str(out), "--scenes", "0", "--pbr-scenes", "0", *extra]
+    return ["synth", "--layout", layout, "--out", str(out), "--models-only", *extra]
 
 
 @pytest.mark.parametrize("layout, default", [("tless", TLESS_CATALOGUE_SEED), ("dimo", DIMO_CATALOGUE_SEED)])
@@ -64,3 +64,38 @@ def test_negative_seeds_are_refused(tmp_path: Path, capsys, flag: str) -> None:
     assert main(models_only("tless", tmp_path / "ds", flag, "-1")) == 2
     err = capsys.readouterr().err
     assert f"{flag}: must be >= 0" in err and not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--layout", "dimo", "--scenes", "0"], "--scenes: a dataset with no scene: give --scenes N (N >= 1), or"),
+        (["--layout", "tless", "--scenes", "0", "--pbr-scenes", "0"], "give --scenes N or --pbr-scenes N (N >= 1)"),
+        (["--layout", "tless"], "--scenes: required: the number of scenes (--models-only for the models alone)"),
+        (["--layout", "tless", "--models-only", "--scenes", "2"], "--models-only writes no scene"),
+        (["--layout", "tless", "--scenes", "1", "--views", "0"], "--views: must be >= 1, got 0"),
+        (["--layout", "tless", "--scenes", "1", "--workers", "0"], "--workers: must be >= 1, got 0"),
+        (["--layout", "tless", "--scenes", "1", "--pbr-images", "-3"], "--pbr-images: must be >= 1, got -3"),
+        (["--layout", "tless", "--scenes", "x"], "--scenes: expected an integer, got 'x'"),
+    ],
+)
+def test_numbers_that_make_no_dataset_are_refused(tmp_path: Path, capsys, argv: list[str], message: str) -> None:
+    assert main(["synth", "--out", str(tmp_path / "ds"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "ds").exists()
+
+
+def test_synth_refuses_a_folder_it_did_not_make_unless_forced(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    assert main(models_only("tless", out)) == 2
+    err = capsys.readouterr().err
+    assert f"{out}: --out: not empty (notes.txt) and not a dataset bop-cender synth made" in err and "--force" in err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert main(models_only("tless", out, "--force")) == 0
+    assert main(models_only("tless", out)) == 0  # now it has the record: a resume
+    (tmp_path / "a_file").write_text("x")
+    assert main(models_only("tless", tmp_path / "a_file")) == 2
+    assert "a_file: --out: exists and is not a directory" in capsys.readouterr().err
