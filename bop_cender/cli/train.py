@@ -51,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--val-limit-scenes", type=count("--val-limit-scenes"), default=None, help="only the first K validation scenes"
     )
+    p.add_argument(
+        "--init-weights", default=None, metavar="W.pt", help="start from these weights (fine-tuning) instead of random"
+    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -100,7 +103,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
         lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
-        val_limit_scenes=args.val_limit_scenes,
+        val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

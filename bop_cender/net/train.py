@@ -55,6 +55,8 @@ class TrainConfig:
         augment: the appendix's augmentations (False: none, for tests and ablations).
         seed: everything random derives from it.
         limit_scenes, val_limit_scenes: the first K scenes only (smoke runs).
+        init_weights: start from these weights (same network spec) instead of a random init: fine-tuning,
+            e.g. a few epochs at a lower learning rate after a run (the optimiser starts afresh).
     """
 
     dataset: str
@@ -72,6 +74,7 @@ class TrainConfig:
     seed: int = 0
     limit_scenes: int | None = None
     val_limit_scenes: int | None = None
+    init_weights: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size"):
@@ -169,6 +172,16 @@ def train(
     spec = UNetSpec.named(config.variant, center_channels=n_channels, width=config.width)
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
+    if config.init_weights is not None:
+        init = load_weights(config.init_weights, dataset=config.dataset)
+        if init.model.spec != spec or init.channel_obj_ids != train_set.channel_obj_ids:
+            raise ConfigError(
+                f"its network ({init.model.spec.name}, {init.model.spec.center_channels} center channels) is not"
+                f" this run's ({spec.name}, {spec.center_channels})",
+                file=config.init_weights,
+                field="--init-weights",
+            )
+        model.load_state_dict(init.model.state_dict())
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
     history: list[EpochRecord] = []
     start_epoch = 0

@@ -112,3 +112,25 @@ def test_random_crops_cut_image_and_targets_alike() -> None:
     assert torch.equal(a[:, :1], b) and torch.equal(a[:, 0], c)
     whole = random_crop(image, center, curvature, (20, 20), gen)[0]
     assert torch.equal(whole, image)  # no crop larger than the image
+
+
+def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "first", progress=False)
+    first = tmp_path / "first" / WEIGHTS
+    tuned = train(
+        _config(tiny_root, epochs=1, val_split=None, lr=1e-9, init_weights=str(first), augment=False),
+        tmp_path / "tuned",
+        progress=False,
+    )
+    assert tuned.epochs_done == 1
+    a = load_weights(first).model.state_dict()
+    b = load_weights(tmp_path / "tuned" / WEIGHTS).model.state_dict()
+    for key in a:
+        if "running" not in key and "num_batches" not in key:  # BatchNorm statistics move whatever the lr
+            assert torch.allclose(a[key].float(), b[key].float(), atol=1e-5), key
+    with pytest.raises(ConfigError, match="not this run's"):
+        train(
+            _config(tiny_root, epochs=1, val_split=None, width=1.0, init_weights=str(first)),
+            tmp_path / "x",
+            progress=False,
+        )
