@@ -59,12 +59,22 @@ def main(argv=None) -> int:
     ap.add_argument("--command", required=True, help="the exact training command")
     ap.add_argument("--data-note", action="append", default=[], help="how the data was made (repeatable)")
     ap.add_argument("--test", action="append", default=[], type=Path, help="a heatmaps JSON to put on the card")
+    ap.add_argument(
+        "--pretrained-run",
+        type=Path,
+        default=None,
+        help="the run that --init-weights came from (its epochs on the card)",
+    )
     ap.add_argument("--subset-seed", type=int, default=9003, help="seed of the card's fixed subset (one DIMO scene)")
     args = ap.parse_args(argv)
     source = args.run_dir / "weights.pt"
     weights = load_weights(source, dataset=args.dataset)
     history = weights.extra.get("history", [])
     config = weights.extra.get("config", {})
+    pre_history, pre_config = [], {}
+    if args.pretrained_run is not None:
+        pre = load_weights(args.pretrained_run / "weights.pt", dataset=args.dataset)
+        pre_history, pre_config = pre.extra.get("history", []), pre.extra.get("config", {})
     target = ROOT / "bop_cender" / "net" / "weights" / SHIPPED[args.dataset]
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(source, target)
@@ -81,8 +91,11 @@ def main(argv=None) -> int:
         "channel_obj_ids": weights.channel_obj_ids,
         "trained_on": {"data": args.data_note, "config": config},
         "command": args.command,
-        "epochs": weights.extra.get("epoch"),
-        "wall_s": round(sum(h.get("wall_s", 0.0) for h in history), 1),
+        "epochs": weights.extra.get("epoch") + len(pre_history),
+        "wall_s": round(sum(h.get("wall_s", 0.0) for h in pre_history + history), 1),
+        "pretraining": {"run": str(args.pretrained_run), "config": pre_config, "history": pre_history}
+        if args.pretrained_run
+        else None,
         "machine": f"{bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores, torch {torch.__version__}",
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],
