@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import add_data_options, announce, count
+from bop_cender.cli.options import add_data_options, announce, count, resolve_device
 
 EPILOG = """examples:
   bop-cender heatmaps --dataset dimo --split sim                  # shipped weights on the embedded demo
@@ -45,7 +45,6 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bop_cender.cli.options import data_request
-    from bop_cender.cli.train import resolve_device
     from bop_cender.data.bop_io import check_output_dir, write_text_atomic
     from bop_cender.datasets import open_with_demo
     from bop_cender.errors import ConfigError

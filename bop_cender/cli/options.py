@@ -139,3 +139,20 @@ def add_scoring_options(p: argparse.ArgumentParser) -> None:
 def announce(line: str) -> None:
     """Tell the user what the command does on their behalf (the embedded demo), on stderr."""
     print(f"[bop-cender] {line}", file=sys.stderr)
+
+
+def resolve_device(name: str):
+    """The torch device of ``--device auto|cpu|cuda`` (auto: CUDA where torch sees one).
+
+    Raises:
+        ConfigError: ``cuda`` without a CUDA device.
+    """
+    import torch
+
+    from bop_cender.errors import ConfigError
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
+    return torch.device(name)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bop_cender.cli.options import add_data_options, announce, count
+from bop_cender.cli.options import add_data_options, announce, count, resolve_device
 
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, the shipped network
@@ -89,7 +89,6 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    import torch
     from tqdm import tqdm
 
     from bop_cender.data.registry import DEFAULT_SPLIT
@@ -102,11 +101,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.heatmaps = default_heatmaps(args.dataset, args.weights)
         if args.heatmaps == "oracle":
             announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
-    device = args.device
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    elif device == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
+    device = str(resolve_device(args.device))
     overrides = {}
     for name, flag, value in (("n_candidates", "--candidates", args.candidates), ("top_k", "--top-k", args.top_k)):
         if value is not None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import announce, count, positive_number
+from bop_cender.cli.options import announce, count, positive_number, resolve_device
 
 EPILOG = """examples:
   bop-cender train --dataset dimo --epochs 1 --out runs/smoke          # one epoch on the embedded demo
@@ -72,18 +72,6 @@ def parse_crop(text: str | None) -> tuple[int, int] | None:
     if h < 1 or w < 1:
         raise ConfigError(f"expected a positive height and width, got {text!r}", field="--crop")
     return h, w
-
-
-def resolve_device(name: str):
-    import torch
-
-    from bop_cender.errors import ConfigError
-
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
-    return torch.device(name)
 
 
 def cmd_train(args: argparse.Namespace) -> int:
