@@ -53,8 +53,6 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     from bop_cender.net.metrics import HeatmapMetricsConfig
     from bop_cender.net.targets import TargetConfig
 
-    if args.limit_scenes is not None and args.limit_scenes < 1:
-        raise ConfigError(f"expected a positive number of scenes, got {args.limit_scenes}", field="--limit-scenes")
     out = check_output_dir(args.out)
     device = resolve_device(args.device)
     kind = "dimo" if args.dataset == "dimo" else "tless"

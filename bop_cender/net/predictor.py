@@ -32,8 +32,8 @@ def predict_probabilities(model: UNet, image: torch.Tensor, batch_size: int = 8)
     return torch.cat(centers), torch.cat(curvatures)
 
 
-def scene_images(scene: Scene, device: torch.device | str = "cpu") -> torch.Tensor:
-    """The colour images of ``scene``'s views as ``(V, 3, H, W)`` float32 in [0, 1] on ``device``.
+def scene_rgb(scene: Scene) -> np.ndarray:
+    """The colour images of ``scene``'s views as ``(V, H, W, 3)`` uint8 RGB, as the network's inputs are read.
 
     Raises:
         DatasetError: a view without a colour image, or views of different sizes.
@@ -45,7 +45,12 @@ def scene_images(scene: Scene, device: torch.device | str = "cpu") -> torch.Tens
         images.append(load_rgb(view.rgb_path))
     if len({im.shape for im in images}) > 1:
         raise DatasetError(f"scene {scene.key}: views of different sizes are not supported")
-    x = torch.from_numpy(np.stack(images)).to(device)
+    return np.stack(images)
+
+
+def scene_images(scene: Scene, device: torch.device | str = "cpu") -> torch.Tensor:
+    """:func:`scene_rgb` as ``(V, 3, H, W)`` float32 in [0, 1] on ``device``."""
+    x = torch.from_numpy(scene_rgb(scene)).to(device)
     return x.permute(0, 3, 1, 2).float().div_(255.0).contiguous()
 
 

@@ -22,9 +22,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from bop_cender.data.bop_io import atomic_path, load_rgb
+from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
+from bop_cender.net.predictor import scene_rgb
 from bop_cender.net.targets import TargetConfig, scene_targets
 from bop_cender.render.mesh import RenderMesh
 
@@ -84,20 +85,18 @@ def load_samples(
     size = None
     for key in tqdm(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
         scene = dataset.loader(key)
-        for view in scene.views:
-            if view.rgb_path is None:
-                raise DatasetError(f"scene {key} image {view.im_id} has no colour image", file=view.source)
-            if size is None:
-                size = (view.height, view.width)
-            elif (view.height, view.width) != size:
-                raise DatasetError(
-                    f"scene {key} image {view.im_id} is {view.width}x{view.height}; the split's first was"
-                    f" {size[1]}x{size[0]}: one image size per training set",
-                    file=view.source,
-                )
+        rgb = scene_rgb(scene)
+        if size is None:
+            size = rgb.shape[1:3]
+        elif rgb.shape[1:3] != size:
+            raise DatasetError(
+                f"scene {key}'s images are {rgb.shape[2]}x{rgb.shape[1]}; the split's first were"
+                f" {size[1]}x{size[0]}: one image size per training set",
+                file=scene.views[0].source,
+            )
         center, curvature = _scene_targets_cached(scene, dataset, config, meshes, channel_obj_ids, cache_dir)
+        images.extend(rgb)
         for i, view in enumerate(scene.views):
-            images.append(load_rgb(view.rgb_path))
             centers.append(center[i])
             curvatures.append(curvature[i])
             sample_keys.append((key, view.im_id))
