@@ -26,11 +26,11 @@ from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
 def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what: str = "file") -> str:
-    """A UTF-8 text file's content, or one ``error`` naming the file: missing, unreadable (a folder, no
-    permission) or not UTF-8."""
+    """A UTF-8 text file's content (a leading UTF-8 byte-order mark dropped, as Windows editors write one), or
+    one ``error`` naming the file: missing, unreadable (a folder, no permission) or not UTF-8."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise error(f"{what} not found", file=path) from None
     except IsADirectoryError:
