@@ -93,23 +93,48 @@ def symmetries_from_model_info(info: Mapping) -> tuple[list[list[float]], list[C
     Raises ValueError (with the key) on malformed entries; loaders turn it into a DatasetError.
     """
     discrete: list[list[float]] = []
-    for i, flat in enumerate(info.get("symmetries_discrete", []) or []):
-        arr = np.asarray(flat, dtype=np.float64)
-        if arr.shape != (16,) or not np.all(np.isfinite(arr)):
+    for i, flat in enumerate(_symmetry_list(info, "symmetries_discrete")):
+        arr = _floats(flat)
+        if arr is None or arr.shape != (16,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"symmetries_discrete[{i}]: expected 16 finite numbers (row-major 4x4)")
         discrete.append(arr.tolist())
     continuous: list[ContinuousSymmetry] = []
-    for i, sym in enumerate(info.get("symmetries_continuous", []) or []):
+    for i, sym in enumerate(_symmetry_list(info, "symmetries_continuous")):
         if not isinstance(sym, Mapping) or "axis" not in sym:
             raise ValueError(f"symmetries_continuous[{i}]: expected an object with 'axis' and 'offset'")
-        axis = np.asarray(sym["axis"], dtype=np.float64)
-        offset = np.asarray(sym.get("offset", [0, 0, 0]), dtype=np.float64)
-        if axis.shape != (3,) or offset.shape != (3,) or not np.all(np.isfinite(np.r_[axis, offset])):
+        axis, offset = _floats(sym["axis"]), _floats(sym.get("offset", [0, 0, 0]))
+        if (
+            axis is None
+            or offset is None
+            or axis.shape != (3,)
+            or offset.shape != (3,)
+            or not np.all(np.isfinite(np.r_[axis, offset]))
+        ):
             raise ValueError(f"symmetries_continuous[{i}]: axis and offset must be 3 finite numbers")
         if np.linalg.norm(axis) == 0:
             raise ValueError(f"symmetries_continuous[{i}].axis: must not be the zero vector")
         continuous.append(ContinuousSymmetry(tuple(axis.tolist()), tuple(offset.tolist())))
     return discrete, continuous
+
+
+def _symmetry_list(info: Mapping, key: str) -> list:
+    """``info[key]``: a list; absent or null is no symmetry (anything else, a number or a string, is refused)."""
+    value = info.get(key)
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise ValueError(f"{key}: expected a list, got {type(value).__name__}")
+    return value
+
+
+def _floats(value: object) -> np.ndarray | None:
+    """``value`` as a float64 array, None where it is not numbers (an object, a string, a bool)."""
+    if isinstance(value, bool) or (isinstance(value, list) and any(isinstance(v, bool) for v in value)):
+        return None
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
 
 
 def apply_symmetries_to_pose(
