@@ -19,8 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bop_cender.geometry.rotations import orthonormality_error
+
 #: BOP'19 evaluation's discretisation step (fraction of the diameter), eval_bop19_pose.py.
 BOP19_MAX_SYM_DISC_STEP = 0.01
+#: A discrete symmetry whose rotation part is farther than this from orthonormal (max |R R^T - I|) is refused:
+#: the files round them to ~6 digits, and a scaling or a zero matrix would make every MSSD / MSPD meaningless.
+SYMMETRY_TOLERANCE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,13 @@ def symmetries_from_model_info(info: Mapping) -> tuple[list[list[float]], list[C
         arr = _floats(flat)
         if arr is None or arr.shape != (16,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"symmetries_discrete[{i}]: expected 16 finite numbers (row-major 4x4)")
+        m = arr.reshape(4, 4)
+        err, det = float(orthonormality_error(m[:3, :3])), float(np.linalg.det(m[:3, :3]))
+        if err > SYMMETRY_TOLERANCE or det < 0 or not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            raise ValueError(
+                f"symmetries_discrete[{i}]: expected a rigid transform (max |R R^T - I| = {err:.3g}, det = {det:.4f};"
+                f" expected <= {SYMMETRY_TOLERANCE:g}, det +1 and last row 0 0 0 1)"
+            )
         discrete.append(arr.tolist())
     continuous: list[ContinuousSymmetry] = []
     for i, sym in enumerate(_symmetry_list(info, "symmetries_continuous")):
