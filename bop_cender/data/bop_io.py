@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.ply_ascii import check_mesh
+from bop_cender.data.ply_ascii import ascii_mesh, check_mesh
 from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
@@ -246,7 +246,9 @@ def save_json(path: str | Path, content: Any) -> None:
 def load_ply(path: str | Path):
     """Load a triangle mesh (mm) with trimesh, keeping vertices exactly as stored (no merging).
 
-    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices).
+    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices); an
+    ASCII PLY is first read line by line by :func:`bop_cender.data.ply_ascii.ascii_mesh` (trimesh takes
+    a file cut short for a mesh with fewer faces than its header declares).
 
     Returns:
         trimesh.Trimesh with ``vertices (N, 3)`` float64 and ``faces (F, 3)``.
@@ -256,6 +258,7 @@ def load_ply(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise DatasetError("model file not found", file=path)
+    ascii_mesh(path)  # raises on a truncated or malformed ASCII PLY; cached, and what evaluation reads anyway
     try:
         mesh = trimesh.load(path, process=False, force="mesh")
     except Exception as e:  # trimesh raises many types on corrupt input
