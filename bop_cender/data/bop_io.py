@@ -455,8 +455,10 @@ def as_int(value: Any, file: Path, where: str, strings: bool = False) -> int:
 
 
 def as_number(value: Any, file: Path, where: str) -> float:
-    """A finite float from a JSON value (int, float or numeric string), else a DatasetError."""
+    """A finite float from a JSON value (int, float or numeric string; not a bool), else a DatasetError."""
     try:
+        if isinstance(value, bool):
+            raise TypeError("a bool is not a number")
         x = float(value)
     except (TypeError, ValueError):
         raise DatasetError(f"expected a number, got {value!r}", file=file, field=where) from None
