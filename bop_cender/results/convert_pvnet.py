@@ -38,7 +38,7 @@ import numpy as np
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.errors import ResultsError
-from bop_cender.results.bop_csv import BopEstimate, write_bop_results
+from bop_cender.results.bop_csv import TIME_TOLERANCE_S, BopEstimate, write_bop_results
 
 METRES_TO_MM = 1000.0
 _FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")
@@ -162,6 +162,7 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             f"expected an object mapping image keys to estimates, got {type(content).__name__}", file=path
         )
     rows: list[BopEstimate] = []
+    first_time: dict[tuple[int, int], tuple[float, str]] = {}  # per image, its first known time and where
     for key, entries in content.items():
         scene_int, im_id = _image_key(key, path)
         if not isinstance(entries, list):
@@ -173,6 +174,15 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             obj_id = _int(entry["obj_id"], path, f"{where}.obj_id")
             score = _number(entry.get("score", 1.0), path, f"{where}.score")
             time_s = _number(entry.get("time", -1.0), path, f"{where}.time")
+            if time_s >= 0:  # checked here, so that the error names this file and key (the writer's: a row)
+                t0, at = first_time.setdefault((scene_int, im_id), (time_s, where))
+                if abs(time_s - t0) > TIME_TOLERANCE_S:
+                    raise ResultsError(
+                        f"time {time_s!r} s differs from {t0!r} s at {at} (the same image); one image's estimates"
+                        f" must share its time within {TIME_TOLERANCE_S} s",
+                        file=path,
+                        field=f"{where}.time",
+                    )
             poses = _poses(entry["pose"], path, f"{where}.pose")
             if len(poses) != 1:
                 raise ResultsError(f"expected one 3x4 pose, got {len(poses)}", file=path, field=f"{where}.pose")
