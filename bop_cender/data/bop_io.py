@@ -11,6 +11,7 @@ import errno
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -112,8 +113,13 @@ def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCender
         raise error(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=Path(path)) from None
 
 
+_INT_KEY = re.compile(r"-?[0-9]+")
+
+
 def _int_keys(pairs: list[tuple[str, Any]]) -> dict:
-    return {(int(k) if isinstance(k, str) and k.lstrip("-").isdigit() else k): v for k, v in pairs}
+    """Keys of ASCII digits (an optional minus) as ints; others (``"²"``, ``"--1"``, ``"٣"``) stay strings for the
+    caller to refuse by name (``str.isdigit`` takes ``"²"``, which ``int()`` refuses)."""
+    return {(int(k) if isinstance(k, str) and _INT_KEY.fullmatch(k) else k): v for k, v in pairs}
 
 
 def _current_umask() -> int:
