@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from bop_cender.data.bop_io import as_number, load_json, load_ply, save_ply
+from bop_cender.data.bop_io import as_number, load_image_dict, load_json, load_ply, save_ply
 from bop_cender.data.models import load_models
 from bop_cender.data.types import check_matrix
 from bop_cender.errors import DatasetError, ResultsError
@@ -80,3 +80,12 @@ def test_a_pvnet_time_disagreement_names_the_json_and_key(tmp_path: Path) -> Non
         convert_pvnet(source, out)
     assert (e.value.file, e.value.field) == (str(source), "000001/000042[1].time")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("key", ["²", "--1", "٣"])
+def test_a_key_that_only_looks_like_an_id_is_one_dataset_error(tmp_path: Path, key: str) -> None:
+    path = tmp_path / "scene_gt_info.json"
+    path.write_text(json.dumps({"0": [], key: []}))
+    with pytest.raises(DatasetError, match="expected image ids") as e:
+        load_image_dict(path)
+    assert (e.value.file, e.value.field) == (str(path), repr(key))
