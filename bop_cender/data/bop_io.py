@@ -485,7 +485,7 @@ def image_size(path: str | Path) -> tuple[int, int]:
             head = f.read(24)
     except FileNotFoundError:
         raise DatasetError("image not found", file=path) from None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+    if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # else: cut short, decoded
         return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
     import cv2
 
