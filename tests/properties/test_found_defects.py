@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from bop_cender.data.bop_io import as_number, load_image_dict, load_json, load_ply, save_ply
+from bop_cender.data.bop_io import as_number, image_size, load_image_dict, load_json, load_ply, save_ply
 from bop_cender.data.models import load_models
 from bop_cender.data.types import check_matrix
 from bop_cender.errors import DatasetError, ResultsError
@@ -89,3 +89,13 @@ def test_a_key_that_only_looks_like_an_id_is_one_dataset_error(tmp_path: Path, k
     with pytest.raises(DatasetError, match="expected image ids") as e:
         load_image_dict(path)
     assert (e.value.file, e.value.field) == (str(path), repr(key))
+
+
+def test_a_png_cut_inside_its_header_has_no_size(tmp_path: Path) -> None:
+    import cv2
+
+    path = tmp_path / "000000.png"
+    path.write_bytes(cv2.imencode(".png", np.zeros((12, 16, 3), np.uint8))[1].tobytes()[:16])
+    with pytest.raises(DatasetError, match="cannot decode image") as e:
+        image_size(path)
+    assert e.value.file == str(path)

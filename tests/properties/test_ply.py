@@ -71,9 +71,8 @@ def invalid(draw: st.DrawFn) -> Case:
         body[v] = " ".join(body[v].split()[:-1])
         what = f"vertex {v} one value short"
     elif kind == "count":
-        k = next(
-            i for i, h in enumerate(head) if h.startswith(draw(st.sampled_from(["element vertex", "element face"])))
-        )
+        element = draw(st.sampled_from(["element vertex", "element face"]))
+        k = next(i for i, h in enumerate(head) if h.startswith(element))
         words = head[k].split()
         words[2] = str(int(words[2]) + draw(st.integers(1, 5)))
         head[k] = " ".join(words)
