@@ -38,7 +38,7 @@ import numpy as np
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.errors import ResultsError
-from bop_cender.results.bop_csv import TIME_TOLERANCE_S, BopEstimate, write_bop_results
+from bop_cender.results.bop_csv import MAX_ID, TIME_TOLERANCE_S, BopEstimate, write_bop_results
 
 METRES_TO_MM = 1000.0
 _FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")
@@ -229,6 +229,9 @@ def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
 def _row(
     scene: int, im: int, obj: int, score: float, pose: np.ndarray, time_s: float, path: Path, where: str
 ) -> BopEstimate:
+    for name, value in (("scene_id", scene), ("im_id", im), ("obj_id", obj)):
+        if value > MAX_ID:  # else a CSV is written that no reader takes back
+            raise ResultsError(f"{name} {value} is too large (at most {MAX_ID})", file=path, field=where)
     R = pose[:, :3]
     if abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
         raise ResultsError("the 3x3 part of the pose is not a rotation", file=path, field=where)
