@@ -99,3 +99,14 @@ def test_a_png_cut_inside_its_header_has_no_size(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="cannot decode image") as e:
         image_size(path)
     assert e.value.file == str(path)
+
+
+@pytest.mark.parametrize(("key", "obj_id"), [("000001/000042", 1e30), ("000001/" + "9" * 19, 5)])
+def test_a_pvnet_id_too_large_for_the_csv_is_refused(tmp_path: Path, key: str, obj_id: float) -> None:
+    source = tmp_path / "pvnet.json"
+    source.write_text(json.dumps({key: [{"obj_id": obj_id, "pose": np.c_[np.eye(3), [0, 0, 0.7]].tolist()}]}))
+    out = tmp_path / "pvnet_tless-test.csv"
+    with pytest.raises(ResultsError, match="is too large") as e:
+        convert_pvnet(source, out)
+    assert (e.value.file, e.value.field) == (str(source), f"{key}[0]")
+    assert not out.exists()

@@ -103,7 +103,8 @@ def _pvnet_semantic() -> st.SearchStrategy[Case]:
         Case(dumps(replaced(PVNET, (K1, 0, "pose", 0, 0), True)), "invalid", "a bool in the pose"),
         Case(dumps(replaced(PVNET, (K1, 1, "time"), 5.0)), "invalid", "times of one image disagree"),
         Case(dumps(replaced(PVNET, (K1, 0, "obj_id"), -3)), "invalid", "obj_id negative"),
-        Case(dumps(replaced(PVNET, (K1, 0, "obj_id"), 1e30)), "either", "obj_id 1e30"),
+        Case(dumps(replaced(PVNET, (K1, 0, "obj_id"), 1e30)), "invalid", "obj_id 1e30"),
+        Case(dumps({"000001/" + "9" * 19: PVNET[K1]}), "invalid", "an image id of 19 digits"),
         Case(dumps(mm), "invalid", "t in millimetres"),
         Case(b"[]", "invalid", "a list"),
     ]
