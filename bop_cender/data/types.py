@@ -39,7 +39,7 @@ def check_matrix(value: Any, shape: tuple[int, ...], what: str, source: str | No
     """Return ``value`` as a finite float64 array of ``shape`` or raise a DatasetError naming it (a JSON
     ``true`` / ``false`` is not a number, though NumPy would read it as 1 / 0)."""
     try:
-        if _has_bool(value):
+        if has_bool(value):
             raise TypeError("a bool is not a number")
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -51,10 +51,13 @@ def check_matrix(value: Any, shape: tuple[int, ...], what: str, source: str | No
     return arr
 
 
-def _has_bool(value: Any) -> bool:
+def has_bool(value: Any) -> bool:
+    """Whether a JSON value (nested lists) holds a bool, or is a bool array: not numbers, though NumPy reads them so."""
     if isinstance(value, bool | np.bool_):
         return True
-    return isinstance(value, list | tuple) and any(_has_bool(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype == np.bool_
+    return isinstance(value, list | tuple) and any(has_bool(v) for v in value)
 
 
 def check_pose(T: Any, what: str, source: str | None = None, tol: float = ROTATION_TOLERANCE) -> np.ndarray:

@@ -37,6 +37,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.data.types import has_bool
 from bop_cender.errors import ResultsError
 from bop_cender.results.bop_csv import MAX_ID, TIME_TOLERANCE_S, BopEstimate, write_bop_results
 
@@ -212,8 +213,10 @@ def _scene(name: str, path: Path, field: str) -> int:
 
 
 def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
-    """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses."""
+    """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses (bools refused: NumPy would read them as 0 / 1)."""
     try:
+        if has_bool(value):
+            raise TypeError("a bool is not a number")
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ResultsError("expected numbers in a 3x4 [R | t] pose", file=path, field=field) from None
