@@ -153,7 +153,7 @@ def _models_strict(path: JsonPath, op: str) -> bool:
         if len(path) == 3:
             return op != "delete"  # one symmetry less is valid
         if key == "symmetries_continuous" and len(path) == 4 and path[3] == "offset":
-            return op != "delete"  # offset defaults to 0
+            return op == "bad"  # absent (deleted, renamed): offset 0
         return True
     return False
 

@@ -110,3 +110,18 @@ def test_a_pvnet_id_too_large_for_the_csv_is_refused(tmp_path: Path, key: str, o
         convert_pvnet(source, out)
     assert (e.value.file, e.value.field) == (str(source), f"{key}[0]")
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"), [((0, 0, True), "expected numbers in a 3x4"), ((2, 3, 1e308), "not finite")]
+)
+def test_a_pvnet_pose_with_a_bool_or_a_translation_overflowing_mm_is_refused(tmp_path: Path, edit, message) -> None:
+    pose = np.c_[np.eye(3), [0, 0, 0.7]].tolist()
+    pose[edit[0]][edit[1]] = edit[2]
+    source = tmp_path / "pvnet.json"
+    source.write_text(json.dumps({"000001/000042": [{"obj_id": 5, "pose": pose}]}))
+    out = tmp_path / "pvnet_tless-test.csv"
+    with pytest.raises(ResultsError, match=message) as e:
+        convert_pvnet(source, out)
+    assert e.value.file == str(source) and e.value.field.startswith("000001/000042[0]")
+    assert not out.exists()
