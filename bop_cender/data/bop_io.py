@@ -11,6 +11,7 @@ import errno
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -21,16 +22,16 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.ply_ascii import check_mesh
+from bop_cender.data.ply_ascii import ascii_mesh, check_mesh
 from bop_cender.errors import BopCenderError, ConfigError, DatasetError
 
 
 def read_text(path: str | Path, error: type[BopCenderError] = DatasetError, what: str = "file") -> str:
-    """A UTF-8 text file's content, or one ``error`` naming the file: missing, unreadable (a folder, no
-    permission) or not UTF-8."""
+    """A UTF-8 text file's content (a leading UTF-8 byte-order mark dropped, as Windows editors write one), or
+    one ``error`` naming the file: missing, unreadable (a folder, no permission) or not UTF-8."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise error(f"{what} not found", file=path) from None
     except IsADirectoryError:
@@ -112,8 +113,13 @@ def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCender
         raise error(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=Path(path)) from None
 
 
+_INT_KEY = re.compile(r"-?[0-9]+")
+
+
 def _int_keys(pairs: list[tuple[str, Any]]) -> dict:
-    return {(int(k) if isinstance(k, str) and k.lstrip("-").isdigit() else k): v for k, v in pairs}
+    """Keys of ASCII digits (an optional minus) as ints; others (``"²"``, ``"--1"``, ``"٣"``) stay strings for the
+    caller to refuse by name (``str.isdigit`` takes ``"²"``, which ``int()`` refuses)."""
+    return {(int(k) if isinstance(k, str) and _INT_KEY.fullmatch(k) else k): v for k, v in pairs}
 
 
 def _current_umask() -> int:
@@ -246,7 +252,9 @@ def save_json(path: str | Path, content: Any) -> None:
 def load_ply(path: str | Path):
     """Load a triangle mesh (mm) with trimesh, keeping vertices exactly as stored (no merging).
 
-    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices).
+    Checked as :func:`bop_cender.data.ply_ascii.check_mesh` checks (vertices, finite, faces, indices); an
+    ASCII PLY is first read line by line by :func:`bop_cender.data.ply_ascii.ascii_mesh` (trimesh takes
+    a file cut short for a mesh with fewer faces than its header declares).
 
     Returns:
         trimesh.Trimesh with ``vertices (N, 3)`` float64 and ``faces (F, 3)``.
@@ -256,6 +264,7 @@ def load_ply(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise DatasetError("model file not found", file=path)
+    ascii_mesh(path)  # raises on a truncated or malformed ASCII PLY; cached, and what evaluation reads anyway
     try:
         mesh = trimesh.load(path, process=False, force="mesh")
     except Exception as e:  # trimesh raises many types on corrupt input
@@ -452,8 +461,10 @@ def as_int(value: Any, file: Path, where: str, strings: bool = False) -> int:
 
 
 def as_number(value: Any, file: Path, where: str) -> float:
-    """A finite float from a JSON value (int, float or numeric string), else a DatasetError."""
+    """A finite float from a JSON value (int, float or numeric string; not a bool), else a DatasetError."""
     try:
+        if isinstance(value, bool):
+            raise TypeError("a bool is not a number")
         x = float(value)
     except (TypeError, ValueError):
         raise DatasetError(f"expected a number, got {value!r}", file=file, field=where) from None
@@ -474,7 +485,7 @@ def image_size(path: str | Path) -> tuple[int, int]:
             head = f.read(24)
     except FileNotFoundError:
         raise DatasetError("image not found", file=path) from None
-    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+    if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # else: cut short, decoded
         return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
     import cv2
 

@@ -181,7 +181,7 @@ def _parse_visib(entries: Any, n_gt: int, im: int, path: Path) -> list[float]:
     if not isinstance(entries, list) or len(entries) != n_gt:
         got = len(entries) if isinstance(entries, list) else type(entries).__name__
         raise DatasetError(
-            f"expected a list of {n_gt} entries (one per scene_gt annotation), got {got}", file=path, field=str(im)
+            f"expected a list of {n_gt} entries (one per annotation of {SCENE_GT}), got {got}", file=path, field=str(im)
         )
     out = []
     for gt_id, e in enumerate(entries):

@@ -36,8 +36,11 @@ ROTATION_TOLERANCE = 1e-2
 
 
 def check_matrix(value: Any, shape: tuple[int, ...], what: str, source: str | None = None) -> np.ndarray:
-    """Return ``value`` as a finite float64 array of ``shape`` or raise a DatasetError naming it."""
+    """Return ``value`` as a finite float64 array of ``shape`` or raise a DatasetError naming it (a JSON
+    ``true`` / ``false`` is not a number, though NumPy would read it as 1 / 0)."""
     try:
+        if has_bool(value):
+            raise TypeError("a bool is not a number")
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise DatasetError(f"expected numbers of shape {shape}, got {value!r:.80}", file=source, field=what) from None
@@ -46,6 +49,15 @@ def check_matrix(value: Any, shape: tuple[int, ...], what: str, source: str | No
     if not np.all(np.isfinite(arr)):
         raise DatasetError("expected finite numbers, found NaN or inf", file=source, field=what)
     return arr
+
+
+def has_bool(value: Any) -> bool:
+    """Whether a JSON value (nested lists) holds a bool, or is a bool array: not numbers, though NumPy reads them so."""
+    if isinstance(value, bool | np.bool_):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype == np.bool_
+    return isinstance(value, list | tuple) and any(has_bool(v) for v in value)
 
 
 def check_pose(T: Any, what: str, source: str | None = None, tol: float = ROTATION_TOLERANCE) -> np.ndarray:

@@ -19,8 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bop_cender.geometry.rotations import orthonormality_error
+
 #: BOP'19 evaluation's discretisation step (fraction of the diameter), eval_bop19_pose.py.
 BOP19_MAX_SYM_DISC_STEP = 0.01
+#: A discrete symmetry whose rotation part is farther than this from orthonormal (max |R R^T - I|) is refused:
+#: the files round them to ~6 digits, and a scaling or a zero matrix would make every MSSD / MSPD meaningless.
+SYMMETRY_TOLERANCE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -93,23 +98,55 @@ def symmetries_from_model_info(info: Mapping) -> tuple[list[list[float]], list[C
     Raises ValueError (with the key) on malformed entries; loaders turn it into a DatasetError.
     """
     discrete: list[list[float]] = []
-    for i, flat in enumerate(info.get("symmetries_discrete", []) or []):
-        arr = np.asarray(flat, dtype=np.float64)
-        if arr.shape != (16,) or not np.all(np.isfinite(arr)):
+    for i, flat in enumerate(_symmetry_list(info, "symmetries_discrete")):
+        arr = _floats(flat)
+        if arr is None or arr.shape != (16,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"symmetries_discrete[{i}]: expected 16 finite numbers (row-major 4x4)")
+        m = arr.reshape(4, 4)
+        err, det = float(orthonormality_error(m[:3, :3])), float(np.linalg.det(m[:3, :3]))
+        if err > SYMMETRY_TOLERANCE or det < 0 or not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+            raise ValueError(
+                f"symmetries_discrete[{i}]: expected a rigid transform (max |R R^T - I| = {err:.3g}, det = {det:.4f};"
+                f" expected <= {SYMMETRY_TOLERANCE:g}, det +1 and last row 0 0 0 1)"
+            )
         discrete.append(arr.tolist())
     continuous: list[ContinuousSymmetry] = []
-    for i, sym in enumerate(info.get("symmetries_continuous", []) or []):
+    for i, sym in enumerate(_symmetry_list(info, "symmetries_continuous")):
         if not isinstance(sym, Mapping) or "axis" not in sym:
             raise ValueError(f"symmetries_continuous[{i}]: expected an object with 'axis' and 'offset'")
-        axis = np.asarray(sym["axis"], dtype=np.float64)
-        offset = np.asarray(sym.get("offset", [0, 0, 0]), dtype=np.float64)
-        if axis.shape != (3,) or offset.shape != (3,) or not np.all(np.isfinite(np.r_[axis, offset])):
+        axis, offset = _floats(sym["axis"]), _floats(sym.get("offset", [0, 0, 0]))
+        if (
+            axis is None
+            or offset is None
+            or axis.shape != (3,)
+            or offset.shape != (3,)
+            or not np.all(np.isfinite(np.r_[axis, offset]))
+        ):
             raise ValueError(f"symmetries_continuous[{i}]: axis and offset must be 3 finite numbers")
         if np.linalg.norm(axis) == 0:
             raise ValueError(f"symmetries_continuous[{i}].axis: must not be the zero vector")
         continuous.append(ContinuousSymmetry(tuple(axis.tolist()), tuple(offset.tolist())))
     return discrete, continuous
+
+
+def _symmetry_list(info: Mapping, key: str) -> list:
+    """``info[key]``: a list; absent or null is no symmetry (anything else, a number or a string, is refused)."""
+    value = info.get(key)
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise ValueError(f"{key}: expected a list, got {type(value).__name__}")
+    return value
+
+
+def _floats(value: object) -> np.ndarray | None:
+    """``value`` as a float64 array, None where it is not numbers (an object, a string, a bool)."""
+    if isinstance(value, bool) or (isinstance(value, list) and any(isinstance(v, bool) for v in value)):
+        return None
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
 
 
 def apply_symmetries_to_pose(

@@ -41,6 +41,8 @@ HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 #: Above this (max |R R^T - I|) a rotation is accepted with a ResultsWarning; above
 #: ROTATION_TOLERANCE (1e-2) or with det < 0 it is an error. Rotations are never re-orthonormalised.
 ROTATION_WARN_TOLERANCE = 1e-4
+#: The largest id the reader takes (18 digits: every such id fits in int64).
+MAX_ID = 10**18 - 1
 #: All estimates of one image must share their time within this (toolkit's check_consistent_timings).
 TIME_TOLERANCE_S = 0.001
 

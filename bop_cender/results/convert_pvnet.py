@@ -37,8 +37,9 @@ import numpy as np
 
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.data.types import has_bool
 from bop_cender.errors import ResultsError
-from bop_cender.results.bop_csv import BopEstimate, write_bop_results
+from bop_cender.results.bop_csv import MAX_ID, TIME_TOLERANCE_S, BopEstimate, write_bop_results
 
 METRES_TO_MM = 1000.0
 _FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")
@@ -162,6 +163,7 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             f"expected an object mapping image keys to estimates, got {type(content).__name__}", file=path
         )
     rows: list[BopEstimate] = []
+    first_time: dict[tuple[int, int], tuple[float, str]] = {}  # per image, its first known time and where
     for key, entries in content.items():
         scene_int, im_id = _image_key(key, path)
         if not isinstance(entries, list):
@@ -173,6 +175,15 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             obj_id = _int(entry["obj_id"], path, f"{where}.obj_id")
             score = _number(entry.get("score", 1.0), path, f"{where}.score")
             time_s = _number(entry.get("time", -1.0), path, f"{where}.time")
+            if time_s >= 0:  # checked here, so that the error names this file and key (the writer's: a row)
+                t0, at = first_time.setdefault((scene_int, im_id), (time_s, where))
+                if abs(time_s - t0) > TIME_TOLERANCE_S:
+                    raise ResultsError(
+                        f"time {time_s!r} s differs from {t0!r} s at {at} (the same image); one image's estimates"
+                        f" must share its time within {TIME_TOLERANCE_S} s",
+                        file=path,
+                        field=f"{where}.time",
+                    )
             poses = _poses(entry["pose"], path, f"{where}.pose")
             if len(poses) != 1:
                 raise ResultsError(f"expected one 3x4 pose, got {len(poses)}", file=path, field=f"{where}.pose")
@@ -202,8 +213,10 @@ def _scene(name: str, path: Path, field: str) -> int:
 
 
 def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
-    """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses."""
+    """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses (bools refused: NumPy would read them as 0 / 1)."""
     try:
+        if has_bool(value):
+            raise TypeError("a bool is not a number")
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ResultsError("expected numbers in a 3x4 [R | t] pose", file=path, field=field) from None
@@ -219,10 +232,16 @@ def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
 def _row(
     scene: int, im: int, obj: int, score: float, pose: np.ndarray, time_s: float, path: Path, where: str
 ) -> BopEstimate:
+    for name, value in (("scene_id", scene), ("im_id", im), ("obj_id", obj)):
+        if value > MAX_ID:  # else a CSV is written that no reader takes back
+            raise ResultsError(f"{name} {value} is too large (at most {MAX_ID})", file=path, field=where)
     R = pose[:, :3]
     if abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
         raise ResultsError("the 3x3 part of the pose is not a rotation", file=path, field=where)
-    return BopEstimate(scene, im, obj, score, R, pose[:, 3] * METRES_TO_MM, time_s)
+    t_mm = pose[:, 3] * METRES_TO_MM
+    if not np.all(np.isfinite(t_mm)):  # e.g. 1e308 m: finite, but not in mm
+        raise ResultsError(f"translation {pose[:, 3].tolist()} m is not finite in mm", file=path, field=f"{where}.pose")
+    return BopEstimate(scene, im, obj, score, R, t_mm, time_s)
 
 
 def _int(value: Any, path: Path, field: str) -> int:
