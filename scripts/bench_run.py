@@ -4,6 +4,8 @@
    workload of ``scripts/bench_render.py`` (the reference L-bracket, ~700 faces): a batch of 2,000 (the
    candidates of one object) and a batch of 1 (one Nelder-Mead step of the scipy refiner). CPU, and
    CUDA where present.
+   The same for the edge-point proxy that ranks the candidates and drives most of Nelder-Mead
+   (``search_cost=edges``, :mod:`bop_cender.pose.edge_cost`).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (torch's threads; ``--chunk-threads N``: one
@@ -53,6 +55,37 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
     while time.perf_counter() < end or len(times) < 3:
         t = time.perf_counter()
         call()
+        sync()
+        times.append(time.perf_counter() - t)
+    per_call = float(np.median(times))
+    return batch / per_call, per_call * 1000
+
+
+def edge_calls_per_second(
+    device: torch.device, batch: int, seconds: float, max_segments: int | None
+) -> tuple[float, float]:
+    """Median calls/s and ms per call of the edge-point proxy (:mod:`bop_cender.pose.edge_cost`) on the same
+    workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking."""
+    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+
+    mesh = prepare_mesh(reference_bracket(), device=device)
+    model = edge_model_of(mesh)
+    if max_segments is not None:
+        model = model.sparse(max_segments)
+    T_cw, K = bench_render.make_rig()
+    dist = bench_render.target_distance_maps(mesh, T_cw, K).to(device)
+    rng = np.random.default_rng(0)
+    T = torch.as_tensor(bench_render.make_candidates(batch, rng, T_cw), dtype=torch.float32, device=device)
+    Ks = torch.as_tensor(K, dtype=torch.float32, device=device)
+    w = torch.full((len(K),), 1.0 / len(K), device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    edge_costs(model, T, Ks, dist, w)
+    sync()
+    times = []
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end or len(times) < 3:
+        t = time.perf_counter()
+        edge_costs(model, T, Ks, dist, w)
         sync()
         times.append(time.perf_counter() - t)
     per_call = float(np.median(times))
@@ -113,6 +146,16 @@ def main() -> None:
             how = f"{n_threads} torch thread(s), {workers} chunk thread(s)"
             cost_rows.append((device.type, batch, how, calls, ms))
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
+    edge_rows = []
+    for device in devices:
+        for batch, segments, label in ((2000, 600, "candidates (sparse, 600 segments)"), (2000, None, "full model"),
+                                       (3, None, "full model (a Nelder-Mead step of 3 starts)")):  # fmt: skip
+            calls, ms = edge_calls_per_second(device, batch, args.seconds, segments)
+            edge_rows.append((device.type, batch, label, calls, ms))
+            print(
+                f"edge proxy {device.type} batch {batch} {label}: {calls:,.0f} calls/s ({ms:.2f} ms per call)",
+                flush=True,
+            )
     torch.set_num_threads(threads)
     scenes = scene_timings(
         args.data_root, args.split, args.scenes, "cuda" if torch.cuda.is_available() else "cpu", args.chunk_threads
@@ -127,6 +170,9 @@ def main() -> None:
               "## Cost calls per second (one call = one pose over six 320x256 views, reference bracket)", "",
               "| device | batch | threads | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
     lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in cost_rows]
+    lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
+              "| device | batch | model | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
+    lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in edge_rows]
     lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config)", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip

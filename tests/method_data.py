@@ -66,3 +66,21 @@ def build(root: Path, n_scenes: int = 1, seed: int = 0) -> Path:
         )
         dimo_builder.write_scene(root, spec, rng, seed, camera_pose=ring_camera, object_poses=object_poses(seed + s))
     return root
+
+
+#: Binarisation threshold of the oracle curvature of the box parts (with curvature scale 1; see tests/pose/conftest.py).
+BOX_T_B = 0.5
+
+
+def gt_of(scene, obj_id: int):
+    """The scene's GT object of ``obj_id`` (the test scene holds one of each)."""
+    return next(g for g in scene.gt if g.obj_id == obj_id)
+
+
+def perturb(T: np.ndarray, angle_deg: float, shift_mm: float, axis=(0.3, 0.5, 0.8)) -> np.ndarray:
+    """``T (4, 4)`` rotated by ``angle_deg`` about ``axis`` (model side) and shifted by ``shift_mm``."""
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    out = T.copy()
+    out[:3, :3] = Rotation.from_rotvec(np.radians(angle_deg) * axis).as_matrix() @ T[:3, :3]
+    out[:3, 3] += shift_mm * np.array([0.6, -0.8, 0.0])
+    return out

@@ -95,8 +95,12 @@ class CandidateBatch:
     occluder_depth: torch.Tensor | None = None
 
 
-#: A candidate pixel is hidden by a placed object when it lies more than this (mm) behind the placed
-#: object's surface: surfaces in contact (a part resting on another) do not hide each other by rounding.
+#: A candidate pixel is hidden by a placed object when it lies behind the placed object's surface or
+#: within this (mm) in front of it: where the two surfaces coincide, the placed object is what the image
+#: shows. So a candidate that duplicates a placed object (the same part found twice: its edges fit the
+#: image perfectly) draws nothing there and costs the most, instead of the least; a part resting on a
+#: placed one loses only the pixels along the contact. (Hiding only pixels more than 0.5 mm behind let
+#: 19 of 453 estimates of a 12-scene oracle run duplicate a placed part.)
 OCCLUSION_MARGIN_MM = 0.5
 
 
@@ -138,8 +142,8 @@ def prepare_candidates(
 def chunk_curvature(batch: CandidateBatch, chunk: tuple[int, int, int]) -> CurvatureAtlas:
     """Render one chunk of a prepared batch and take its curvature (chunks are independent).
 
-    With ``batch.occluder_depth``, candidate pixels more than :data:`OCCLUSION_MARGIN_MM` behind an
-    already placed object become background before the Prewitt gradients: the hidden part of the
+    With ``batch.occluder_depth``, candidate pixels behind an already placed object, or less than
+    :data:`OCCLUSION_MARGIN_MM` in front of it, become background before the Prewitt gradients: the hidden part of the
     candidate draws no curvature, and the occluder's contour across it is an edge, as in the image.
     """
     start, stop, w = chunk
@@ -196,7 +200,7 @@ def _hide_occluded(
         0, W - 1
     )
     occ = occluder_depth.reshape(-1).index_select(0, flat.reshape(-1)).view(R, w)
-    hidden = inside & (occ > 0) & (depth > 0) & (depth > occ + OCCLUSION_MARGIN_MM)
+    hidden = inside & (occ > 0) & (depth > 0) & (depth > occ - OCCLUSION_MARGIN_MM)
     normals.masked_fill_(hidden[None], 0.0)
 
 

@@ -11,44 +11,18 @@ import torch
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-import method_data  # noqa: E402
+from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
-from bop_cender.data.dimo import open_dimo  # noqa: E402
-from bop_cender.meshes import MeshCache  # noqa: E402
-from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
-from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
+from bop_cender.pose.cost import candidate_costs  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
     PoseConfig,
     PoseTarget,
     Refinement,
-    SceneCameras,
     _refine_lockstep,
     _refine_scipy,
     optimise_scene,
     view_weights,
 )
-
-BOX_T_B = 0.5
-
-
-@pytest.fixture(scope="module")
-def mini(tmp_path_factory):
-    root = method_data.build(tmp_path_factory.mktemp("mini") / "dimo")
-    ds = open_dimo(root, "real")
-    scene = ds.scene(ds.scene_keys[0])
-    meshes = MeshCache(ds.models)
-    # The fixture's parts are boxes: every edge is a crease or a silhouette, so the curvature scale 1 and
-    # t_b 0.5 keep all of them (the defaults, 4 and 0.75, are tuned for thin curved parts, where they
-    # thin these edges at this fixture's 1.25 mm per pixel).
-    maps = scene_targets(scene, ds.models, meshes, TargetConfig(curvature_scale=1.0))
-    cams = SceneCameras(np.stack([v.K for v in scene.views]), np.stack([v.T_cam_world for v in scene.views]),
-                        method_data.HEIGHT, method_data.WIDTH)  # fmt: skip
-    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > BOX_T_B))
-    return ds, scene, meshes, maps, cams, dist
-
-
-def gt_of(scene, obj_id):
-    return next(g for g in scene.gt if g.obj_id == obj_id)
 
 
 def cost_of(mesh, T_world_model, cams, dist, occ=None):
@@ -56,14 +30,6 @@ def cost_of(mesh, T_world_model, cams, dist, occ=None):
     w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
     return candidate_costs(mesh, torch.as_tensor(T, dtype=torch.float32), cams.Ks, cams.height, cams.width, dist, w,
                            occluder_depth=occ).numpy()  # fmt: skip
-
-
-def perturb(T, angle_deg, shift_mm, axis=(0.3, 0.5, 0.8)):
-    axis = np.asarray(axis) / np.linalg.norm(axis)
-    out = T.copy()
-    out[:3, :3] = Rotation.from_rotvec(np.radians(angle_deg) * axis).as_matrix() @ T[:3, :3]
-    out[:3, 3] += shift_mm * np.array([0.6, -0.8, 0.0])
-    return out
 
 
 def test_cost_is_smallest_at_gt_and_grows_with_the_perturbation(mini):
@@ -142,3 +108,35 @@ def test_view_weights():
     np.testing.assert_allclose(view_weights(np.zeros(4), "center"), 0.25)
     with pytest.raises(ValueError):
         view_weights(np.ones(2), "bogus")
+
+
+def test_a_candidate_that_duplicates_a_placed_object_costs_the_most(mini):
+    """Where a candidate's surface coincides with a placed object's, the placed object is what the image
+    shows: the same part found twice draws nothing and ranks last, instead of fitting perfectly."""
+    from bop_cender.pose.optimize import PlacedObject, _occluder_depth
+
+    ds, scene, meshes, maps, cams, dist = mini
+    T = gt_of(scene, 3).T_world_model
+    placed = _occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    free = cost_of(meshes(3), T[None], cams, dist)
+    twice = cost_of(meshes(3), T[None], cams, dist, placed)
+    assert free[0] < 0.1
+    assert twice[0] == pytest.approx(np.hypot(cams.height, cams.width), rel=1e-5)
+    # the other part, beside it, keeps its fit
+    other = gt_of(scene, 4).T_world_model[None]
+    assert cost_of(meshes(4), other, cams, dist, placed)[0] < 1.0
+
+
+def test_diverse_starts_are_positions_in_the_ranking_best_first_and_apart_in_rotation():
+    from bop_cender.pose.optimize import _diverse
+
+    def pose(deg):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+        return T
+
+    ranked = np.stack([pose(d) for d in (0, 5, 40, 42, 90)])  # best first
+    np.testing.assert_array_equal(_diverse(ranked, 3, np.radians(20)), [0, 2, 4])
+    np.testing.assert_array_equal(_diverse(ranked, 3, 0.0), [0, 1, 2])
+    # too few far apart: topped up in ranking order
+    np.testing.assert_array_equal(_diverse(ranked[:2], 2, np.radians(20)), [0, 1])

@@ -1,0 +1,349 @@
+"""A fast proxy of the render-and-compare cost: points on the model's edges looked up in the distance maps.
+
+The paper's cost (:mod:`bop_cender.pose.cost`) renders each candidate, takes the curvature of its
+normal map and averages the target's distance map under it. What a rendered curvature image shows of a
+rigid part is, to within a pixel, two kinds of mesh edges: **creases** (edges whose two faces meet at
+more than the renderer's crease angle, which stay sharp in the shading) on the side facing the camera,
+and **contour** edges (one face towards the camera, the other away), wherever they are. Both depend on
+the pose only through which faces face the camera, so they can be found without rasterising:
+
+1. once per mesh, :class:`EdgeModel` cuts every edge into segments of at most ``segment_mm`` and keeps
+   each edge's two face planes and whether it is a crease;
+2. per candidate and view, a face faces the camera when the camera centre (in the model frame) lies
+   above its plane; an edge is drawn when it is a contour, or a crease with a face towards the camera;
+3. a drawn segment's ends are projected and points sampled between them; a point behind an already
+   placed object (``occluder_depth``: the render cost's rule,
+   :data:`~bop_cender.render.candidate_curvature.OCCLUSION_MARGIN_MM`, with the wider
+   :data:`EDGE_COINCIDENCE_MM`) or outside the image is left out, as the render cost leaves those
+   pixels out;
+4. the cost of a view is the length-weighted mean of the bilinearly interpolated distance map at the
+   drawn points, the views weighted as in the render cost; a view with no drawn point costs the image
+   diagonal.
+
+What it leaves out: self-occlusion (a crease hidden behind another part of the same object still
+counts) and the curvature's magnitude (every drawn edge weighs the same). It is a ranking proxy: the
+method ranks many candidates and runs most of the Nelder-Mead refinement on it, then costs and
+polishes the finalists with the render cost. Being continuous in the pose (bilinear lookups, no pixel
+snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
+
+Measured (``scripts/bench_run.py``): see ``results/bench/``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from bop_cender.geometry.check import check_shape
+from bop_cender.render.mesh import RenderMesh
+
+#: Edges whose faces' normals differ by more than this are creases (the renderer's default crease angle,
+#: :func:`bop_cender.render.mesh.prepare_mesh`: smoother edges are shaded smoothly and draw no curvature).
+DEFAULT_CREASE_ANGLE_DEG = 30.0
+
+#: Points sampled on each drawn segment's projection (segments are at most ``segment_mm`` long).
+SAMPLES_PER_SEGMENT = 2
+
+#: An edge point is hidden by a placed object when it lies behind the placed surface or less than this
+#: (mm) in front of it (the render cost's rule, with a wider margin: edge points sit on creases and
+#: contours, where the surface is steep and the placed object's depth, sampled at pixel centres, can be
+#: 1 mm deeper than the point on the same surface).
+EDGE_COINCIDENCE_MM = 1.0
+
+#: Canvases (candidate x view) costed together: bounds the memory of the per-segment arrays.
+CANVAS_CHUNK = 512
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeModel:
+    """A mesh's edges, cut into short segments, and what decides whether each is drawn (model frame, mm).
+
+    Attributes:
+        vertices: ``(N, 3)`` float32 segment end points (the mesh's distinct vertex positions, then the
+            points that cut long edges).
+        segments: ``(S, 2)`` int64 end points of each segment, edge after edge.
+        planes: ``(E, 2, 4)`` float32 the two faces of each edge: unit normal and ``n . v``; a boundary
+            edge (one face) repeats its face.
+        crease: ``(E,)`` bool: drawn whenever one of its faces faces the camera (creases, boundaries);
+            the other edges only where they are on the contour.
+        edge_segments: ``(E, 2)`` int64 first segment and number of segments of each edge.
+    """
+
+    vertices: torch.Tensor
+    segments: torch.Tensor
+    planes: torch.Tensor
+    crease: torch.Tensor
+    edge_segments: torch.Tensor
+
+    @property
+    def device(self) -> torch.device:
+        return self.vertices.device
+
+    @property
+    def num_segments(self) -> int:
+        return int(self.segments.shape[0])
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.crease.shape[0])
+
+    def to(self, device: torch.device | str) -> EdgeModel:
+        return EdgeModel(*(getattr(self, f.name).to(device) for f in fields(self)))
+
+    def sparse(self, max_segments: int) -> EdgeModel:
+        """A model of every k-th edge, with at most about ``max_segments`` segments: a cheaper proxy for
+        ranking many candidates (the cost is a mean over the drawn points, so a uniform subset of the
+        edges estimates it). Returns ``self`` when it is small enough already."""
+        if self.num_segments <= max_segments:
+            return self
+        stride = -(-self.num_segments // max_segments)
+        edges = torch.arange(0, self.num_edges, stride, device=self.device)
+        first, count = self.edge_segments.index_select(0, edges).unbind(1)
+        seg = torch.repeat_interleave(first, count) + _ranks(count)
+        ends = self.segments.index_select(0, seg)
+        used, remap = torch.unique(ends, return_inverse=True)
+        return EdgeModel(
+            self.vertices.index_select(0, used),
+            remap.view(-1, 2),
+            self.planes.index_select(0, edges),
+            self.crease.index_select(0, edges),
+            torch.stack([torch.cumsum(count, 0) - count, count], 1),
+        )
+
+
+def edge_model(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    segment_mm: float = 3.0,
+    crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG,
+    device: torch.device | str | None = None,
+) -> EdgeModel:
+    """The edges of a triangle mesh ``vertices (N, 3)``, ``faces (F, 3)`` (mm, outward faces).
+
+    Vertices at the same position are one vertex (PLY files often repeat them per face), so the faces
+    of a closed mesh share edges. An edge longer than ``segment_mm`` is cut into ``ceil(length /
+    segment_mm)`` equal segments, so that a segment's projection is short and
+    :data:`SAMPLES_PER_SEGMENT` points cover it. Degenerate (zero-area) faces are left out.
+    """
+    if not (math.isfinite(segment_mm) and segment_mm > 0):
+        raise ValueError(f"segment_mm must be a positive number, got {segment_mm}")
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    unique, same = np.unique(np.round(v, 6), axis=0, return_inverse=True)
+    same = same.reshape(-1)
+    merged = same[f]  # (F, 3) ids of distinct positions
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(cross, axis=1)
+    keep = norm > 1e-12
+    merged, tri, cross, norm = merged[keep], tri[keep], cross[keep], norm[keep]
+    if len(merged) == 0:
+        raise ValueError("the mesh has no face of non-zero area")
+    normal = cross / norm[:, None]
+    plane = np.concatenate([normal, np.einsum("ij,ij->i", normal, tri[:, 0])[:, None]], axis=1)  # (F', 4)
+    # Position of each distinct vertex: the first original vertex at it (exact, not the rounded key).
+    position = np.zeros((len(unique), 3))
+    position[same[::-1]] = v[::-1]
+    a = merged.reshape(-1)
+    b = merged[:, [1, 2, 0]].reshape(-1)
+    face = np.repeat(np.arange(len(merged)), 3)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * len(unique) + hi
+    order = np.argsort(key, kind="stable")
+    key, face, lo, hi = key[order], face[order], lo[order], hi[order]
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    count = np.diff(np.r_[first, len(key)])
+    f1 = face[first]
+    f2 = np.where(count >= 2, face[np.minimum(first + 1, len(key) - 1)], f1)
+    cos = np.einsum("ij,ij->i", plane[f1, :3], plane[f2, :3])
+    crease = (count < 2) | (cos < math.cos(math.radians(crease_angle_deg)))
+    p, q = lo[first], hi[first]
+    length = np.linalg.norm(position[q] - position[p], axis=1)
+    pieces = np.maximum(1, np.ceil(length / segment_mm)).astype(np.int64)
+    # Edge e becomes the chain p, its pieces[e] - 1 cut points (new vertices), q.
+    n_edges = len(p)
+    edge_of_cut = np.repeat(np.arange(n_edges), pieces - 1)
+    cut_rank = np.arange(len(edge_of_cut)) - np.repeat(np.cumsum(pieces - 1) - (pieces - 1), pieces - 1)
+    frac = (cut_rank + 1) / pieces[edge_of_cut]
+    cuts = position[p[edge_of_cut]] + frac[:, None] * (position[q] - position[p])[edge_of_cut]
+    chain_start = np.cumsum(pieces + 1) - (pieces + 1)
+    chain = np.empty(int((pieces + 1).sum()), dtype=np.int64)
+    chain[chain_start] = p
+    chain[chain_start + pieces] = q
+    chain[chain_start[edge_of_cut] + 1 + cut_rank] = len(position) + np.arange(len(cuts))
+    seg_edge = np.repeat(np.arange(n_edges), pieces)
+    seg_at = np.arange(len(seg_edge)) + seg_edge  # position of each segment's start in the chain
+    start, end = chain[seg_at], chain[seg_at + 1]
+
+    def tensor(x: np.ndarray, dtype: torch.dtype) -> torch.Tensor:
+        return torch.as_tensor(np.ascontiguousarray(x), dtype=dtype, device=device)
+
+    return EdgeModel(
+        vertices=tensor(np.concatenate([position, cuts]), torch.float32),
+        segments=tensor(np.stack([start, end], axis=1), torch.int64),
+        planes=tensor(np.stack([plane[f1], plane[f2]], axis=1), torch.float32),
+        crease=tensor(crease, torch.bool),
+        edge_segments=tensor(np.stack([np.cumsum(pieces) - pieces, pieces], axis=1), torch.int64),
+    )
+
+
+def edge_model_of(mesh: RenderMesh, segment_mm: float = 3.0) -> EdgeModel:
+    """:func:`edge_model` of a prepared render mesh, with its crease angle, on its device."""
+    return edge_model(
+        mesh.vertices.double().cpu().numpy(),
+        mesh.faces.cpu().numpy(),
+        segment_mm,
+        mesh.crease_angle_deg,
+        device=mesh.device,
+    )
+
+
+def edge_costs(
+    model: EdgeModel,
+    T_cam_model: torch.Tensor,
+    K: torch.Tensor,
+    dist_maps: torch.Tensor,
+    view_weights: torch.Tensor,
+    occluder_depth: torch.Tensor | None = None,
+    near: float = 1.0,
+) -> torch.Tensor:
+    """Edge-point cost ``(B,)`` of B candidates over V views (see the module docstring).
+
+    Args:
+        model: the object's edges (:func:`edge_model`), on the device of ``T_cam_model``.
+        T_cam_model: ``(B, V, 4, 4)`` candidate poses in each view's camera frame (mm).
+        K: ``(V, 3, 3)`` intrinsics of the distance maps' resolution.
+        dist_maps: ``(V, H, W)`` float32 distance maps of the target curvature (pixels).
+        view_weights: ``(V,)``.
+        occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
+            :func:`edge_occluder`; None: none.
+        near: points closer to the camera plane than this (mm) are not drawn.
+
+    Returns:
+        ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
+    """
+    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
+    check_shape(dist_maps, "V H W", "dist_maps", sizes)
+    check_shape(view_weights, "V", "view_weights", sizes)
+    if occluder_depth is not None:
+        check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
+    device = T_cam_model.device
+    T = T_cam_model.to(torch.float32)
+    B, V = sizes["B"], sizes["V"]
+    per_view = torch.empty(B * V, dtype=torch.float32, device=device)
+    flat_T = T.reshape(B * V, 4, 4)
+    Ks = K.to(device, torch.float32)
+    dist = dist_maps.to(device, torch.float32)
+    occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
+    for start in range(0, B * V, CANVAS_CHUNK):
+        stop = min(B * V, start + CANVAS_CHUNK)
+        canvas = torch.arange(start, stop, device=device)
+        per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], canvas % V, Ks, dist, occ, near)
+    return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
+
+
+def _canvas_costs(
+    model: EdgeModel,
+    T: torch.Tensor,
+    view: torch.Tensor,
+    Ks: torch.Tensor,
+    dist: torch.Tensor,
+    occ: torch.Tensor | None,
+    near: float,
+) -> torch.Tensor:
+    """Unweighted cost ``(C,)`` of C canvases with poses ``T (C, 4, 4)`` in views ``view (C,)``.
+
+    The segment end points are projected in every canvas (one small matrix product); each drawn
+    segment is then sampled at :data:`SAMPLES_PER_SEGMENT` points between its projected ends (a
+    segment is short, so its projection is straight to well under a pixel), each weighing a share of
+    its length in pixels, as a rendered edge weighs its pixels.
+    """
+    V, H, W = dist.shape
+    C = T.shape[0]
+    N = model.vertices.shape[0]
+    device = T.device
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    eye = -torch.einsum("cji,cj->ci", R, t)  # (C, 3) camera centre in the model frame: -R^T t
+    planes = model.planes.reshape(-1, 4)  # (2E, 4)
+    facing = (torch.addmm(-planes[:, 3], eye, planes[:, :3].T) > 0).view(C, -1, 2)  # (C, E, 2)
+    f1, f2 = facing[..., 0], facing[..., 1]
+    drawn = (f1 != f2) | (model.crease & (f1 | f2))  # (C, E)
+    c_edge, edge = drawn.nonzero(as_tuple=True)
+    diagonal = math.hypot(H, W)
+    if c_edge.numel() == 0:
+        return torch.full((C,), diagonal, device=device)
+    first, count = model.edge_segments.index_select(0, edge).unbind(1)
+    e_idx = torch.repeat_interleave(first, count) + _ranks(count)
+    c_idx = torch.repeat_interleave(c_edge, count)
+    X = torch.matmul(R, model.vertices.T) + t[:, :, None]  # (C, 3, N) camera frame
+    z = X[:, 2]
+    Kc = Ks.index_select(0, view)
+    inv = z.clamp_min(near).reciprocal()
+    x = ((Kc[:, 0, 0, None] * X[:, 0] + Kc[:, 0, 1, None] * X[:, 1]) * inv + Kc[:, 0, 2, None]).reshape(-1)
+    y = (Kc[:, 1, 1, None] * X[:, 1] * inv + Kc[:, 1, 2, None]).reshape(-1)
+    z = z.reshape(-1)
+    ends = model.segments.index_select(0, e_idx)  # (S, 2)
+    ia = c_idx * N + ends[:, 0]
+    ib = c_idx * N + ends[:, 1]
+    xa, ya, za = x.index_select(0, ia), y.index_select(0, ia), z.index_select(0, ia)
+    xb, yb, zb = x.index_select(0, ib), y.index_select(0, ib), z.index_select(0, ib)
+    frac = (torch.arange(SAMPLES_PER_SEGMENT, device=device, dtype=x.dtype) + 0.5) / SAMPLES_PER_SEGMENT
+    xs = torch.lerp(xa[:, None], xb[:, None], frac)  # (S, k)
+    ys = torch.lerp(ya[:, None], yb[:, None], frac)
+    zs = torch.lerp(za[:, None], zb[:, None], frac)
+    length = torch.hypot(xb - xa, yb - ya)[:, None] / SAMPLES_PER_SEGMENT
+    keep = (torch.minimum(za, zb) >= near)[:, None] & (xs >= 0) & (xs < W) & (ys >= 0) & (ys < H)
+    v_of = view.index_select(0, c_idx)[:, None].expand_as(xs)
+    if occ is not None:
+        u_i = xs.floor().clamp(0, W - 1).long()
+        v_i = ys.floor().clamp(0, H - 1).long()
+        o = occ.reshape(-1).index_select(0, ((v_of * H + v_i) * W + u_i).reshape(-1)).view_as(xs)
+        keep &= ~((o > 0) & (zs > o - EDGE_COINCIDENCE_MM))
+    d = _bilinear(dist, v_of.reshape(-1), (xs - 0.5).reshape(-1), (ys - 0.5).reshape(-1)).view_as(xs)
+    w = length * keep
+    num = torch.zeros(C, device=device).index_add_(0, c_idx, (w * d).sum(1))
+    den = torch.zeros(C, device=device).index_add_(0, c_idx, w.sum(1))
+    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+
+
+def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:
+    """The occluder depth ``(V, H, W)`` that :func:`edge_costs` wants: each pixel the nearest placed surface
+    in its 3 x 3 neighbourhood (0 where none).
+
+    Why: a candidate that duplicates a placed object has its contour exactly on the placed object's
+    contour, where a point falls on either side of the occluder's last pixel; unhidden, those points
+    fit perfectly and make the duplicate the best candidate. Widened by a pixel, the occluder hides them,
+    as the render cost hides the duplicate's pixels.
+    """
+    check_shape(occluder_depth, "V H W", "occluder_depth")
+    far = torch.where(occluder_depth > 0, occluder_depth, torch.full_like(occluder_depth, float("inf")))
+    near = -torch.nn.functional.max_pool2d(-far[:, None], 3, stride=1, padding=1)[:, 0]
+    return torch.where(torch.isfinite(near), near, torch.zeros_like(near))
+
+
+def _ranks(count: torch.Tensor) -> torch.Tensor:
+    """``0 .. count[i] - 1`` for each i, concatenated: ``(sum(count),)`` int64."""
+    total = int(count.sum())
+    starts = torch.repeat_interleave(torch.cumsum(count, 0) - count, count, output_size=total)
+    return torch.arange(total, device=count.device) - starts
+
+
+def _bilinear(maps: torch.Tensor, view: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """``maps (V, H, W)`` at continuous ``(x, y)`` (pixel-centre coordinates, clamped to the image) of view ``view``."""
+    V, H, W = maps.shape
+    x = x.clamp(0, W - 1)
+    y = y.clamp(0, H - 1)
+    x0 = x.floor().clamp(max=W - 2 if W > 1 else 0)
+    y0 = y.floor().clamp(max=H - 2 if H > 1 else 0)
+    fx, fy = x - x0, y - y0
+    base = (view * H + y0.long()) * W + x0.long()
+    flat = maps.reshape(-1)
+    dx = 1 if W > 1 else 0
+    dy = W if H > 1 else 0
+    top = torch.lerp(flat.index_select(0, base), flat.index_select(0, base + dx), fx)
+    bottom = torch.lerp(flat.index_select(0, base + dy), flat.index_select(0, base + dy + dx), fx)
+    return torch.lerp(top, bottom, fy)

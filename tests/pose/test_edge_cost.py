@@ -1,0 +1,166 @@
+"""The edge-point proxy of the render cost: which edges it draws, and that it ranks poses as the render cost does."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+from scipy.stats import spearmanr
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+from method_data import gt_of, perturb  # noqa: E402
+
+from bop_cender.pose.cost import candidate_costs  # noqa: E402
+from bop_cender.pose.edge_cost import edge_costs, edge_model, edge_model_of, edge_occluder  # noqa: E402
+from bop_cender.render.mesh import prepare_mesh  # noqa: E402
+
+
+def test_a_box_has_twelve_creases_and_six_smooth_diagonals():
+    box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
+    model = edge_model(box.vertices, box.faces, segment_mm=100.0)
+    assert model.num_edges == 18
+    assert int(model.crease.sum()) == 12
+    assert model.num_segments == 18  # no edge is longer than 100 mm
+
+
+def test_long_edges_are_cut_into_segments_that_cover_them():
+    box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
+    model = edge_model(box.vertices, box.faces, segment_mm=3.0)
+    v = model.vertices.double().numpy()
+    seg = model.segments.numpy()
+    lengths = np.linalg.norm(v[seg[:, 1]] - v[seg[:, 0]], axis=1)
+    assert lengths.max() <= 3.0 + 1e-4
+    first, count = model.edge_segments.numpy().T
+    edges = np.stack([v[seg[first, 0]], v[seg[first + count - 1, 1]]], axis=1)  # each edge's two ends
+    edge_lengths = np.linalg.norm(edges[:, 1] - edges[:, 0], axis=1)
+    per_edge = np.add.reduceat(lengths, first)
+    np.testing.assert_allclose(per_edge, edge_lengths, rtol=1e-5)  # the segments of an edge are a straight chain
+    assert sorted(np.round(edge_lengths[model.crease.numpy()], 3)) == sorted([40.0] * 4 + [20.0] * 4 + [10.0] * 4)
+
+
+def test_duplicated_vertices_share_edges_and_degenerate_faces_are_dropped():
+    box = trimesh.creation.box(extents=(30.0, 30.0, 30.0))
+    soup = box.vertices[box.faces].reshape(-1, 3)  # every face with its own three vertices, as PLY files often are
+    faces = np.arange(len(soup)).reshape(-1, 3)
+    faces = np.vstack([faces, [[0, 0, 1]]])  # a zero-area face
+    model = edge_model(soup, faces, segment_mm=100.0)
+    assert model.num_edges == 18 and int(model.crease.sum()) == 12
+
+
+def _cost_pair(mini, T_world_model, obj_id=3, occ=None, model=None):
+    ds, scene, meshes, maps, cams, dist = mini
+    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, T_world_model), dtype=torch.float32)
+    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+    model = model or edge_model_of(meshes(obj_id))
+    edge = edge_costs(model, T, K, dist, w, occluder_depth=occ).numpy()
+    render = candidate_costs(meshes(obj_id), T, K, cams.height, cams.width, dist, w, occluder_depth=occ).numpy()
+    return edge, render
+
+
+def test_edge_cost_is_smallest_at_gt_and_grows_with_the_perturbation(mini):
+    g = gt_of(mini[1], 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (2, 1), (5, 3), (10, 6), (20, 12))])
+    edge, _ = _cost_pair(mini, poses)
+    assert edge[0] < 0.3
+    assert np.all(np.diff(edge) > 0), edge
+
+
+def test_edge_cost_ranks_random_candidates_as_the_render_cost_does(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    rng = np.random.default_rng(3)
+    n = 150
+    R = Rotation.random(n, random_state=rng).as_matrix()
+    poses = np.repeat(g.T_world_model[None], n, axis=0)
+    poses[:, :3, :3] = R
+    poses[:, :3, 3] += rng.normal(0, 4.0, (n, 3))
+    poses[0] = g.T_world_model
+    edge, render = _cost_pair(mini, poses)
+    assert spearmanr(edge, render).statistic > 0.85
+    assert int(np.argmin(edge)) == 0 == int(np.argmin(render))
+    # a sparse model (every k-th edge) ranks nearly as well, and puts the render cost's best among its best
+    sparse = edge_model_of(meshes(3)).sparse(40)
+    assert sparse.num_segments <= 60
+    coarse, _ = _cost_pair(mini, poses, model=sparse)
+    assert spearmanr(coarse, render).statistic > 0.7
+    assert set(np.argsort(render)[:3]) <= set(np.argsort(coarse)[:30])
+
+
+def test_occluders_hide_edge_points_only_where_they_are_in_front(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    T = perturb(gt_of(scene, 4).T_world_model, 8.0, 3.0)[None]
+    free, _ = _cost_pair(mini, T, obj_id=4)
+    far = torch.full((len(cams.Ks), cams.height, cams.width), 1e5)
+    assert _cost_pair(mini, T, obj_id=4, occ=far)[0] == pytest.approx(free, abs=1e-6)
+    wall = torch.zeros((len(cams.Ks), cams.height, cams.width))
+    wall[:, :, : cams.width // 2 + 10] = 1.0  # 1 mm from the camera: in front of everything
+    hidden, _ = _cost_pair(mini, T, obj_id=4, occ=wall)
+    assert hidden != pytest.approx(free, abs=1e-4)
+    everywhere = torch.ones((len(cams.Ks), cams.height, cams.width))
+    diagonal = float(np.hypot(cams.height, cams.width))
+    assert _cost_pair(mini, T, obj_id=4, occ=everywhere)[0] == pytest.approx([diagonal])  # nothing drawn anywhere
+
+
+def test_a_pose_outside_every_image_costs_the_diagonal(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    T = gt_of(scene, 3).T_world_model.copy()
+    T[:3, 3] += 5000.0
+    edge, render = _cost_pair(mini, T[None])
+    diagonal = [np.hypot(cams.height, cams.width)]
+    assert edge == pytest.approx(diagonal, rel=1e-5) and render == pytest.approx(diagonal, rel=1e-5)
+
+
+def test_wrong_shapes_are_named():
+    box = prepare_mesh(trimesh.creation.box(extents=(10.0, 10.0, 10.0)))
+    model = edge_model_of(box)
+    T = torch.eye(4).repeat(2, 3, 1, 1)
+    with pytest.raises(ValueError, match="K"):
+        edge_costs(model, T, torch.eye(3).repeat(2, 1, 1), torch.zeros(3, 8, 8), torch.ones(3))
+    with pytest.raises(ValueError, match="view_weights"):
+        edge_costs(model, T, torch.eye(3).repeat(3, 1, 1), torch.zeros(3, 8, 8), torch.ones(2))
+    with pytest.raises(ValueError, match="segment_mm"):
+        edge_model(box.vertices.numpy(), box.faces.numpy(), segment_mm=0.0)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_gives_the_cpu_costs(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12))])
+    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, poses), dtype=torch.float32)
+    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+    model = edge_model_of(meshes(3))
+    cpu = edge_costs(model, T, K, dist, w)
+    gpu = edge_costs(model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())
+    assert gpu.device.type == "cuda"
+    torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-4)
+
+
+def test_a_candidate_that_duplicates_a_placed_object_draws_almost_nothing(mini):
+    from bop_cender.pose.optimize import PlacedObject, _occluder_depth
+
+    ds, scene, meshes, maps, cams, dist = mini
+    T = gt_of(scene, 3).T_world_model
+    placed = _occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    free, _ = _cost_pair(mini, T[None])
+    twice, _ = _cost_pair(mini, T[None], occ=edge_occluder(placed))
+    assert free[0] < 0.3
+    assert twice[0] == pytest.approx(np.hypot(cams.height, cams.width), rel=1e-5)
+    # the other part, beside it, keeps its fit
+    assert _cost_pair(mini, gt_of(scene, 4).T_world_model[None], obj_id=4, occ=edge_occluder(placed))[0][0] < 1.0
+
+
+def test_the_edge_occluder_is_the_nearest_placed_surface_around_each_pixel():
+    occ = torch.zeros(1, 5, 5)
+    occ[0, 2, 2] = 100.0
+    occ[0, 2, 3] = 50.0
+    wide = edge_occluder(occ)[0]
+    assert wide[1, 1] == 100.0 and wide[2, 2] == 50.0 and wide[1, 4] == 50.0 and wide[0, 0] == 0.0
