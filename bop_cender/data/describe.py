@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from tqdm import tqdm
-
 from bop_cender.data.types import Dataset
+from bop_cender.progress import progress_bar
 
 
 @dataclass
@@ -27,7 +26,9 @@ def summarise(dataset: Dataset, progress: bool = True) -> DatasetSummary:
     """Load every scene (lazily, with a progress bar on stderr) and count what is there."""
     s = DatasetSummary()
     keys = dataset.scene_keys
-    for key in tqdm(keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False):
+    for key in progress_bar(
+        keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False
+    ):
         scene = dataset.scene(key)
         s.scenes += 1
         s.views += len(scene.views)
