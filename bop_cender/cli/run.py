@@ -89,11 +89,10 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from tqdm import tqdm
-
     from bop_cender.data.registry import DEFAULT_SPLIT
     from bop_cender.errors import ConfigError
     from bop_cender.method import CenDerNetConfig
+    from bop_cender.progress import progress_bar
     from bop_cender.runner import RunRequest, run
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
@@ -129,7 +128,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.no_progress:
             return
         if bar is None:
-            bar = tqdm(total=total, initial=done, unit="scene", desc="run", disable=None)
+            bar = progress_bar(total=total, initial=done, unit="scene", desc="run")
         else:
             bar.update(done - bar.n)
         if key:

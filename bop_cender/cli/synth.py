@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bop_cender.cli.options import count
+from bop_cender.cli.options import announce, count
 from bop_cender.errors import ConfigError
 
 EXAMPLES = """examples:
@@ -13,7 +13,8 @@ EXAMPLES = """examples:
   bop-cender synth --layout dimo --out data/dimo_synth --scenes 20 --variants 0,1,16,31 --views 13
   bop-cender synth --layout tless --out data/tless_synth --scenes 5 --views 20 --pbr-scenes 2
   bop-cender synth --layout tless --out data/tless_test --scenes 5 --seed 1
-Running the same command again resumes: complete scene folders are kept, the rest is generated. Each
+Running the same command again resumes: scene folders marked done (OUT/.bop_cender_synth/done/, every file
+at its recorded size) are kept, the rest (never finished, truncated, deleted) is generated. Each
 layout has one object catalogue (DIMO: 6 parts and 3 carriers; T-LESS: 30 objects), the same for every
 --seed, so sets of two seeds share their models; --catalogue-seed draws another catalogue. Both seeds are
 recorded in OUT/bop_cender_synth.json, and a resume with other values is refused. A non-empty --out folder
@@ -128,7 +129,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
             )
     except ValueError as e:
         raise ConfigError(str(e)) from None
-    report = generate(args.layout, args.out, spec, workers=args.workers)
+    report = generate(args.layout, args.out, spec, workers=args.workers, announce=announce)
     print(
         f"{report.layout} dataset at {report.root}: {report.written} scene folders written, "
         f"{report.skipped} already complete"

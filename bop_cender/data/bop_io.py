@@ -474,19 +474,18 @@ def as_number(value: Any, file: Path, where: str) -> float:
 
 
 def image_size(path: str | Path) -> tuple[int, int]:
-    """``(width, height)`` of a PNG (read from its header, 24 bytes) or any image cv2 decodes.
+    """``(width, height)`` of a PNG or JPEG (read from its header, :mod:`bop_cender.data.image_header`) or any
+    image cv2 decodes.
 
     Raises:
-        DatasetError: the file is missing or not an image.
+        DatasetError: the file is missing, not an image, or a PNG or JPEG with a cut or malformed header.
     """
+    from bop_cender.data.image_header import read_image_header
+
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            head = f.read(24)
-    except FileNotFoundError:
-        raise DatasetError("image not found", file=path) from None
-    if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":  # else: cut short, decoded
-        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    header = read_image_header(path)
+    if header is not None:
+        return header.width, header.height
     import cv2
 
     img = _imread(path, cv2.IMREAD_UNCHANGED)

@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from tqdm import tqdm
-
 from bop_cender.data.types import Dataset
+from bop_cender.errors import BopCenderError
+from bop_cender.progress import progress_bar
 
 
 @dataclass
@@ -21,14 +21,29 @@ class DatasetSummary:
     views_per_scene: Counter = field(default_factory=Counter)
     objects_per_id: Counter = field(default_factory=Counter)
     image_sizes: Counter = field(default_factory=Counter)
+    loaded: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
 
 
-def summarise(dataset: Dataset, progress: bool = True) -> DatasetSummary:
-    """Load every scene (lazily, with a progress bar on stderr) and count what is there."""
+def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False) -> DatasetSummary:
+    """Load every scene (lazily, with a progress bar on stderr) and count what is there.
+
+    Args:
+        keep_going: a scene that fails to load is listed in ``problems`` (one line) and left out of the counts,
+            so that every broken scene is reported at once; else its error is raised.
+    """
     s = DatasetSummary()
     keys = dataset.scene_keys
-    for key in tqdm(keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False):
-        scene = dataset.scene(key)
+    bar = progress_bar(keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False)
+    for key in bar:
+        try:
+            scene = dataset.scene(key)
+        except BopCenderError as e:
+            if not keep_going:
+                raise
+            s.problems.append(e.format())
+            continue
+        s.loaded.append(key)
         s.scenes += 1
         s.views += len(scene.views)
         s.views_per_scene[len(scene.views)] += 1
@@ -47,9 +62,13 @@ def _ids(ids: list[int]) -> str:
     return ", ".join(str(i) for i in ids) if ids else "none"
 
 
-def describe(dataset: Dataset, progress: bool = True) -> str:
-    """Multi-line text: scenes, views, objects, symmetric models, the selection and why, residuals."""
-    s = summarise(dataset, progress=progress)
+def describe(dataset: Dataset, progress: bool = True, summary: DatasetSummary | None = None) -> str:
+    """Multi-line text: scenes, views, objects, symmetric models, the selection and why, residuals.
+
+    Args:
+        summary: the split's counts when already gathered (:func:`summarise`); else every scene is loaded here.
+    """
+    s = summary if summary is not None else summarise(dataset, progress=progress)
     models = dataset.models
     targets = [i for i, m in models.items() if m.is_target]
     occluders = [i for i, m in models.items() if not m.is_target]

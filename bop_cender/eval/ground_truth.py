@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from bop_cender.data.scene_ids import int_to_scene_folder, is_suffixed, scene_folder_to_int
 from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import DatasetError
+from bop_cender.progress import progress_bar
 
 POSES_STORED = "scene_gt.json (per-image poses as stored, as the toolkit reads them)"
 POSES_COMPOSED = "T_cam_world @ T_world_model (no scene_gt.json)"
@@ -130,7 +130,7 @@ def collect_ground_truth(dataset: Dataset, progress: bool = True) -> GroundTruth
     images: dict[tuple[int, int], ImageGt] = {}
     sources: set[str] = set()
     suffixed = False
-    scenes = tqdm(
+    scenes = progress_bar(
         dataset.scenes(), total=len(dataset), desc="ground truth", unit="scene", disable=not progress, leave=False
     )
     for scene in scenes:

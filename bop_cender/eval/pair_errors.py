@@ -20,7 +20,6 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.eval.ground_truth import ImageGt
@@ -30,6 +29,7 @@ from bop_cender.eval.pose_errors import hull_vertices, mspd, mssd
 from bop_cender.eval.render_process import DepthRenderer, ThreadRenderer
 from bop_cender.eval.vsd import VSD_TAUS
 from bop_cender.meshes import MeshCache
+from bop_cender.progress import progress_bar
 
 #: Worker threads (the benchmark target is two cores).
 WORKERS = 2
@@ -119,7 +119,7 @@ def _mssd_mspd(pairs: Pairs, models: Mapping[int, ObjectModel], progress: bool) 
     out_mspd = np.zeros(P)
     obj_ids = sorted(set(pairs.obj_id.tolist()))
     K = np.stack([im.K for im in pairs.images])[pairs.image] if P else np.zeros((0, 3, 3))
-    for obj_id in tqdm(obj_ids, desc="MSSD/MSPD", unit="object", disable=not progress, leave=False):
+    for obj_id in progress_bar(obj_ids, desc="MSSD/MSPD", unit="object", disable=not progress, leave=False):
         rows = np.flatnonzero(pairs.obj_id == obj_id)
         model = models[obj_id]
         pts = eval_vertices(model)

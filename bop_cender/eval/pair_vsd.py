@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
 
 from bop_cender.data.bop_io import load_depth
 from bop_cender.data.types import ObjectModel
@@ -29,6 +28,7 @@ from bop_cender.eval.render_crops import DepthCrops, paste, union_window
 from bop_cender.eval.render_process import DepthRenderer, RenderJob
 from bop_cender.eval.vsd import overlapping_sphere_projections, vsd
 from bop_cender.meshes import MeshCache
+from bop_cender.progress import progress_bar
 
 if TYPE_CHECKING:
     from bop_cender.eval.pair_errors import Pairs
@@ -91,7 +91,7 @@ def pair_vsd(
     plan = plan_renders(pairs, todo)
     remaining = np.bincount(plan.job_chunk, minlength=len(plan.chunk_images))
     received: dict[int, DepthCrops] = {}
-    with tqdm(total=int(todo.size), desc="VSD", unit="pair", disable=not progress, leave=False) as bar:
+    with progress_bar(total=int(todo.size), desc="VSD", unit="pair", disable=not progress, leave=False) as bar:
         for j, crops in renderer.render(plan.jobs, meshes):
             received[j] = crops
             c = int(plan.job_chunk[j])

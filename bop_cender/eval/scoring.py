@@ -77,7 +77,7 @@ def score_results(
         dataset: the split the rows were estimated on.
         vsd_delta: VSD tolerance (mm); default the toolkit's (15, ITODD 5).
         n_top: estimates kept per target: -1 = ``inst_count`` (BOP'19), 0 = all, n > 0 = n.
-        progress: tqdm bars on stderr.
+        progress: progress bars on stderr (:mod:`bop_cender.progress`).
         source: the results file, for error messages.
         renderer: who renders for VSD (e.g. a :class:`~bop_cender.eval.render_process.RenderProcess`);
             None = worker threads of this process.

@@ -12,11 +12,11 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import numpy as np
-from tqdm import tqdm
 
 from bop_cender.eval.ground_truth import ImageGt
 from bop_cender.eval.targets import VisibFracts
 from bop_cender.meshes import MeshCache
+from bop_cender.progress import progress_bar
 
 
 def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress: bool = True) -> VisibFracts:
@@ -33,7 +33,9 @@ def rendered_visib_fracts(images: Iterable[ImageGt], meshes: MeshCache, progress
         signature = (image.scene_key, image.width, image.height, tuple((g.gt_id, g.obj_id) for g in image.instances))
         groups.setdefault(signature, []).append(image)
     out: VisibFracts = {}
-    bar = tqdm(total=sum(len(g) for g in groups.values()), desc="visibility", unit="image", disable=not progress)
+    bar = progress_bar(
+        total=sum(len(g) for g in groups.values()), desc="visibility", unit="image", disable=not progress
+    )
     for group in groups.values():
         first = group[0]
         if not first.instances:

@@ -16,13 +16,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from bop_cender.data.bop_io import load_rgb, write_image
 from bop_cender.data.types import Dataset
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
 from bop_cender.net.targets import TargetConfig, scene_targets
+from bop_cender.progress import progress_bar
 from bop_cender.render.mesh import RenderMesh
 
 
@@ -79,7 +79,7 @@ def evaluate_heatmaps(
     report = HeatmapReport(dataset.name, dataset.split, source)
     metrics = HeatmapMetrics(metrics_config or HeatmapMetricsConfig())
     seconds = 0.0
-    for key in tqdm(keys, desc=f"heatmaps {dataset.name} {dataset.split}", unit="scene", disable=not progress):
+    for key in progress_bar(keys, desc=f"heatmaps {dataset.name} {dataset.split}", unit="scene", disable=not progress):
         scene = dataset.loader(key)
         t0 = time.perf_counter()
         pred: Heatmaps = predictor.predict(scene)

@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.predictor import scene_rgb
 from bop_cender.net.targets import TargetConfig, scene_targets
+from bop_cender.progress import progress_bar
 from bop_cender.render.mesh import RenderMesh
 
 #: Bump when the targets' definition changes, so that old cache files are never read.
@@ -83,7 +83,7 @@ def load_samples(
         channel_obj_ids = tuple(sorted(i for i, m in dataset.models.items() if m.is_target))
     images, centers, curvatures, sample_keys = [], [], [], []
     size = None
-    for key in tqdm(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
+    for key in progress_bar(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
         scene = dataset.loader(key)
         rgb = scene_rgb(scene)
         if size is None:

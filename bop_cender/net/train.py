@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from tqdm import tqdm
 
 from bop_cender.data.bop_io import check_output_dir, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
@@ -40,6 +39,7 @@ from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec
 from bop_cender.net.weights import load_weights, save_weights, weights_payload
+from bop_cender.progress import progress_bar
 
 
 @dataclass(frozen=True)
@@ -248,7 +248,9 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
     totals = np.zeros(3)
     seen = 0
     t0 = time.perf_counter()
-    bar = tqdm(batches, desc=f"epoch {epoch + 1}/{config.epochs}", unit="batch", disable=not progress, leave=False)
+    bar = progress_bar(
+        batches, desc=f"epoch {epoch + 1}/{config.epochs}", unit="batch", disable=not progress, leave=False
+    )
     for idx in bar:
         image, center, curvature = samples.batch(idx, device)
         if config.crop is not None:

@@ -1,15 +1,16 @@
 """Small pieces shared by the DIMO and T-LESS writers: BOP JSON entries, atomic scene folders.
 
-A scene folder is written into a hidden ``.NAME.partial`` sibling and renamed when complete, so a
-folder that exists is complete: that is what makes ``bop-cender synth`` resumable (complete scenes
-are skipped) without any marker file that the real datasets do not have.
+A scene folder is written into a hidden ``.NAME.partial`` sibling and renamed when complete, then its
+done marker is written (:mod:`bop_cender.synth.done`, outside the real layout): that is what makes
+``bop-cender synth`` resumable. A scene whose marker is there and matches is skipped; any other folder
+(interrupted, truncated, from an older run) is written again.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.geometry.poses import invert_pose
+from bop_cender.synth.done import forget, scene_done, write_marker
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache, build_pile
 
@@ -45,22 +47,30 @@ def gt_entry(obj_id: int, T_cam_model: np.ndarray) -> dict:
 
 
 @contextmanager
-def scene_folder(final_dir: Path) -> Iterator[Path | None]:
-    """Yield a temporary folder to write a scene into, renamed onto ``final_dir`` on success.
+def scene_folder(final_dir: Path, extra: Sequence[Path] = ()) -> Iterator[Path | None]:
+    """Yield a temporary folder to write a scene into, renamed onto ``final_dir`` on success and then marked done.
 
-    Yields None when ``final_dir`` already exists (complete: skip it).
+    Yields None when ``final_dir`` is done (:func:`bop_cender.synth.done.scene_done`: skip it). A folder that
+    is there but not done is replaced only once the new one is complete.
+
+    Args:
+        extra: files outside the folder written with it (its contact sheet), recorded in its marker too.
     """
     final_dir = Path(final_dir)
-    if final_dir.is_dir():
+    if scene_done(final_dir):
         yield None
         return
+    forget(final_dir)
     tmp = final_dir.with_name(f".{final_dir.name}.partial")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     try:
         yield tmp
+        if final_dir.exists():
+            shutil.rmtree(final_dir)
         os.replace(tmp, final_dir)
+        write_marker(final_dir, extra)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)

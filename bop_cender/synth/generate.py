@@ -2,8 +2,10 @@
 
 Deterministic per seed (every scene derives its generator from ``(seed, scene)``, so the output
 does not depend on the number of workers or on the order of completion), resumable (scene folders
-are written atomically and complete ones are skipped; the root's record, :mod:`bop_cender.synth.record`,
-refuses a resume with another seed or catalogue), with a progress bar on stderr.
+are written atomically and marked done, :mod:`bop_cender.synth.done`; the root's record,
+:mod:`bop_cender.synth.record`, refuses a resume with another seed or catalogue), with a progress bar on
+stderr. A resume finds out what is done before any set-up (models, meshes, worker processes): finished
+folders cost one ``stat`` per file, and the bar counts only the folders still to write.
 
 What differs between layouts is one small protocol, :class:`SynthLayout` (models, jobs, scenes, what is
 written once at the end); :data:`LAYOUTS` holds its two implementations. A worker process keeps its
@@ -13,6 +15,7 @@ models and meshes in one explicit :class:`_Worker`, set by the pool's initialize
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -20,10 +23,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import torch
-from tqdm import tqdm
 
 from bop_cender.meshes import MeshCache
+from bop_cender.progress import progress_bar
 from bop_cender.synth import write_dimo, write_tless
+from bop_cender.synth.done import scene_done
+from bop_cender.synth.models_info import model_folders_complete
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.record import check_or_write_record
@@ -43,13 +48,16 @@ class SynthLayout(Protocol):
     def scene_jobs(self, spec: Any) -> list:
         """The independent units of work."""
 
+    def models_written(self, root: Path) -> bool:
+        """Whether what :meth:`write_models` writes is all there (then the catalogue need not be made)."""
+
     def write_scene(
         self, root: Path, spec: Any, job: Any, models: dict[int, Part], meshes: MeshCache, piles: PileGeometryCache
     ) -> int:
-        """Write one job's scene folders (skipping complete ones); the number written."""
+        """Write one job's scene folders (skipping done ones); the number written."""
 
-    def folders_per_job(self, spec: Any) -> int:
-        """Scene folders one job writes."""
+    def job_folders(self, root: Path, spec: Any, job: Any) -> list[Path]:
+        """The scene folders one job writes."""
 
     def finish(self, root: Path, spec: Any) -> int | None:
         """Write what needs every scene (T-LESS: the BOP'19 targets); the number of targets, None if none."""
@@ -66,14 +74,17 @@ class DimoLayout:
     def write_models(self, root: Path, spec: write_dimo.DimoSpec) -> None:
         write_dimo.write_models(root, spec)
 
+    def models_written(self, root: Path) -> bool:
+        return model_folders_complete(root, "dimo") and (root / "models" / "construction").is_dir()
+
     def scene_jobs(self, spec: write_dimo.DimoSpec) -> list:
         return write_dimo.scene_jobs(spec)
 
     def write_scene(self, root, spec, job, models, meshes, piles) -> int:
         return write_dimo.write_scene(root, spec, job, models, meshes, piles)
 
-    def folders_per_job(self, spec: write_dimo.DimoSpec) -> int:
-        return int(spec.write_real) + len(spec.variants)
+    def job_folders(self, root: Path, spec: write_dimo.DimoSpec, job: int) -> list[Path]:
+        return write_dimo.job_folders(root, spec, job)
 
     def finish(self, root: Path, spec: write_dimo.DimoSpec) -> int | None:
         return None  # DIMO has no targets file
@@ -90,14 +101,17 @@ class TlessLayout:
     def write_models(self, root: Path, spec: write_tless.TlessSpec) -> None:
         write_tless.write_models(root, spec)
 
+    def models_written(self, root: Path) -> bool:
+        return model_folders_complete(root, "tless") and (root / write_tless.CAMERA_FILE).is_file()
+
     def scene_jobs(self, spec: write_tless.TlessSpec) -> list:
         return write_tless.scene_jobs(spec)
 
     def write_scene(self, root, spec, job, models, meshes, piles) -> int:
         return write_tless.write_scene(root, spec, job, models, meshes, piles)
 
-    def folders_per_job(self, spec: write_tless.TlessSpec) -> int:
-        return 1
+    def job_folders(self, root: Path, spec: write_tless.TlessSpec, job: tuple[str, int]) -> list[Path]:
+        return write_tless.job_folders(root, job)
 
     def finish(self, root: Path, spec: write_tless.TlessSpec) -> int | None:
         return write_tless.write_targets(root) if spec.n_scenes > 0 else None
@@ -150,16 +164,24 @@ def _run_job(root: str, job) -> int:
     return _WORKER.run(root, job)
 
 
-def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bool = True) -> GenerationReport:
+def generate(
+    layout: str,
+    root: str | Path,
+    spec,
+    workers: int = 1,
+    progress: bool = True,
+    announce: Callable[[str], None] | None = None,
+) -> GenerationReport:
     """Generate (or complete) a dataset.
 
     Args:
         layout: ``dimo`` or ``tless``.
-        root: output folder (created; existing complete scenes are kept, if its record, written on the first
+        root: output folder (created; existing done scenes are kept, if its record, written on the first
             run, names the same layout, seed and catalogue seed).
         spec: :class:`~bop_cender.synth.write_dimo.DimoSpec` or :class:`~bop_cender.synth.write_tless.TlessSpec`.
-        workers: processes (1 = in this process).
+        workers: processes (1 = in this process; never more than the jobs left).
         progress: progress bar on stderr.
+        announce: called with one line when a resume finds scene folders done.
     """
     if layout not in LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; expected one of {sorted(LAYOUTS)}")
@@ -167,28 +189,37 @@ def generate(layout: str, root: str | Path, spec, workers: int = 1, progress: bo
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
-    impl.write_models(root, spec)
     jobs = impl.scene_jobs(spec)
+    pending = {i: sum(not scene_done(p) for p in impl.job_folders(root, spec, job)) for i, job in enumerate(jobs)}
+    todo = [jobs[i] for i, n in pending.items() if n]
+    folders, to_write = sum(len(impl.job_folders(root, spec, job)) for job in jobs), sum(pending.values())
+    if announce is not None and to_write < folders:
+        announce(f"resuming: {folders - to_write} of {folders} scene folders done, {to_write} to go")
+    if not impl.models_written(root):
+        impl.write_models(root, spec)
     written = 0
-    bar = tqdm(total=len(jobs), desc=f"synth {layout}", unit="scene", disable=not progress)
-    if workers <= 1:
-        _init_worker(layout, spec, torch.get_num_threads())
-        for job in jobs:
-            written += _run_job(str(root), job)
-            bar.update()
-    else:
-        threads = max(1, (os.cpu_count() or 1) // workers)
-        # Spawned, not forked: this process has imported torch (and may have run it), and a fork copies MKL's
-        # allocator and the OpenMP pool mid-use, which can hang the worker (see eval/render_process.py).
-        ctx = get_context("spawn")
-        with ProcessPoolExecutor(
-            workers, mp_context=ctx, initializer=_init_worker, initargs=(layout, spec, threads)
-        ) as pool:
-            futures = [pool.submit(_run_job, str(root), job) for job in jobs]
-            for f in as_completed(futures):
-                written += f.result()
-                bar.update()
-    bar.close()
-    folders = len(jobs) * impl.folders_per_job(spec)
+    if todo:
+        bar = progress_bar(total=to_write, desc=f"synth {layout}", unit="scene", disable=not progress)
+        if workers <= 1 or len(todo) == 1:
+            _init_worker(layout, spec, torch.get_num_threads())
+            for job in todo:
+                n = _run_job(str(root), job)
+                written += n
+                bar.update(n)
+        else:
+            workers = min(workers, len(todo))
+            threads = max(1, (os.cpu_count() or 1) // workers)
+            # Spawned, not forked: this process has imported torch (and may have run it), and a fork copies
+            # MKL's allocator and the OpenMP pool mid-use, which can hang the worker (see eval/render_process.py).
+            ctx = get_context("spawn")
+            with ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=_init_worker, initargs=(layout, spec, threads)
+            ) as pool:
+                futures = [pool.submit(_run_job, str(root), job) for job in todo]
+                for f in as_completed(futures):
+                    n = f.result()
+                    written += n
+                    bar.update(n)
+        bar.close()
     targets = impl.finish(root, spec)
     return GenerationReport(root, layout, len(jobs), written, folders - written, targets)

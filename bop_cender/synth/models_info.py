@@ -128,6 +128,12 @@ def write_model_folders(
     return written
 
 
+def model_folders_complete(root: str | Path, layout: Literal["dimo", "tless"]) -> bool:
+    """Whether every model folder of ``layout`` has its ``models_info.json`` (written last: the folder is
+    complete), so that :func:`write_model_folders` has nothing to do and the catalogue need not be made."""
+    return all((Path(root) / name / "models_info.json").is_file() for name in MODEL_FOLDERS[layout])
+
+
 def symmetry_deviation(
     mesh: trimesh.Trimesh,
     R: np.ndarray,

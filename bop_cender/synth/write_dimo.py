@@ -17,6 +17,7 @@ and ``100 + variant`` for random lighting.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from bop_cender.data.layout import SCENE_CAMERA, SCENE_GT
 from bop_cender.meshes import MeshCache
 from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.contact_sheet import write_contact_sheet
+from bop_cender.synth.done import scene_done
 from bop_cender.synth.imaging import render_views
 from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
@@ -112,6 +114,12 @@ def scene_jobs(spec: DimoSpec) -> list[int]:
     return list(range(spec.n_scenes))
 
 
+def job_folders(root: Path, spec: DimoSpec, s: int) -> list[Path]:
+    """The scene folders of scene number ``s``: ``real_jaigo/{s:06d}`` and ``sim_jaigo/{s:06d}_{v:02d}``."""
+    real = [Path(root) / "real_jaigo" / f"{s:06d}"] if spec.write_real else []
+    return real + [Path(root) / "sim_jaigo" / f"{s:06d}_{v:02d}" for v in spec.variants]
+
+
 def write_scene(
     root: Path,
     spec: DimoSpec,
@@ -120,7 +128,11 @@ def write_scene(
     meshes: MeshCache,
     piles: PileGeometryCache | None = None,
 ) -> int:
-    """Write the real scene ``s`` and its sim variants; skip folders that exist. Returns folders written."""
+    """Write the real scene ``s`` and its sim variants; skip folders that are done. Returns folders written.
+
+    Which folders are done is known first, and only the piles of the others are dropped (a pile costs
+    about a second, more than rendering its views): a resumed run does no work for a finished folder.
+    """
     rng = np.random.default_rng([spec.seed, s])
     composition = spec.compositions[s % len(spec.compositions)]
     carrier = spec.carriers[s % len(spec.carriers)]
@@ -135,28 +147,44 @@ def write_scene(
         cid = CARRIER_MIN_ID + carrier
         return make_pile(models, part_ids, cid, models[cid], n, comp, pile_rng, support_in_gt=True, cache=piles)
 
-    real_pile = new_pile(np.random.default_rng([spec.seed, s, 1000]))
+    real_pile: list[Pile] = []  # dropped once, when a folder that shows it is written
+
+    def the_real_pile() -> Pile:
+        if not real_pile:
+            real_pile.append(new_pile(np.random.default_rng([spec.seed, s, 1000])))
+        return real_pile[0]
+
     info = {"carrier": carrier, "parts": composition}
-    written = 0
-    folders: list[tuple[str, str, Pile, str, int | None, int]] = []
+    # (folder, pile of the folder, domain, light set-up, scene_info light); every pile derives from its own
+    # seed, so dropping only some of them gives each the same poses.
+    folders: list[tuple[Path, Callable[[], Pile], str, int | None, int]] = []
+    paths = iter(job_folders(root, spec, s))
     if spec.write_real:
-        folders.append(("real_jaigo", f"{s:06d}", real_pile, "real", light_id, light_id))
-    for v in spec.variants:
-        pile = real_pile if v <= 15 else new_pile(np.random.default_rng([spec.seed, s, v]))
+        folders.append((next(paths), the_real_pile, "real", light_id, light_id))
+    for v, path in zip(spec.variants, paths, strict=True):
+
+        def pile(v: int = v) -> Pile:
+            return the_real_pile() if v <= 15 else new_pile(np.random.default_rng([spec.seed, s, v]))
+
         real_light = v == 0 or 16 <= v <= 30
         lid = light_id if real_light else None
-        folders.append(("sim_jaigo", f"{s:06d}_{v:02d}", pile, "sim", lid, light_id if real_light else 100 + v))
-    for camera, name, pile, domain, lid, light_value in folders:
+        folders.append((path, pile, "sim", lid, light_id if real_light else 100 + v))
+    written = 0
+    for path, pile, domain, lid, light_value in folders:
+        if scene_done(path):
+            continue
         written += _write_folder(
-            root, camera, name, pile, domain, lid, {**info, "light": light_value}, spec, meshes, [spec.seed, s]
-        )
+            root, path.parent.name, path.name, pile(), domain, lid, {**info, "light": light_value}, spec, meshes,
+            [spec.seed, s],
+        )  # fmt: skip
     return written
 
 
 def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: DimoSpec, meshes, key) -> int:
     folder_rng = np.random.default_rng([*key, zlib.crc32(f"{camera}/{name}".encode())])  # stable across runs
     final = Path(root) / camera / name
-    with scene_folder(final) as tmp:
+    sheet_path = Path(root) / "contact_sheets" / f"{camera}_{name}.png"
+    with scene_folder(final, extra=[sheet_path]) as tmp:
         if tmp is None:
             return 0
         # fx scales with the width so that other image sizes keep DIMO small's field of view.
@@ -187,5 +215,5 @@ def _write_folder(root, camera, name, pile: Pile, domain, light_id, info, spec: 
         save_json(tmp / "scene_gt_world.json", world)
         save_json(tmp / "scene_info.json", scene_info)
         if spec.contact_sheets:
-            write_contact_sheet(Path(root) / "contact_sheets" / f"{camera}_{name}.png", views)
+            write_contact_sheet(sheet_path, views)
     return 1

@@ -36,6 +36,8 @@ from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
 from bop_cender.synth.styles import make_style
 
 DEPTH_SCALE = 0.1
+#: The split's camera file at the dataset root.
+CAMERA_FILE = "camera_primesense.json"
 #: Views on a scene's contact sheet (the first ones rendered).
 SHEET_VIEWS = 4
 TABLE_ID = 0  # render-only support; never written to GT files
@@ -99,17 +101,23 @@ def write_models(root: Path, spec: TlessSpec) -> dict[int, Part]:
     models = tless_models(spec.catalogue_seed)
     root = Path(root)
     write_model_folders(root, {i: p for i, p in models.items() if i != TABLE_ID}, "tless")
-    if not (root / "camera_primesense.json").is_file():
+    if not (root / CAMERA_FILE).is_file():
         scale = spec.width / TLESS_WIDTH  # the images' own intrinsics (rigs.tless_cameras) at this size
         cam = {"cx": spec.width / 2, "cy": spec.height / 2, "depth_scale": DEPTH_SCALE, "fx": TLESS_FX * scale,
                "fy": TLESS_FY * scale}  # fmt: skip
-        save_json(root / "camera_primesense.json", {**cam, "height": spec.height, "width": spec.width})
+        save_json(root / CAMERA_FILE, {**cam, "height": spec.height, "width": spec.width})
     return models
 
 
 def scene_jobs(spec: TlessSpec) -> list[tuple[str, int]]:
     """Independent units of work: ``("test", scene_id)`` and ``("pbr", scene_id)``."""
     return [("test", s + 1) for s in range(spec.n_scenes)] + [("pbr", s) for s in range(spec.pbr_scenes)]
+
+
+def job_folders(root: Path, job: tuple[str, int]) -> list[Path]:
+    """The scene folder a job writes: ``test_primesense/{s:06d}`` or ``train_pbr/{s:06d}``."""
+    kind, s = job
+    return [Path(root) / ("test_primesense" if kind == "test" else "train_pbr") / f"{s:06d}"]
 
 
 def write_scene(
@@ -120,12 +128,14 @@ def write_scene(
     meshes: MeshCache,
     piles: PileGeometryCache | None = None,
 ) -> int:
-    """Write one test or PBR scene folder (skipped if it exists). Returns folders written."""
+    """Write one test or PBR scene folder (skipped if it is done, :mod:`bop_cender.synth.done`). Returns folders
+    written."""
     kind, s = job
     split = "test_primesense" if kind == "test" else "train_pbr"
     rng = np.random.default_rng([spec.seed, 1 if kind == "test" else 2, s])
     object_ids = [i for i in models if i != TABLE_ID]
-    with scene_folder(Path(root) / split / f"{s:06d}") as tmp:
+    sheet_path = Path(root) / "contact_sheets" / f"{split}_{s:06d}.png"
+    with scene_folder(job_folders(root, job)[0], extra=[sheet_path]) as tmp:
         if tmp is None:
             return 0
         n_images = spec.n_views if kind == "test" else spec.pbr_images
@@ -147,7 +157,7 @@ def write_scene(
         for name, content in records.items():
             save_json(tmp / f"{name}.json", content)
         if spec.contact_sheets:
-            write_contact_sheet(Path(root) / "contact_sheets" / f"{split}_{s:06d}.png", sheet, SHEET_VIEWS)
+            write_contact_sheet(sheet_path, sheet, SHEET_VIEWS)
     return 1
 
 

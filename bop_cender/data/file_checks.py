@@ -1,0 +1,174 @@
+"""Check the files ``run`` and ``score`` will read: every model mesh and every colour and depth image.
+
+Opening a split reads its JSON files and checks them, but not the meshes nor the images, which are read
+late (a mesh when the first estimate of its object is scored, an image when its scene is run): a broken
+file fails minutes into a run, or never, where a decoder returns a half image. ``bop-cender info`` runs
+:func:`check_files` so that every such problem is listed at once, before anything else runs.
+
+Meshes are read by the readers ``run`` and ``score`` use (:func:`bop_cender.data.ply_ascii.ascii_mesh`,
+else :func:`bop_cender.data.bop_io.load_ply`), so they pass or fail exactly as there
+(:func:`~bop_cender.data.ply_ascii.check_mesh`). Images are checked from their headers by default
+(:mod:`bop_cender.data.image_header`: size against the split's, a depth image 16-bit and single-channel)
+or, with ``deep``, decoded in full by the loaders' readers (:func:`~bop_cender.data.bop_io.load_rgb`,
+:func:`~bop_cender.data.bop_io.load_depth`), which also catches pixels damaged behind a good header. Masks
+are not checked: neither ``run`` nor ``score`` reads them.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bop_cender.data.types import Dataset, ObjectModel, Scene
+from bop_cender.errors import DatasetError
+from bop_cender.progress import progress_bar
+
+
+@dataclass(frozen=True)
+class ImageFile:
+    """One image to check: its path, the size it must have, and whether it is a depth image."""
+
+    path: Path
+    size: tuple[int, int]
+    depth: bool = False
+    depth_scale: float | None = None
+
+
+@dataclass
+class FileCheck:
+    """What :func:`check_files` checked and every problem it found (one formatted line each)."""
+
+    deep: bool
+    meshes: int = 0
+    images: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """``checked 42 meshes, 840 images (headers): no problem found`` (or ``: 3 problems``)."""
+        how = "decoded" if self.deep else "headers"
+        n = len(self.problems)
+        found = "no problem found" if not n else f"{n} problem{'s' * (n != 1)}"
+        return f"checked {self.meshes} meshes, {self.images} images ({how}): {found}"
+
+
+def check_meshes(models: Iterable[ObjectModel]) -> tuple[int, list[str]]:
+    """``(meshes checked, problems)`` for the PLY files of ``models`` (each file once)."""
+    from bop_cender.data.bop_io import load_ply
+    from bop_cender.data.ply_ascii import ascii_mesh
+
+    paths = sorted({Path(m.path) for m in models})
+    problems = []
+    for path in paths:
+        try:
+            if ascii_mesh(path) is None:  # binary, or not a triangle list: the readers use trimesh
+                load_ply(path)
+        except DatasetError as e:
+            problems.append(e.format())
+        except OSError as e:
+            problems.append(DatasetError(f"cannot read: {e.strerror}", file=path).format())
+    return len(paths), problems
+
+
+def scene_images(scene: Scene, split_size: tuple[int, int] | None) -> list[ImageFile]:
+    """The colour and depth images of ``scene``'s views, each with the size it must have: the split's
+    (DIMO reads each view's size from its own image, so only the split's size can disagree), else the view's."""
+    out = []
+    for view in scene.views:
+        size = split_size or (view.width, view.height)
+        if view.rgb_path is not None:
+            out.append(ImageFile(Path(view.rgb_path), size))
+        if view.depth_path is not None:
+            out.append(ImageFile(Path(view.depth_path), size, depth=True, depth_scale=view.depth_scale))
+    return out
+
+
+def check_image(image: ImageFile, deep: bool) -> str | None:
+    """The problem of one image, formatted (``FILE: field: message``), or None."""
+    try:
+        width, height = _decoded_size(image) if deep else _header_size(image)
+    except DatasetError as e:
+        return e.format()
+    if (width, height) != tuple(image.size):
+        expected = f"{image.size[0]}x{image.size[1]}"
+        return DatasetError(
+            f"image is {width}x{height}, expected {expected} (the split's image size)", file=image.path, field="size"
+        ).format()
+    return None
+
+
+def _header_size(image: ImageFile) -> tuple[int, int]:
+    from bop_cender.data.image_header import read_image_header
+
+    header = read_image_header(image.path)
+    if header is None:  # not a PNG or JPEG: only a decoder can tell
+        return _decoded_size(image)
+    if image.depth:
+        if header.format != "png" or header.channels != 1:
+            raise DatasetError(
+                f"expected a single-channel 16-bit PNG depth image, got a {header.channels}-channel {header.format}",
+                file=image.path,
+                field="depth",
+            )
+        if header.bit_depth != 16:
+            raise DatasetError(
+                f"expected a 16-bit depth image, got {header.bit_depth}-bit", file=image.path, field="depth"
+            )
+    return header.width, header.height
+
+
+def _decoded_size(image: ImageFile) -> tuple[int, int]:
+    from bop_cender.data.bop_io import load_depth, load_rgb
+
+    if image.depth:
+        pixels = load_depth(image.path, image.depth_scale or 1.0)
+    else:
+        pixels = load_rgb(image.path)
+        if image.path.suffix.lower() in (".jpg", ".jpeg"):
+            _check_jpeg_end(image.path)
+    return int(pixels.shape[1]), int(pixels.shape[0])
+
+
+def _check_jpeg_end(path: Path) -> None:
+    """A JPEG cut short still decodes (the missing rows grey, a warning on stderr): its end-of-image
+    marker is missing."""
+    with path.open("rb") as f:
+        f.seek(max(0, path.stat().st_size - 64))
+        tail = f.read().rstrip(b"\0")
+    if not tail.endswith(b"\xff\xd9"):
+        raise DatasetError("JPEG cut short (no end-of-image marker): the decoder fills the rest grey", file=path)
+
+
+def check_images(images: list[ImageFile], deep: bool, progress: bool = True) -> list[str]:
+    """The problems of ``images`` (each path once), in their order; decoded on several threads with ``deep``
+    (the decoders release the GIL)."""
+    unique = list({image.path: image for image in images}.values())
+    threads = max(1, min(8, os.cpu_count() or 1)) if deep else 1
+    bar = progress_bar(
+        total=len(unique), desc="checking images", unit="image", disable=not progress or len(unique) < 200, leave=False
+    )
+    with bar, ThreadPoolExecutor(threads) as pool:
+        problems = []
+        for problem in pool.map(functools.partial(check_image, deep=deep), unique):
+            bar.update()
+            if problem is not None:
+                problems.append(problem)
+    return problems
+
+
+def check_files(dataset: Dataset, scenes: Iterable[Scene], deep: bool = False, progress: bool = True) -> FileCheck:
+    """Check the meshes of ``dataset`` (models and evaluation models) and the images of ``scenes``.
+
+    Args:
+        scenes: the scenes loaded (a scene that failed to load is reported by its loader, not here).
+        deep: decode every image in full, not its header alone.
+    """
+    result = FileCheck(deep=deep)
+    result.meshes, mesh_problems = check_meshes([*dataset.models.values(), *dataset.eval_models.values()])
+    images = [image for scene in scenes for image in scene_images(scene, dataset.image_size)]
+    result.images = len({image.path for image in images})
+    result.problems = mesh_problems + check_images(images, deep, progress)
+    return result

@@ -1,0 +1,162 @@
+"""``bop-cender info`` checks the files run and score read: meshes, colour and depth images; every problem listed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bop_cender.cli import main
+from bop_cender.data.file_checks import ImageFile, check_image
+from bop_cender.data.image_header import read_image_header
+from bop_cender.data.tless import open_tless
+from bop_cender.errors import DatasetError
+
+try:
+    from tests.data.bop_builder import BopSpec, build_bop
+    from tests.data.dimo_builder import SceneSpec, build_dimo
+except ImportError:  # pytest's default import mode puts tests/data itself on sys.path
+    from bop_builder import BopSpec, build_bop
+    from dimo_builder import SceneSpec, build_dimo
+
+SPEC = BopSpec(n_scenes=2, n_images=3, pbr_scenes=0, target_fraction=1.0, models_dirs=("models_cad", "models_eval"))
+
+
+@pytest.fixture
+def tless(tmp_path: Path) -> Path:
+    return build_bop(tmp_path / "tless", SPEC).root
+
+
+def info(capsys, root: Path, *extra: str, dataset: str = "tless") -> tuple[int, list[str], str]:
+    code = main(["info", "--dataset", dataset, "--data-root", str(root), "--no-progress", *extra])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return code, out.strip().splitlines(), err
+
+
+def problems(lines: list[str]) -> list[str]:
+    return [line.removeprefix("problem   ") for line in lines if line.startswith("problem   ")]
+
+
+def a_view(root: Path, scene: int = 1, view: int = 1):
+    """A view the split uses (T-LESS test: only target images), of the second scene by default: the first
+    image of the first scene is where the loader reads the split's size."""
+    ds = open_tless(root, "test", n_views=5)
+    return ds.scene(ds.scene_keys[scene]).views[view]
+
+
+def test_a_clean_dataset_is_described_and_checked(tless: Path, capsys) -> None:
+    code, lines, _ = info(capsys, tless)
+    assert code == 0 and lines[0] == "dataset   tless, split test" and not problems(lines)
+    assert lines[-1] == "checked 6 meshes, 12 images (headers): no problem found"  # 3 models x 2 folders; rgb + depth
+    code, lines, _ = info(capsys, tless, "--deep")
+    assert code == 0 and lines[-1] == "checked 6 meshes, 12 images (decoded): no problem found"
+
+
+def _nan_vertex(text: str) -> str:
+    lines = text.splitlines()
+    first = lines.index("end_header") + 1
+    lines[first] = " ".join(["nan", *lines[first].split()[1:]])
+    return "\n".join(lines) + "\n"
+
+
+def _face_out_of_range(text: str) -> str:
+    lines = text.splitlines()
+    face = next(i for i, line in enumerate(lines) if line.startswith("3 ") and i > lines.index("end_header"))
+    lines[face] = "3 0 1 99999"
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "message"),
+    [
+        (_nan_vertex, "vertex: 1 vertex coordinate(s) NaN or infinite (first: vertex 0)"),
+        (_face_out_of_range, "face: 1 face(s) index vertices outside 0.."),
+        (lambda text: text[: len(text) // 2], "truncated: the file ends before"),
+    ],
+    ids=["nan-vertex", "face-index", "truncated"],
+)
+def test_a_corrupted_mesh_is_one_line_naming_the_file(tless: Path, capsys, corrupt, message: str) -> None:
+    ply = tless / "models_eval" / "obj_000002.ply"  # what score reads (run reads models_cad/)
+    ply.write_text(corrupt(ply.read_text()))
+    code, lines, _ = info(capsys, tless)
+    assert code == 2
+    [problem] = problems(lines)
+    assert problem.startswith(f"{ply}: ") and message in problem
+    assert lines[-1] == "checked 6 meshes, 12 images (headers): 1 problem"
+
+
+def test_a_truncated_png_is_caught_by_deep_not_by_the_header_check(tless: Path, capsys) -> None:
+    rgb = a_view(tless).rgb_path
+    data = rgb.read_bytes()
+    rgb.write_bytes(data[: len(data) - 20])  # the header intact, the end of the pixel data and IEND gone
+    code, lines, _ = info(capsys, tless)
+    assert code == 0 and lines[-1].endswith("(headers): no problem found")
+    code, lines, err = info(capsys, tless, "--deep")
+    assert code == 2 and problems(lines) == [f"{rgb}: cannot decode image"]
+    assert "libpng" not in err  # the decoder's own message is silenced: ours names the file
+
+
+def test_a_wrong_size_image_and_an_8_bit_depth_image_are_each_listed(tless: Path, capsys) -> None:
+    view = a_view(tless)
+    cv2.imwrite(str(view.rgb_path), np.zeros((30, 40, 3), np.uint8))
+    cv2.imwrite(str(view.depth_path), np.full((24, 32), 7, np.uint8))
+    for deep in ((), ("--deep",)):
+        code, lines, _ = info(capsys, tless, *deep)
+        assert code == 2 and lines[-1].endswith(": 2 problems")
+        found = problems(lines)
+        assert f"{view.rgb_path}: size: image is 40x30, expected 32x24 (the split's image size)" in found
+        [depth] = [p for p in found if p.startswith(str(view.depth_path))]
+        assert "expected a 16-bit depth image, got 8-bit" in depth
+
+
+def test_every_problem_is_listed_a_broken_scene_included(tless: Path, capsys) -> None:
+    ply = tless / "models_cad" / "obj_000001.ply"
+    ply.write_text(_nan_vertex(ply.read_text()))
+    gt = tless / "test_primesense" / "000002" / "scene_gt.json"  # read when the scene loads, not when the split opens
+    gt.write_text("{")
+    code, lines, _ = info(capsys, tless)
+    found = problems(lines)
+    assert code == 2 and len(found) == 2 and lines[-1] == "checked 6 meshes, 6 images (headers): 2 problems"
+    assert found[0].startswith(f"{gt}: malformed JSON") and found[1].startswith(f"{ply}: vertex:")
+    assert "scenes    1" in lines  # the scene that loads is described and checked
+
+
+def test_dimo_images_are_checked_against_the_split_size(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "dimo"
+    build_dimo(root, [SceneSpec(folder="000000"), SceneSpec(folder="000001")])
+    code, lines, _ = info(capsys, root, dataset="dimo")
+    assert code == 0 and lines[-1] == "checked 3 meshes, 4 images (headers): no problem found"  # viewpoints 0, 2
+    rgb = root / "real_jaigo" / "000001" / "rgb" / "000002.png"
+    cv2.imwrite(str(rgb), np.zeros((12, 20, 3), np.uint8))
+    code, lines, _ = info(capsys, root, dataset="dimo")
+    assert code == 2 and problems(lines) == [f"{rgb}: size: image is 20x12, expected 16x12 (the split's image size)"]
+
+
+def test_a_jpeg_cut_short_decodes_but_deep_catches_it(tmp_path: Path) -> None:
+    path = tmp_path / "000000.jpg"
+    cv2.imwrite(str(path), np.random.default_rng(0).integers(0, 255, (24, 32, 3), dtype=np.uint8))
+    image = ImageFile(path, (32, 24))
+    assert check_image(image, deep=True) is None
+    path.write_bytes(path.read_bytes()[:-200])
+    assert check_image(image, deep=False) is None  # the header is intact
+    assert (
+        check_image(image, deep=True)
+        == f"{path}: JPEG cut short (no end-of-image marker): the decoder fills the rest grey"
+    )
+
+
+def test_headers_are_read_without_decoding(tmp_path: Path) -> None:
+    cv2.imwrite(str(tmp_path / "d.png"), np.zeros((5, 7), np.uint16))
+    cv2.imwrite(str(tmp_path / "c.jpg"), np.zeros((5, 7, 3), np.uint8))
+    header = read_image_header(tmp_path / "d.png")
+    assert (header.format, header.width, header.height, header.bit_depth, header.channels) == ("png", 7, 5, 16, 1)
+    header = read_image_header(tmp_path / "c.jpg")  # after its JFIF segment and tables
+    assert (header.format, header.width, header.height, header.bit_depth, header.channels) == ("jpeg", 7, 5, 8, 3)
+    (tmp_path / "x.txt").write_text("not an image")
+    assert read_image_header(tmp_path / "x.txt") is None
+    (tmp_path / "cut.png").write_bytes((tmp_path / "d.png").read_bytes()[:20])
+    with pytest.raises(DatasetError, match="PNG header cut or malformed"):
+        read_image_header(tmp_path / "cut.png")

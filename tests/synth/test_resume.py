@@ -1,0 +1,94 @@
+"""A resumed ``synth`` skips only what is really done, before any set-up, and ends byte-identical to a fresh run."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import pytest
+
+from bop_cender.cli import main
+from bop_cender.synth import generate as generate_module
+from bop_cender.synth import write_dimo
+from bop_cender.synth.done import marker_path, scene_done
+from bop_cender.synth.generate import generate
+from bop_cender.synth.write_dimo import DimoSpec
+from bop_cender.synth.write_tless import TlessSpec
+
+SPEC = TlessSpec(n_scenes=3, n_views=2, pbr_scenes=0, width=64, height=48, seed=4)
+
+
+def digest(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` (hidden ones included) by relative path: its bytes' hash."""
+    return {
+        p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("fresh")
+    generate("tless", root, SPEC, progress=False)
+    return root
+
+
+def test_a_resume_regenerates_deleted_truncated_and_unmarked_scenes_byte_for_byte(fresh: Path, tmp_path: Path):
+    resumed = tmp_path / "resumed"
+    shutil.copytree(fresh, resumed)
+    scenes = resumed / "test_primesense"
+    assert all(scene_done(scenes / f"{s:06d}") for s in (1, 2, 3))
+    shutil.rmtree(scenes / "000001")  # deleted
+    depth = scenes / "000002" / "depth" / "000001.png"
+    depth.write_bytes(depth.read_bytes()[:100])  # truncated: the folder is there, the scene is not done
+    assert not scene_done(scenes / "000002")
+    marker_path(scenes / "000003").unlink()  # renamed into place, interrupted before its marker was written
+    (scenes / ".000003.partial").mkdir()  # and the leftovers of an interrupted writer
+    (scenes / ".000003.partial" / "scene_gt.json").write_text("{")
+    report = generate("tless", resumed, SPEC, progress=False)
+    assert (report.written, report.skipped) == (3, 0)
+    assert digest(resumed) == digest(fresh)
+
+
+def test_a_finished_dataset_resumes_without_making_models_or_workers(fresh: Path, tmp_path: Path, monkeypatch):
+    resumed = tmp_path / "resumed"
+    shutil.copytree(fresh, resumed)
+
+    def refused(*args, **kwargs):
+        raise AssertionError("set-up work for a dataset that is complete")
+
+    monkeypatch.setattr(generate_module, "_init_worker", refused)
+    monkeypatch.setattr(generate_module.TlessLayout, "write_models", refused)
+    report = generate("tless", resumed, SPEC, workers=2, progress=False)
+    assert (report.written, report.skipped) == (0, 3)
+    assert digest(resumed) == digest(fresh)
+
+
+def test_a_dimo_resume_drops_no_pile_for_a_done_folder(tmp_path: Path, monkeypatch):
+    spec = DimoSpec(n_scenes=1, n_viewpoints=1, variants=(0, 17), width=48, height=40, seed=2, contact_sheets=False)
+    generate("dimo", tmp_path / "a", spec, progress=False)
+    calls = []
+    make_pile = write_dimo.make_pile
+    monkeypatch.setattr(write_dimo, "make_pile", lambda *a, **k: calls.append(1) or make_pile(*a, **k))
+    before = digest(tmp_path / "a")
+    shutil.rmtree(tmp_path / "a" / "sim_jaigo" / "000000_17")  # random poses: its own pile, and only that
+    report = generate("dimo", tmp_path / "a", spec, progress=False)
+    assert (report.written, report.skipped, len(calls)) == (1, 2, 1)
+    assert digest(tmp_path / "a") == before
+
+
+def test_the_cli_says_what_is_left_and_counts_only_that(tmp_path: Path, capsys):
+    out = tmp_path / "ds"
+    args = ["synth", "--layout", "tless", "--out", str(out), "--scenes", "3", "--views", "1", "--pbr-scenes", "0",
+            "--no-contact-sheets"]  # fmt: skip
+    assert main(args) == 0
+    capsys.readouterr()
+    shutil.rmtree(out / "test_primesense" / "000002")
+    assert main(args) == 0
+    err = capsys.readouterr().err  # not a terminal: plain lines, no carriage return, no escape code
+    assert "[bop-cender] resuming: 2 of 3 scene folders done, 1 to go" in err
+    assert "synth tless: 1/1 scene (100%) done" in err
+    assert "1 scene folders written, 2 already complete" in err
+    assert "\r" not in err and "\x1b" not in err
