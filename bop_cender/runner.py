@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import shutil
 import sys
@@ -426,12 +427,21 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
     if not keys:
         return
     if request.workers == 1 or len(keys) == 1:
-        # One process keeps torch's threads: one torch thread with the candidates' chunks on 2 threads
-        # costs the 2,000 candidates faster (255 vs 193 calls/s) but the Nelder-Mead's small calls slower,
-        # 125 s against 109 s for a 9-part scene (results/bench/run_*).
-        method = build_method(request, dataset)
-        for key in keys:
-            yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
+        # One torch thread here too: the method's tensors are small (Nelder-Mead steps of a few poses, chunks
+        # of a few hundred canvases), where torch's OpenMP threads cost more than they give, and on a busy
+        # machine they wait for each other a scheduler slice per operation: a 9-part DIMO scene took 28 s
+        # with 1 thread and 291 s with 2 on the shared 2-core machine (results/bench/run_*). The render
+        # search's candidate chunks still use the cores (cost_threads).
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            method = build_method(request, dataset, cost_threads=max(1, min(2, os.cpu_count() or 1)))
+            for key in keys:
+                yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
+        finally:
+            torch.set_num_threads(threads)
         return
     build_method(request, dataset)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")

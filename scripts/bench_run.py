@@ -8,8 +8,8 @@
    (``search_cost=edges``, :mod:`bop_cender.pose.edge_cost`).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
-   embedded demo), one process as ``bop-cender run`` runs it (torch's threads; ``--chunk-threads N``: one
-   torch thread and N threads for the candidates' chunks instead).
+   embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
+   candidate chunks on 2 threads; ``--torch-threads`` and ``--chunk-threads`` to compare).
 
 Prints a table and writes ``results/bench/run_<machine>.md``:
 
@@ -92,7 +92,9 @@ def edge_calls_per_second(
     return batch / per_call, per_call * 1000
 
 
-def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str, chunk_threads: int = 1) -> list[dict]:
+def scene_timings(
+    data_root: str | None, split: str, n_scenes: int, device: str, chunk_threads: int = 2, torch_threads: int = 1
+) -> list[dict]:
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
     from bop_cender.meshes import MeshCache
@@ -103,10 +105,10 @@ def scene_timings(data_root: str | None, split: str, n_scenes: int, device: str,
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets, device=device)
-    # as a one-process `bop-cender run` does: torch's threads, one chunk thread (``--chunk-threads`` to compare)
+    # as a one-process `bop-cender run` does: one torch thread, the render search's chunks on the cores
+    # (``--torch-threads`` to compare)
     method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads)
-    if chunk_threads > 1:
-        torch.set_num_threads(1)
+    torch.set_num_threads(torch_threads)
     out = []
     for key in ds.scene_keys[:n_scenes]:
         scene = ds.scene(key)
@@ -127,7 +129,10 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=5.0, help="timing budget per cost measurement")
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--chunk-threads", type=int, default=1, help="candidates' chunk threads in the scene timing")
+    ap.add_argument(
+        "--chunk-threads", type=int, default=2, help="the render search's chunk threads in the scene timing"
+    )
+    ap.add_argument("--torch-threads", type=int, default=1, help="torch threads in the scene timing (run: 1)")
     args = ap.parse_args()
     load_before = os.getloadavg()
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
@@ -158,7 +163,12 @@ def main() -> None:
             )
     torch.set_num_threads(threads)
     scenes = scene_timings(
-        args.data_root, args.split, args.scenes, "cuda" if torch.cuda.is_available() else "cpu", args.chunk_threads
+        args.data_root,
+        args.split,
+        args.scenes,
+        "cuda" if torch.cuda.is_available() else "cpu",
+        args.chunk_threads,
+        args.torch_threads,
     )
     load_after = os.getloadavg()
     slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
