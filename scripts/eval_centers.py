@@ -1,10 +1,15 @@
-"""Stage 2 alone on oracle heatmaps: how many GT centres the 3D centres find, for several d_c / d_o.
+"""Stage 2 alone on oracle heatmaps: how many GT centres the 3D centres find, and the false ones.
 
 For each scene of a DIMO-layout split, the oracle center heatmaps (rendered from the GT) go through
 :func:`bop_cender.centers.detect_centers` with the known object count; a GT centre counts as found
-when a detected centre lies within 5 mm of it. Prints one line per setting:
+when a detected centre lies within 5 mm of it, a detected centre is false when it lies 5 mm or more
+from every GT centre. Per setting: found / total, false centres, median error of the found ones, and
+per-image targets found (an image's targets: objects with ``visib_fract >= 0.1`` in it, BOP's rule;
+one counts as found when its GT centre is). With ``--misses``, each missed GT centre of the first
+setting, with the number of views where the heatmap has a peak on it (within 1 px of its projection:
+fewer than two, and no triangulation can find it) and the nearest detected centre:
 
-    python scripts/eval_centers.py --data-root DATA --split sim --scenes 24
+    python scripts/eval_centers.py --data-root DATA --split sim --misses
 """
 
 from __future__ import annotations
@@ -13,18 +18,17 @@ import argparse
 
 import numpy as np
 
-from bop_cender.centers import CenterConfig, detect_centers
+from bop_cender.centers import CenterConfig, detect_centers, find_peaks, project_points
 from bop_cender.data.registry import DatasetRequest
 from bop_cender.datasets import open_with_demo
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNetConfig
 from bop_cender.net.oracle import OraclePredictor
+from bop_cender.visibility import pile_visibility
 
 SETTINGS = {
+    "ours": CenterConfig(),
     "paper d_c 30, d_o 30": CenterConfig.paper(),
-    "ours d_c 10, d_o 10": CenterConfig(),
-    "d_c 10, d_o 15": CenterConfig(d_c=10.0, d_o=15.0),
-    "d_c 15, d_o 15": CenterConfig(d_c=15.0, d_o=15.0),
 }
 
 
@@ -33,36 +37,68 @@ def main() -> None:
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--split", default="sim")
     ap.add_argument("--scenes", type=int, default=None)
+    ap.add_argument("--misses", action="store_true", help="print each miss and false centre of the first setting")
     args = ap.parse_args()
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets)
     found = dict.fromkeys(SETTINGS, 0)
+    false = dict.fromkeys(SETTINGS, 0)
+    image_targets_found = dict.fromkeys(SETTINGS, 0)
     errors: dict[str, list[float]] = {k: [] for k in SETTINGS}
-    total = 0
+    total = image_targets = 0
     for key in ds.scene_keys[: args.scenes]:
         scene = ds.scene(key)
         maps = oracle.predict(scene).center.numpy()
         Ks = np.stack([v.K for v in scene.views])
         T_cw = np.stack([v.T_cam_world for v in scene.views])
-        gt = np.array([g.T_world_model[:3, :3] @ ds.models[g.obj_id].center + g.T_world_model[:3, 3]
-                       for g in scene.gt if ds.models[g.obj_id].is_target]).reshape(-1, 3)  # fmt: skip
+        gts = [g for g in scene.gt if g.obj_id in ds.models]
+        targets = [i for i, g in enumerate(gts) if ds.models[g.obj_id].is_target]
+        gt = np.array([gts[i].T_world_model[:3, :3] @ ds.models[gts[i].obj_id].center + gts[i].T_world_model[:3, 3]
+                       for i in targets]).reshape(-1, 3)  # fmt: skip
         total += len(gt)
-        for name, setting in SETTINGS.items():
+        if not len(gt):
+            continue
+        T_cm = np.einsum("vij,mjk->vmik", T_cw, np.stack([g.T_world_model for g in gts]))
+        H, W = scene.views[0].height, scene.views[0].width
+        fract = pile_visibility(meshes.many([g.obj_id for g in gts]), T_cm, Ks, H, W).fract[:, targets]  # (V, M)
+        per_image = (fract >= 0.1).sum(0)  # (M,) images where each GT centre is a target
+        image_targets += int(per_image.sum())
+        for s, (name, setting) in enumerate(SETTINGS.items()):
             centers = detect_centers(maps, Ks, T_cw, setting, None, {0: len(gt)})
             P = np.array([c.position for c in centers]).reshape(-1, 3)
-            if len(P) == 0 or len(gt) == 0:
-                continue
-            nearest = np.linalg.norm(gt[:, None] - P[None], axis=-1).min(1)
+            dist = np.linalg.norm(gt[:, None] - P[None], axis=-1) if len(P) else np.full((len(gt), 1), np.inf)
+            nearest = dist.min(1)
             found[name] += int((nearest < 5.0).sum())
+            false[name] += int((dist.min(0) >= 5.0).sum()) if len(P) else 0
+            image_targets_found[name] += int(per_image[nearest < 5.0].sum())
             errors[name] += nearest[nearest < 5.0].tolist()
-    print(f"{len(ds.scene_keys[: args.scenes])} scenes, {total} GT centres ({ds.root}, split {args.split})")
+            if args.misses and s == 0:
+                _print_misses(key, maps[:, 0], Ks, T_cw, gt, nearest, dist, centers, setting, per_image)
+    print(f"{len(ds.scene_keys[: args.scenes])} scenes, {total} GT centres, {image_targets} per-image targets"
+          f" ({ds.root}, split {args.split})")  # fmt: skip
     for name in SETTINGS:
         med = np.median(errors[name]) if errors[name] else float("nan")
         print(
-            f"{name}: {found[name]}/{total} found within 5 mm ({found[name] / max(total, 1):.3f}); median error {med:.2f} mm"
+            f"{name}: {found[name]}/{total} found within 5 mm ({found[name] / max(total, 1):.3f}), "
+            f"{false[name]} false; median error {med:.2f} mm; per-image targets "
+            f"{image_targets_found[name]}/{image_targets} ({image_targets_found[name] / max(image_targets, 1):.3f})"
         )
+
+
+def _print_misses(key, maps, Ks, T_cw, gt, nearest, dist, centers, setting, per_image) -> None:
+    xy, front = project_points(gt, Ks, T_cw)  # (V, M, 2)
+    peaks = [find_peaks(m, setting.peak_threshold, setting.peak_min_distance)[0] for m in maps]
+    on_peak = np.zeros((len(maps), len(gt)), dtype=bool)
+    for v, p in enumerate(peaks):
+        if len(p):
+            on_peak[v] = front[v] & (np.linalg.norm(xy[v][:, None] - p[None], axis=-1).min(1) <= 1.0)
+    for i in np.flatnonzero(nearest >= 5.0):
+        print(f"  {key} miss GT {i}: peaks on it in {on_peak[:, i].sum()} of {len(maps)} views, "
+              f"target in {per_image[i]} images; nearest centre {nearest[i]:.1f} mm")  # fmt: skip
+    for j in np.flatnonzero(dist.min(0) >= 5.0) if len(centers) else []:
+        print(f"  {key} false centre {j}: score {centers[j].score:.2f}, {dist[:, j].min():.1f} mm from a GT centre")
 
 
 if __name__ == "__main__":

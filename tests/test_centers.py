@@ -14,6 +14,7 @@ from bop_cender.centers import (
     peak_rays,
     sample_scores,
 )
+from bop_cender.geometry.camera import camera_center_in_world
 from bop_cender.synth.rigs import look_at
 
 H, W = 240, 320
@@ -131,3 +132,48 @@ def test_merge_is_greedy_by_score():
     # the best (25) takes 0, 10 and 45 (all within 30 of it): one point, pulled towards 25
     assert merged.shape == (1, 3)
     assert 15 < merged[0, 0] < 30
+
+
+def test_two_objects_closer_than_the_old_d_o_are_both_kept():
+    # piled flanges: centres 8 mm apart, their blobs overlap (one peak in views along the line joining
+    # them); each keeps its own peaks in the other views, so both are kept (d_o = 10 had dropped one)
+    truth = np.array([[0.0, 0.0, 0.0], [8.0, 0.0, 0.0]])
+    T_cw = ring_cameras(6)
+    maps = blob_maps(truth, T_cw, sigma=2.0)
+    centers = detect_centers(maps, np.repeat(K[None], 6, 0), T_cw, CenterConfig(), known_counts={0: 2})
+    assert len(centers) == 2
+    err = np.linalg.norm(truth[:, None] - np.array([c.position for c in centers])[None], axis=-1).min(1)
+    assert (err < TOL_MM).all(), err
+
+
+def test_a_phantom_where_other_objects_rays_cross_loses_to_a_part_seen_in_two_views():
+    # the rays of cameras 0, 1 and 2 through P each meet a different object (A, B, C, seen everywhere),
+    # so P scores ~3 on their blobs; D shows its centre in views 3 and 4 only (score ~2). With the known
+    # count 4 the top-4 by score took P; P's peaks are A's, B's and C's, so D is kept instead.
+    T_cw = ring_cameras(6)
+    P = np.array([0.0, 0.0, 0.0])
+    on_rays = []
+    for i, t in zip(range(3), (90.0, -90.0, 120.0), strict=True):
+        eye = camera_center_in_world(T_cw[i])
+        on_rays.append(P + t * (P - eye) / np.linalg.norm(P - eye))
+    D = np.array([-40.0, 150.0, 10.0])
+    maps = blob_maps(np.stack(on_rays), T_cw)
+    maps[3:5] = np.maximum(maps[3:5], blob_maps(D[None], T_cw[3:5]))
+    truth = np.vstack([on_rays, D])
+    Ks = np.repeat(K[None], 6, 0)
+    assert sample_scores(P[None], maps[:, 0], Ks, T_cw)[0].sum() > 2.5  # the phantom outscores D
+    centers = detect_centers(maps, Ks, T_cw, CenterConfig(), known_counts={0: 4})
+    found = np.array([c.position for c in centers])
+    err = np.linalg.norm(truth[:, None] - found[None], axis=-1).min(1)
+    assert (err < TOL_MM).all(), err
+    assert np.linalg.norm(found - P, axis=1).min() > 20.0
+
+
+def test_refined_duplicates_are_one_centre_without_a_known_count():
+    # every pair of rays gives a candidate; those merged apart converge to the same centre when
+    # refined: its peaks are owned by the first, so the others are dropped
+    truth = np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0]])
+    T_cw = ring_cameras(8)
+    maps = blob_maps(truth, T_cw)
+    centers = detect_centers(maps, np.repeat(K[None], 8, 0), T_cw, CenterConfig(d_c=1.0))
+    assert len(centers) == 2
