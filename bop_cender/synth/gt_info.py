@@ -73,7 +73,10 @@ def object_visibility(
     for k, idx in enumerate(object_indices):
         full_big = big[k]
         mask = full_big[H : 2 * H, W : 2 * W]
-        visib = instance == idx
+        # Visible pixels are the scene render's pixels of the object that its own render covers too: the two
+        # renders can differ by a pixel along an edge shared with another part, and a visible pixel outside
+        # the object's own mask would make visib_fract exceed 1 (which the loaders refuse, as for real data).
+        visib = (instance == idx) & mask
         px_all = int(full_big.sum())
         px_visib = int(visib.sum())
         info = {

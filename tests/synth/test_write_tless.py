@@ -195,3 +195,22 @@ def test_spec_is_validated():
         TlessSpec(objects_per_scene=(5, 2))
     with pytest.raises(ValueError, match="seeds"):
         TlessSpec(catalogue_seed=-1)
+
+
+def test_visible_pixels_outside_the_objects_own_render_do_not_count():
+    """The scene render and the object's own render can differ by a pixel along a shared edge: visib_fract
+    stays <= 1 (the loaders refuse more, as they would for a real dataset)."""
+    import trimesh
+
+    from bop_cender.render.mesh import prepare_mesh
+    from bop_cender.synth.gt_info import object_visibility
+
+    mesh = prepare_mesh(trimesh.creation.box(extents=(20.0, 20.0, 20.0)))
+    T = np.eye(4)
+    T[2, 3] = 200.0
+    K = np.array([[200.0, 0, 32], [0, 200.0, 32], [0, 0, 1]])
+    alone = object_visibility([mesh], T[None], K, np.full((64, 64), -1), np.ones((64, 64)), [0])[0]
+    instance = np.where(alone.mask, 0, -1)
+    instance[0, 0] = 0  # a pixel the object's own render does not cover
+    info = object_visibility([mesh], T[None], K, instance, np.ones((64, 64)), [0])[0].info
+    assert info["visib_fract"] == 1.0 and info["px_count_visib"] == info["px_count_all"]
