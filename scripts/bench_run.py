@@ -34,8 +34,8 @@ from bop_cender.render.mesh import prepare_mesh
 from bop_cender.synth.reference_meshes import reference_bracket
 
 
-def cost_calls_per_second(device: torch.device, batch: int, seconds: float, workers: int = 1) -> tuple[float, float]:
-    """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads)."""
+def _workload(device: torch.device, batch: int):
+    """The reference bracket, ``batch`` candidate poses over the six views, intrinsics, distance maps, weights."""
     mesh = prepare_mesh(reference_bracket(), device=device)
     T_cw, K = bench_render.make_rig()
     dist = bench_render.target_distance_maps(mesh, T_cw, K).to(device)
@@ -43,10 +43,11 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
     T = torch.as_tensor(bench_render.make_candidates(batch, rng, T_cw), dtype=torch.float32, device=device)
     Ks = torch.as_tensor(K, dtype=torch.float32, device=device)
     w = torch.full((len(K),), 1.0 / len(K), device=device)
+    return mesh, T, Ks, dist, w
 
-    def call() -> None:
-        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers)
 
+def _calls_per_second(call, device: torch.device, batch: int, seconds: float) -> tuple[float, float]:
+    """Median poses/s and ms per call of ``call()`` (one warm-up call, then at least 3 within ``seconds``)."""
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     call()
     sync()
@@ -61,6 +62,16 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
     return batch / per_call, per_call * 1000
 
 
+def cost_calls_per_second(device: torch.device, batch: int, seconds: float, workers: int = 1) -> tuple[float, float]:
+    """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads)."""
+    mesh, T, Ks, dist, w = _workload(device, batch)
+
+    def call() -> None:
+        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers)
+
+    return _calls_per_second(call, device, batch, seconds)
+
+
 def edge_calls_per_second(
     device: torch.device, batch: int, seconds: float, max_segments: int | None
 ) -> tuple[float, float]:
@@ -68,28 +79,11 @@ def edge_calls_per_second(
     workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking."""
     from bop_cender.pose.edge_cost import edge_costs, edge_model_of
 
-    mesh = prepare_mesh(reference_bracket(), device=device)
+    mesh, T, Ks, dist, w = _workload(device, batch)
     model = edge_model_of(mesh)
     if max_segments is not None:
         model = model.sparse(max_segments)
-    T_cw, K = bench_render.make_rig()
-    dist = bench_render.target_distance_maps(mesh, T_cw, K).to(device)
-    rng = np.random.default_rng(0)
-    T = torch.as_tensor(bench_render.make_candidates(batch, rng, T_cw), dtype=torch.float32, device=device)
-    Ks = torch.as_tensor(K, dtype=torch.float32, device=device)
-    w = torch.full((len(K),), 1.0 / len(K), device=device)
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    edge_costs(model, T, Ks, dist, w)
-    sync()
-    times = []
-    end = time.perf_counter() + seconds
-    while time.perf_counter() < end or len(times) < 3:
-        t = time.perf_counter()
-        edge_costs(model, T, Ks, dist, w)
-        sync()
-        times.append(time.perf_counter() - t)
-    per_call = float(np.median(times))
-    return batch / per_call, per_call * 1000
+    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w), device, batch, seconds)
 
 
 def scene_timings(
