@@ -147,7 +147,7 @@ def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:
         scene_int = _scene(scene, path, "file name")
         try:
             poses = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, EOFError) as e:  # EOFError: an empty file
             raise ResultsError(f"cannot read .npy: {e}", file=path) from None
         for k, pose in enumerate(_poses(poses, path, "array")):
             rows.append(_row(scene_int, int(m["im"]), int(m["obj"]), 1.0, pose, -1.0, path, f"pose {k}"))

@@ -125,3 +125,16 @@ def test_a_pvnet_pose_with_a_bool_or_a_translation_overflowing_mm_is_refused(tmp
         convert_pvnet(source, out)
     assert e.value.file == str(source) and e.value.field.startswith("000001/000042[0]")
     assert not out.exists()
+
+
+def test_an_empty_npy_file_in_a_pvnet_folder_is_one_error(tmp_path: Path) -> None:
+    """Found by the .npy folder property: np.load raised a bare EOFError on an empty file."""
+    from bop_cender.errors import ResultsError
+    from bop_cender.results.convert_pvnet import convert_pvnet
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "000001_000003_000002.npy").write_bytes(b"")
+    with pytest.raises(ResultsError, match="cannot read .npy") as e:
+        convert_pvnet(tmp_path / "in", tmp_path / "pvnet_tless-test.csv")
+    assert e.value.file.endswith("000001_000003_000002.npy")
+    assert not (tmp_path / "pvnet_tless-test.csv").exists()

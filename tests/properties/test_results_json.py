@@ -134,3 +134,74 @@ def test_pvnet_json(case: Case) -> None:
 
 def _values(rows: list) -> list[tuple]:
     return [(r.scene_id, r.im_id, r.obj_id, r.score, r.R.tobytes(), r.t.tobytes(), r.time) for r in rows]
+
+
+# ------------------------------------------------------------------------------ PVNet folder of .npy poses
+
+
+def _npy_pose(seed: int) -> np.ndarray:
+    pose = np.zeros((3, 4))
+    pose[:, :3] = Rotation.from_euler("xyz", [seed, 2 * seed, 0.5], degrees=False).as_matrix()
+    pose[:, 3] = [0.01 * seed, -0.02, 0.6]  # metres, as PVNet writes
+    return pose
+
+
+NPY_FILES = {"000001_000003_000002.npy": _npy_pose(1), "000001_000004_000005.npy": _npy_pose(2)}
+
+
+@st.composite
+def npy_cases(draw: st.DrawFn) -> tuple[dict[str, bytes], str, str]:
+    """The folder's files (name -> bytes), what is expected and what changed."""
+    import io
+
+    def save(array: np.ndarray) -> bytes:
+        buffer = io.BytesIO()
+        np.save(buffer, array, allow_pickle=False)
+        return buffer.getvalue()
+
+    files = {name: save(a) for name, a in NPY_FILES.items()}
+    name = draw(st.sampled_from(sorted(files)))
+    kind = draw(st.sampled_from(["same", "stack", "nan", "shape", "rotation", "name", "truncated", "bytes", "units"]))
+    pose = NPY_FILES[name].copy()
+    if kind == "same":
+        return files, "same", "unchanged"
+    if kind == "stack":  # several poses of one object in one file: valid
+        files[name] = save(np.stack([pose, pose]))
+        return files, "either", "two poses in one file"
+    if kind == "nan":
+        pose[draw(st.integers(0, 2)), draw(st.integers(0, 3))] = draw(st.sampled_from([np.nan, np.inf]))
+        files[name] = save(pose)
+    elif kind == "shape":
+        files[name] = save(draw(st.sampled_from([pose[:, :3], pose.reshape(-1), np.zeros((4, 4)), np.zeros(0)])))
+    elif kind == "rotation":
+        pose[:, :3] *= draw(st.sampled_from([2.0, 0.5, -1.0]))  # scaled or reflected: not a rotation
+        files[name] = save(pose)
+    elif kind == "name":
+        files[draw(st.sampled_from(["pose.npy", "000001_x_2.npy", "1_2.npy"]))] = files.pop(name)
+    elif kind == "truncated":
+        files[name] = files[name][: draw(st.integers(0, len(files[name]) - 1))]
+    elif kind == "bytes":
+        files[name] = b"not an npy file"
+    else:  # millimetres where metres are documented
+        pose[:, 3] *= 1000.0
+        files[name] = save(pose)
+        return files, "either", "translation in mm (refused with a dataset, undecided without)"
+    return files, "invalid", kind
+
+
+@given(case=npy_cases())
+def test_pvnet_npy_folder(case: tuple[dict[str, bytes], str, str]) -> None:
+    """Refused: one error naming a file of the folder, no CSV; accepted: a CSV the reader reads back as the rows."""
+    files, expect, what = case
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as out_dir:
+        root = Path(tmp)
+        for name, data in files.items():
+            (root / name).write_bytes(data)
+        out = Path(out_dir) / "pvnet_tless-test.csv"
+        names = tuple(files) + (root.name,)
+        rows = check(Case(b"", expect, what), lambda: convert_pvnet(root, out), root, names)  # type: ignore[arg-type]
+        if rows is None:
+            assert not out.exists(), f"{what}: refused, but the CSV was written"
+            return
+        written = sorted(rows, key=lambda r: (r.scene_id, r.im_id, -r.score))
+        assert _values(read_bop_results(out)) == _values(written), f"{what}: the CSV reads back otherwise"
