@@ -38,6 +38,7 @@ import torch
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
+from bop_cender.errors import ConfigError
 from bop_cender.pose.cost import candidate_costs, distance_maps
 from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_model_of, edge_occluder
 from bop_cender.render.mesh import RenderMesh
@@ -46,6 +47,11 @@ from bop_cender.render.rasterizer import render_scene
 #: Nelder-Mead works on rotation-vector perturbations scaled by this (mm per radian, about a part's
 #: radius), so that one unit of either parameter moves a surface point by about a millimetre.
 ROTATION_SCALE_MM = 50.0
+
+
+SEARCH_COSTS = ("edges", "render")
+REFINERS = ("lockstep", "scipy")
+VIEW_WEIGHTS = ("center", "uniform")
 
 
 @dataclass(frozen=True)
@@ -69,10 +75,12 @@ class PoseConfig:
         nm_maxfev: cost evaluations per Nelder-Mead run (ours: 300; on the test scene 120 and 200 gave the same poses to 0.05 mm and 0.1 degree).
         candidate_downscale: the random candidates are costed at 1/this resolution (intrinsics scaled,
             distance maps of the max-pooled binary curvature), Nelder-Mead at full resolution; ours: 2
-            (4x fewer pixels for the 2,000 candidates; 1 = the paper's single resolution).
+            (4x fewer pixels for the 2,000 candidates; 1 = the paper's single resolution). Render search
+            only: the edge search's proxy costs little per pixel and uses the full-resolution maps.
         refiner: ``lockstep`` (the top-k Nelder-Mead runs step together, each step one batched cost call:
             :mod:`bop_cender.pose.simplex`) or ``scipy`` (one ``scipy.optimize.minimize`` per start, the
-            paper's). The same algorithm; lockstep is several times faster on the CPU.
+            paper's). The same algorithm; lockstep is several times faster on the CPU. The edge search
+            always steps in lockstep; this chooses for ``search_cost="render"``.
         occlusion: render the objects already placed as occluders of the next ones (the paper's method).
         search_cost: ``edges`` (ours: candidates and most of the refinement on the edge-point proxy, the
             finalists judged and polished on the render cost; see the module docstring) or ``render``
@@ -116,6 +124,14 @@ class PoseConfig:
     rerank: int = 100
     start_separation_rad: float = 0.35
     polish_maxfev: int = 200
+
+    def __post_init__(self) -> None:
+        """The named choices are checked here, so that a bad ``--set`` is one error before any scene runs."""
+        for name, allowed in (("search_cost", SEARCH_COSTS), ("refiner", REFINERS), ("view_weights", VIEW_WEIGHTS)):
+            if getattr(self, name) not in allowed:
+                raise ConfigError(
+                    f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
+                )
 
 
 @dataclass(frozen=True)
@@ -190,8 +206,6 @@ def optimise_scene(
     Returns:
         One :class:`PlacedObject` per target, in the order they were placed.
     """
-    if config.search_cost not in ("edges", "render"):
-        raise ValueError(f"unknown search cost {config.search_cost!r}; expected edges or render")
     if edges is None:
         edges = _EdgeModels(meshes, config.edge_segment_mm)
     curv = torch.as_tensor(curvature).detach().to("cpu", torch.float32)
@@ -199,7 +213,7 @@ def optimise_scene(
     fine = CostMaps(cameras, torch.as_tensor(distance_maps(binary.numpy())))
     f = max(1, int(config.candidate_downscale))
     coarse = fine
-    if f > 1:
+    if f > 1 and config.search_cost == "render":  # the edge search costs everything on the fine maps
         pooled = torch.nn.functional.max_pool2d(binary[:, None].float(), f, ceil_mode=True)[:, 0] > 0
         coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())))
     order = sorted(range(len(targets)), key=lambda i: -float(np.sum(targets[i].view_scores)))

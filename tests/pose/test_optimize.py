@@ -140,3 +140,13 @@ def test_diverse_starts_are_positions_in_the_ranking_best_first_and_apart_in_rot
     np.testing.assert_array_equal(_diverse(ranked, 3, 0.0), [0, 1, 2])
     # too few far apart: topped up in ranking order
     np.testing.assert_array_equal(_diverse(ranked[:2], 2, np.radians(20)), [0, 1])
+
+
+def test_an_unknown_named_setting_is_one_config_error_before_any_scene():
+    from bop_cender.errors import ConfigError
+    from bop_cender.method import CenDerNetConfig
+
+    with pytest.raises(ConfigError, match="poses.search_cost: expected one of edges, render"):
+        CenDerNetConfig.for_dataset("dimo").with_settings(["poses.search_cost=bogus"])
+    with pytest.raises(ConfigError, match="poses.view_weights"):
+        PoseConfig(view_weights="median")
