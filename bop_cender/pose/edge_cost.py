@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from bop_cender.geometry.check import check_shape
-from bop_cender.render.mesh import RenderMesh
+from bop_cender.render.mesh import RenderMesh, face_planes_of
 
 #: Edges whose faces' normals differ by more than this are creases (the renderer's default crease angle,
 #: :func:`bop_cender.render.mesh.prepare_mesh`: smoother edges are shaded smoothly and draw no curvature).
@@ -135,15 +135,11 @@ def edge_model(
     unique, same = np.unique(np.round(v, 6), axis=0, return_inverse=True)
     same = same.reshape(-1)
     merged = same[f]  # (F, 3) ids of distinct positions
-    tri = v[f]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(cross, axis=1)
-    keep = norm > 1e-12
-    merged, tri, cross, norm = merged[keep], tri[keep], cross[keep], norm[keep]
+    plane = face_planes_of(v, f)  # (F, 4): the renderer's face planes, a zero normal for a degenerate face
+    keep = np.abs(plane[:, :3]).sum(1) > 0
+    merged, plane = merged[keep], plane[keep]
     if len(merged) == 0:
         raise ValueError("the mesh has no face of non-zero area")
-    normal = cross / norm[:, None]
-    plane = np.concatenate([normal, np.einsum("ij,ij->i", normal, tri[:, 0])[:, None]], axis=1)  # (F', 4)
     # Position of each distinct vertex: the first original vertex at it (exact, not the rounded key).
     position = np.zeros((len(unique), 3))
     position[same[::-1]] = v[::-1]

@@ -119,7 +119,7 @@ def prepare_mesh(
     vertices = np.array(mesh.vertices, dtype=np.float64)  # a writable copy (trimesh's may be read-only)
     faces = np.array(mesh.faces, dtype=np.int64)
     corner_normals = crease_corner_normals(vertices, faces, crease_angle_deg)
-    face_planes = _face_planes(vertices, faces)
+    face_planes = face_planes_of(vertices, faces)
     radius = float(np.sqrt((vertices**2).sum(axis=1)).max()) if len(vertices) else 0.0
     return RenderMesh(
         vertices=torch.as_tensor(vertices, dtype=torch.float32, device=device),
@@ -205,7 +205,7 @@ def crease_corner_normals(vertices: np.ndarray, faces: np.ndarray, crease_angle_
     return out.reshape(n_faces, 3, 3)
 
 
-def _face_planes(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def face_planes_of(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F, 4)``: unit normal (0 for degenerate faces) and its dot with the first corner."""
     tri = vertices[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
