@@ -87,7 +87,13 @@ def edge_calls_per_second(
 
 
 def scene_timings(
-    data_root: str | None, split: str, n_scenes: int, device: str, chunk_threads: int = 2, torch_threads: int = 1
+    data_root: str | None,
+    split: str,
+    n_scenes: int,
+    device: str,
+    chunk_threads: int = 2,
+    torch_threads: int = 1,
+    settings: tuple[str, ...] = (),
 ) -> list[dict]:
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
@@ -96,7 +102,7 @@ def scene_timings(
     from bop_cender.net.oracle import OraclePredictor
 
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
-    config = CenDerNetConfig.for_dataset("dimo")
+    config = CenDerNetConfig.for_dataset("dimo").with_settings(settings)
     meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets, device=device)
     # as a one-process `bop-cender run` does: one torch thread, the render search's chunks on the cores
@@ -127,6 +133,8 @@ def main() -> None:
         "--chunk-threads", type=int, default=2, help="the render search's chunk threads in the scene timing"
     )
     ap.add_argument("--torch-threads", type=int, default=1, help="torch threads in the scene timing (run: 1)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
     args = ap.parse_args()
     load_before = os.getloadavg()
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
@@ -163,6 +171,7 @@ def main() -> None:
         "cuda" if torch.cuda.is_available() else "cpu",
         args.chunk_threads,
         args.torch_threads,
+        tuple(args.set),
     )
     load_after = os.getloadavg()
     slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
