@@ -146,6 +146,7 @@ class CenDerNet:
                 lambda obj_id: self.models[obj_id].center,
                 self.config.poses,
                 cost_threads=self.cost_threads,
+                curvature_scale=self.config.targets.curvature_scale,
             )
             if targets and candidate_ids
             else []

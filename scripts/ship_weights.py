@@ -24,8 +24,20 @@ from bop_cender.net.weights import SHIPPED, load_weights
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def subset_figures(weights_path: Path, seed: int) -> dict:
-    """The figures of the weights on a fixed subset that a test regenerates: DIMO sim variant 0 of one scene."""
+def subset_spec(dataset: str, seed: int):
+    """The card's fixed subset, small enough for a test to regenerate: DIMO sim variant 0 of one scene, or
+    one T-LESS-layout test scene of 5 views. Returns ``(spec, split)``."""
+    if dataset == "dimo":
+        from bop_cender.synth.write_dimo import DimoSpec
+
+        return DimoSpec(n_scenes=1, variants=(0,), seed=seed, write_real=False, contact_sheets=False), "sim"
+    from bop_cender.synth.write_tless import TlessSpec
+
+    return TlessSpec(n_scenes=1, n_views=5, pbr_scenes=0, seed=seed, contact_sheets=False), "test"
+
+
+def subset_figures(weights_path: Path, dataset: str, seed: int) -> dict:
+    """The figures of the weights on the card's fixed subset (:func:`subset_spec`)."""
     import tempfile
 
     from bop_cender.data.registry import DatasetRequest, open_dataset
@@ -33,21 +45,16 @@ def subset_figures(weights_path: Path, seed: int) -> dict:
     from bop_cender.net.heatmap_eval import evaluate_heatmaps
     from bop_cender.net.predictor import NetPredictor
     from bop_cender.synth.generate import generate
-    from bop_cender.synth.write_dimo import DimoSpec
 
-    subset = {"scenes": 1, "variants": [0], "seed": seed, "split": "sim"}
+    spec, split = subset_spec(dataset, seed)
+    subset = {"scenes": 1, "seed": seed, "split": split}
+    subset |= {"variants": [0]} if dataset == "dimo" else {"views_per_scene": 5}
     with tempfile.TemporaryDirectory() as tmp:
-        spec = DimoSpec(n_scenes=1, variants=(0,), seed=seed, write_real=False, contact_sheets=False)
-        generate("dimo", Path(tmp), spec, progress=False)
-        dataset = open_dataset(DatasetRequest("dimo", Path(tmp), "sim"))
-        weights = load_weights(weights_path, dataset="dimo")
+        generate(dataset, Path(tmp), spec, progress=False)
+        data = open_dataset(DatasetRequest(dataset, Path(tmp), split))
+        weights = load_weights(weights_path, dataset=dataset)
         report = evaluate_heatmaps(
-            dataset,
-            NetPredictor(weights),
-            weights.targets,
-            MeshCache(dataset.models),
-            str(weights_path),
-            progress=False,
+            data, NetPredictor(weights), weights.targets, MeshCache(data.models), str(weights_path), progress=False
         )
     return {**subset, "views": report.views, "metrics": report.metrics}
 
@@ -65,7 +72,8 @@ def main(argv=None) -> int:
         default=None,
         help="the run that --init-weights came from (its epochs on the card)",
     )
-    ap.add_argument("--subset-seed", type=int, default=9003, help="seed of the card's fixed subset (one DIMO scene)")
+    ap.add_argument("--subset-seed", type=int, default=None,
+                    help="seed of the card's fixed subset (default: 9003 DIMO, 9105 T-LESS)")  # fmt: skip
     args = ap.parse_args(argv)
     source = args.run_dir / "weights.pt"
     weights = load_weights(source, dataset=args.dataset)
@@ -100,7 +108,7 @@ def main(argv=None) -> int:
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],
         "test": {str(p): json.loads(p.read_text()) for p in args.test},
-        "subset": subset_figures(target, args.subset_seed) if args.dataset == "dimo" else None,
+        "subset": subset_figures(target, args.dataset, args.subset_seed or (9003 if args.dataset == "dimo" else 9105)),
         "size_mb": round(size_mb, 2),
     }
     card_path = target.with_suffix(".json")

@@ -94,8 +94,10 @@ def test_scene_optimisation_places_every_object(mini):
             targets.append(PoseTarget(c + np.array([1.5, -1.0, 0.5]), np.ones(len(cams.Ks)), (3, 4)))
     done = []
     placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
-                            PoseConfig(n_candidates=400, nm_maxfev=250, t_b=BOX_T_B), progress=lambda a, b: done.append(a))  # fmt: skip
-    assert done == [1, 2]
+                            PoseConfig(n_candidates=400, nm_maxfev=250, t_b=BOX_T_B, passes=2, coverage_weight=1.0),
+                            progress=lambda a, b: done.append((a, b)),
+                            curvature_scale=1.0)  # fmt: skip
+    assert done == [(1, 4), (2, 4), (3, 4), (4, 4)]  # two sweeps over the two objects
     for p in placed:
         g = gt_of(scene, p.obj_id)
         assert np.linalg.norm(p.T_world_model[:3, 3] - g.T_world_model[:3, 3]) < 1.0
@@ -150,3 +152,25 @@ def test_an_unknown_named_setting_is_one_config_error_before_any_scene():
         CenDerNetConfig.for_dataset("dimo").with_settings(["poses.search_cost=bogus"])
     with pytest.raises(ConfigError, match="poses.view_weights"):
         PoseConfig(view_weights="median")
+
+
+def test_a_later_sweep_keeps_the_incumbent_pose_when_no_candidate_is_better(mini):
+    """An object searched again in a later sweep starts from its previous pose as well as from the
+    candidates: with candidates too few to find it, the result is still the incumbent's basin."""
+    from bop_cender.pose.optimize import CostMaps, PlacedObject, optimise_object
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
+    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
+    edges = maps.curvature > BOX_T_B
+    fine = (CostMaps(cams, dist, edges), None)
+    config = PoseConfig(n_candidates=3, rerank=3, top_k=1, t_b=BOX_T_B, polish_maxfev=0)
+    incumbent = PlacedObject(3, perturb(g.T_world_model, 4.0, 1.5), 9.0, 123)
+    found = optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config,
+                            np.random.default_rng(5), edge_threshold=BOX_T_B, incumbent=incumbent)  # fmt: skip
+    assert np.linalg.norm(found.T_world_model[:3, 3] - g.T_world_model[:3, 3]) < 1.0
+    assert found.evaluations > 123  # the incumbent's evaluations carried over
+    alone = optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config,
+                            np.random.default_rng(5), edge_threshold=BOX_T_B)  # fmt: skip
+    assert found.cost <= alone.cost
