@@ -125,7 +125,8 @@ class PoseConfig:
             seed-9002 DIMO set (12 scenes, 70 parts; world-frame MSSD within 5 % of the diameter) 54
             parts with the defaults, 54 with ``coverage_weight=1``, 55 with 2 passes, 60 with both, 57
             with 3 passes and the judge; on the fresh seed-4242 set (BOP AR_MSSD / AR_MSSD<5%)
-            0.899 / 0.791 with the defaults, 0.903 / 0.785 with the judge, 0.877 / 0.778 with both; on
+            0.899 / 0.791 with the defaults, 0.903 / 0.785 with the judge, 0.858 / 0.751 with 2
+            passes, 0.877 / 0.778 with both; on
             the T-LESS-layout seed-4243 set AR 0.878 against 0.889 with both. Not a gain that holds,
             for twice the pose time, so the default is the paper's 1.
         seed: seed of the candidates (combined with the object's index in the scene).
