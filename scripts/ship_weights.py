@@ -108,7 +108,11 @@ def main(argv=None) -> int:
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],
         "test": {str(p): json.loads(p.read_text()) for p in args.test},
-        "subset": subset_figures(target, args.dataset, args.subset_seed or (9003 if args.dataset == "dimo" else 9105)),
+        "subset": subset_figures(
+            target,
+            args.dataset,
+            (9003 if args.dataset == "dimo" else 9105) if args.subset_seed is None else args.subset_seed,
+        ),
         "size_mb": round(size_mb, 2),
     }
     card_path = target.with_suffix(".json")

@@ -27,7 +27,7 @@ import torch
 
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.net.heatmaps import Heatmaps
-from bop_cender.render.curvature import curvature
+from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE, curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_objects_separately, render_scene
 
@@ -50,7 +50,7 @@ class TargetConfig:
     """
 
     s_e: float = 0.5
-    curvature_scale: float = 4.0
+    curvature_scale: float = DEFAULT_CURVATURE_SCALE
     min_visib_fract: float = 0.1
     per_object_channels: bool = False
 

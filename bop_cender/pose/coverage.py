@@ -26,15 +26,14 @@ other parts at their true poses as occluders, in 9 and 13. As the judge of the s
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from bop_cender.pose.cost import distance_maps
-from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
+from bop_cender.pose.cost import distance_maps, view_costs
+from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
@@ -88,22 +87,19 @@ def two_sided_costs(
     render = render_scene([mesh.to(device)], T, Ks, H, W)
     normals, depth = render.normals, render.depth
     if occluder_depth is not None:
-        occ = occluder_depth.to(device).repeat(n, 1, 1)
-        hidden = (occ > 0) & (depth > 0) & (depth > occ - OCCLUSION_MARGIN_MM)
+        hidden = occluded(depth, occluder_depth.to(device).repeat(n, 1, 1))
         normals = normals.masked_fill(hidden[..., None], 0.0)
     curv = curvature(normals)  # (n V, H, W)
     visible = normals.abs().sum(-1) > 0
-    dist = dist_maps.to(device).repeat(n, 1, 1)
-    den = curv.sum((1, 2))
-    diagonal = math.hypot(H, W)
-    forward = torch.where(den > 0, (curv * dist).sum((1, 2)) / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+    # the paper's cost of full-frame canvases (canvas c is view c % V, as view_costs counts them)
+    forward = view_costs(curv, dist_maps.to(device), torch.zeros((n * V, 2), dtype=torch.int64, device=device))
     # inside: the silhouette eroded by one pixel (a 3x3 min-pool)
     inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
     uncovered = target_edges.to(device).repeat(n, 1, 1) & inside
     own = curv > edge_threshold
     own_dist = torch.as_tensor(distance_maps(own.cpu().numpy()), device=device)
     count = uncovered.sum((1, 2))
-    coverage = torch.where(count > 0, (own_dist * uncovered).sum((1, 2)) / count.clamp_min(1), torch.zeros_like(den))
+    coverage = torch.where(count > 0, (own_dist * uncovered).sum((1, 2)) / count.clamp_min(1), 0.0)
     w = view_weights.to(device, torch.float32)
     fwd = (forward.view(n, V) * w).sum(1).double().cpu().numpy()
     cov = (coverage.view(n, V) * w).sum(1).double().cpu().numpy()

@@ -51,7 +51,8 @@ from bop_cender.errors import ConfigError
 from bop_cender.pose.cost import candidate_costs, distance_maps
 from bop_cender.pose.coverage import TwoSidedCost, two_sided_costs
 from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_model_of, edge_occluder
-from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
+from bop_cender.render.candidate_curvature import occluded
+from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
 
@@ -226,7 +227,7 @@ def optimise_scene(
     progress: Callable[[int, int], None] | None = None,
     cost_threads: int = 1,
     edges: Callable[[int], EdgeModel] | None = None,
-    curvature_scale: float = 4.0,
+    curvature_scale: float = DEFAULT_CURVATURE_SCALE,
 ) -> list[PlacedObject]:
     """Poses of all ``targets``, most visible first, each occluded by those placed before it.
 
@@ -262,7 +263,9 @@ def optimise_scene(
     total = len(targets) * config.passes
     edge_threshold = config.t_b * curvature_scale
 
-    def fit(i: int, others: list[PlacedObject], occ: torch.Tensor | None, sweep: int, incumbent) -> PlacedObject:
+    def fit(
+        i: int, others: list[PlacedObject], occ: torch.Tensor | None, sweep: int, incumbent: PlacedObject | None
+    ) -> PlacedObject:
         occ_coarse = occ
         if occ is not None and coarse is not fine:
             occ_coarse = _occluder_depth(others, coarse.cameras, meshes)
@@ -313,7 +316,7 @@ def optimise_object(
     rng: np.random.Generator,
     cost_threads: int = 1,
     edges: Callable[[int], EdgeModel] | None = None,
-    edge_threshold: float = 3.0,
+    edge_threshold: float | None = None,
     incumbent: PlacedObject | None = None,
 ) -> PlacedObject:
     """Random candidates then bounded Nelder-Mead for one object (see the module docstring).
@@ -321,7 +324,7 @@ def optimise_object(
     ``coarse`` (maps and occluder depth at ``candidate_downscale``) costs the candidates of the render
     search; ``fine`` (full resolution) everything else. ``edges``: the edge model of an object id
     (``search_cost="edges"``; None: built here). ``edge_threshold``: raw curvature of a pose's own edges
-    for the two-sided judge (:mod:`bop_cender.pose.coverage`). ``incumbent``: the object's pose from an
+    for the two-sided judge (:mod:`bop_cender.pose.coverage`; needed with ``coverage_weight`` > 0). ``incumbent``: the object's pose from an
     earlier sweep, refined as one more start (its evaluations are added to the result's)."""
     weights = torch.as_tensor(view_weights(target.view_scores, config.view_weights), dtype=torch.float32)
     n = config.n_candidates
@@ -474,7 +477,7 @@ class Refinement:
     occluder_depth: torch.Tensor | None
     config: PoseConfig
     target_edges: torch.Tensor | None = None
-    edge_threshold: float = 3.0
+    edge_threshold: float | None = None
 
     @cached_property
     def edge_occluder(self) -> torch.Tensor | None:
@@ -487,8 +490,8 @@ class Refinement:
 
     def two_sided(self, T_world_model: np.ndarray) -> TwoSidedCost:
         """The two-sided costs (:func:`~bop_cender.pose.coverage.two_sided_costs`) of poses ``(n, 4, 4)``."""
-        if self.target_edges is None:
-            raise ValueError("the two-sided cost needs the target's binarised curvature (target_edges)")
+        if self.target_edges is None or self.edge_threshold is None:
+            raise ValueError("the two-sided cost needs the target's binarised curvature and the edge threshold")
         T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
         return two_sided_costs(
             self.mesh,
@@ -622,9 +625,7 @@ def _hidden_pixels_differ(
     ).depth
 
     def hidden(occ: torch.Tensor | None) -> torch.Tensor:
-        if occ is None:
-            return torch.zeros_like(depth, dtype=torch.bool)
-        return (occ > 0) & (depth > 0) & (depth > occ - OCCLUSION_MARGIN_MM)
+        return torch.zeros_like(depth, dtype=torch.bool) if occ is None else occluded(depth, occ)
 
     return not torch.equal(hidden(before), hidden(after))
 

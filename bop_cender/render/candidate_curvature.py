@@ -104,6 +104,14 @@ class CandidateBatch:
 OCCLUSION_MARGIN_MM = 0.5
 
 
+def occluded(depth: torch.Tensor, occluder_depth: torch.Tensor) -> torch.Tensor:
+    """Where a surface of depth ``depth`` is hidden by placed objects of depth ``occluder_depth`` (same
+    shape, mm, 0: nothing there): both present and the surface behind the occluder or less than
+    :data:`OCCLUSION_MARGIN_MM` in front of it. The one rule of the render cost, the two-sided judge and
+    the sweeps."""
+    return (occluder_depth > 0) & (depth > 0) & (depth > occluder_depth - OCCLUSION_MARGIN_MM)
+
+
 def prepare_candidates(
     mesh: RenderMesh,
     T_cam_model: torch.Tensor,
@@ -200,7 +208,7 @@ def _hide_occluded(
         0, W - 1
     )
     occ = occluder_depth.reshape(-1).index_select(0, flat.reshape(-1)).view(R, w)
-    hidden = inside & (occ > 0) & (depth > 0) & (depth > occ - OCCLUSION_MARGIN_MM)
+    hidden = inside & occluded(depth, occ)
     normals.masked_fill_(hidden[None], 0.0)
 
 

@@ -19,6 +19,11 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+#: ``c`` of the heatmaps' ``clip(curvature / c, 0, 1)`` (the targets' default, ``TargetConfig.curvature_scale``,
+#: and what stage 3 binarises a pose's own raw curvature with): a unit normal stepping to background gives
+#: up to 3 per channel, so 4 keeps silhouettes and sharp creases below saturation.
+DEFAULT_CURVATURE_SCALE = 4.0
+
 
 def curvature(normals: torch.Tensor) -> torch.Tensor:
     """Curvature maps ``(..., H, W)`` of normal maps ``(..., H, W, 3)`` (any leading batch shape).
