@@ -38,7 +38,9 @@ from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_result
 from bop_cender.results.files import write_run_sidecar
 
 SHARD_FORMAT = "bop-cender-shard"
-HEATMAP_SOURCES = ("oracle", "net")
+HEATMAP_SOURCES = ("oracle", "net", "oracle-centers", "oracle-curvature")
+"""Heatmap sources of ``run``: the oracle, the network, or the two mixed (ablations): ``oracle-centers`` takes
+the centres from the oracle and the curvature from the network, ``oracle-curvature`` the reverse."""
 SHARD_VERSION = 1
 
 
@@ -49,8 +51,9 @@ class RunRequest:
     Attributes:
         dataset, data_root, split, n_views, model_type: the data (as ``open_dataset`` takes them).
         out: the BOP results CSV to write.
-        heatmaps: ``oracle`` (GT heatmaps rendered from the annotations) or ``net``.
-        weights: network weights (``net`` only).
+        heatmaps: ``oracle`` (GT heatmaps rendered from the annotations), ``net``, or one head of each
+            (:data:`HEATMAP_SOURCES`: ``oracle-centers``, ``oracle-curvature``).
+        weights: network weights (every source but ``oracle``).
         seed: seed of the view grouping and of the method's random candidates.
         config: the method's settings.
         workers: processes; scenes are spread over them.
@@ -144,20 +147,33 @@ def open_run_dataset(request: RunRequest) -> Dataset:
 
 
 def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
-    """The method for a request: oracle heatmaps, or the network (given or shipped weights)."""
+    """The method for a request: oracle heatmaps, the network (given or shipped weights), or one head of each."""
+    from bop_cender.net.oracle import OraclePredictor
+
     meshes = MeshCache(dataset.models)
     if request.heatmaps == "oracle":
-        from bop_cender.net.oracle import OraclePredictor
-
         predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
     else:
-        predictor = net_predictor(request, dataset)
+        predictor = net = net_predictor(request, dataset)
+        if request.heatmaps != "net":  # one head of each; the oracle's centre channels follow the network's
+            from bop_cender.net.mixed import MixedPredictor
+
+            oracle = OraclePredictor(
+                dataset.models, meshes, request.config.targets, net.channel_obj_ids, device=request.device
+            )
+            oracle_centers = request.heatmaps == "oracle-centers"
+            predictor = MixedPredictor(oracle, net) if oracle_centers else MixedPredictor(net, oracle)
     return CenDerNet(dataset.models, request.config, predictor, meshes, cost_threads=cost_threads)
+
+
+def uses_network(heatmaps: str) -> bool:
+    """Whether the heatmap source ``heatmaps`` (one of :data:`HEATMAP_SOURCES`) runs the network."""
+    return heatmaps != "oracle"
 
 
 def resolve_weights(request: RunRequest) -> RunRequest:
     """``request`` with ``weights`` set to a file: the given one, or the shipped weights of the dataset kind."""
-    if request.heatmaps != "net" or request.weights is not None:
+    if not uses_network(request.heatmaps) or request.weights is not None:
         return request
     from bop_cender.net.weights import shipped_weights_path
 
@@ -210,7 +226,7 @@ def run(
     _check_request(request)
     request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
-    if request.heatmaps == "net":
+    if uses_network(request.heatmaps):
         net_predictor(request, dataset)  # bad weights fail here, once, before any scene
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
@@ -404,7 +420,10 @@ def _check_request(request: RunRequest) -> None:
     from bop_cender.results.files import parse_result_filename
 
     if request.heatmaps not in HEATMAP_SOURCES:
-        raise ConfigError(f"unknown heatmap source {request.heatmaps!r}; expected oracle or net", field="--heatmaps")
+        raise ConfigError(
+            f"unknown heatmap source {request.heatmaps!r}; expected one of {', '.join(HEATMAP_SOURCES)}",
+            field="--heatmaps",
+        )
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
     if request.max_views is not None and request.max_views < 1:

@@ -199,3 +199,24 @@ def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsy
     err = capsys.readouterr().err
     assert code == 1
     assert "every scene failed" in err and err.count("no estimates (RuntimeError: heatmaps of the wrong size)") == 2
+
+
+def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
+    """``--heatmaps oracle-centers`` (the issue's ablation): the oracle's centres find every part even with an
+    untrained network's curvature, and the sidecar names the source."""
+    import torch
+
+    from bop_cender.net.targets import TargetConfig
+    from bop_cender.net.unet import UNet, UNetSpec
+    from bop_cender.net.weights import save_weights, weights_payload
+
+    torch.manual_seed(0)
+    weights = tmp_path / "w.pt"
+    save_weights(
+        weights, weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None, TargetConfig.for_dataset("dimo"))
+    )
+    out = tmp_path / "cendernet-mixed_dimo-real.csv"
+    summary = run(request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1))
+    assert summary.scenes == 1 and not summary.failed and summary.estimates == 2
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["extra"]["heatmaps"] == "oracle-centers" and sidecar["extra"]["weights"] == str(weights)

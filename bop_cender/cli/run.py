@@ -28,10 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_data_options(p)
     p.add_argument(
         "--heatmaps",
-        choices=("net", "oracle"),
+        choices=("net", "oracle", "oracle-centers", "oracle-curvature"),
         default=None,
         help="heatmap source: net (the network: --weights, else the shipped weights) or oracle (rendered from"
-        " the GT); default: net where weights are shipped for the dataset or --weights is given, else oracle",
+        " the GT); default: net where weights are shipped for the dataset or --weights is given, else oracle."
+        " Ablations: oracle-centers (oracle centres, the network's curvature), oracle-curvature (the reverse)",
     )
     p.add_argument("--weights", default=None, help="network weights (with --heatmaps net)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")

@@ -54,6 +54,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--init-weights", default=None, metavar="W.pt", help="start from these weights (fine-tuning) instead of random"
     )
+    p.add_argument(
+        "--center-pos-weight",
+        type=float,
+        default=0.0,
+        metavar="W",
+        help="weight center pixels by 1 + W * target (default 0: the paper's plain BCE; helps T-LESS's 30 channels)",
+    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -92,6 +99,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
+        center_pos_weight=args.center_pos_weight,
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

@@ -93,14 +93,56 @@ def two_sided_costs(
     visible = normals.abs().sum(-1) > 0
     # the paper's cost of full-frame canvases (canvas c is view c % V, as view_costs counts them)
     forward = view_costs(curv, dist_maps.to(device), torch.zeros((n * V, 2), dtype=torch.int64, device=device))
-    # inside: the silhouette eroded by one pixel (a 3x3 min-pool)
-    inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
-    uncovered = target_edges.to(device).repeat(n, 1, 1) & inside
-    own = curv > edge_threshold
-    own_dist = torch.as_tensor(distance_maps(own.cpu().numpy()), device=device)
-    count = uncovered.sum((1, 2))
-    coverage = torch.where(count > 0, (own_dist * uncovered).sum((1, 2)) / count.clamp_min(1), 0.0)
+    coverage = _coverage(curv, visible, target_edges.to(device).repeat(n, 1, 1), edge_threshold)
     w = view_weights.to(device, torch.float32)
     fwd = (forward.view(n, V) * w).sum(1).double().cpu().numpy()
     cov = (coverage.view(n, V) * w).sum(1).double().cpu().numpy()
     return TwoSidedCost(fwd, cov, fwd + coverage_weight * cov)
+
+
+def scene_cost(
+    meshes: list[RenderMesh],
+    T_cam_model: torch.Tensor,
+    K: torch.Tensor,
+    target_edges: torch.Tensor,
+    dist_maps: torch.Tensor,
+    edge_threshold: float,
+) -> float:
+    """The two-sided cost (weight 1) of a whole placement: all objects rendered together, against the target.
+
+    What a sweep's move is judged by with ``PoseConfig.acceptance="scene"``: a part moved onto a neighbour's
+    edges explains its own rendered edges as well as before, but the edges it leaves behind (now inside no
+    silhouette's explanation) and those it covers change the cost of the scene, not of the part.
+
+    Args:
+        meshes: the M placed objects' meshes.
+        T_cam_model: ``(V, M, 4, 4)`` their poses in each view's camera frame (mm).
+        K, target_edges, dist_maps, edge_threshold: as :func:`two_sided_costs`.
+
+    Returns:
+        The mean over the V views of forward (mean distance of the composite's curvature to the target
+        edges) plus coverage (mean distance of the target edges inside the composite's silhouette, eroded
+        by one pixel, to the composite's own edges), in pixels.
+    """
+    V = int(T_cam_model.shape[0])
+    _, H, W = target_edges.shape
+    device = dist_maps.device
+    render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
+    curv = curvature(render.normals)  # (V, H, W)
+    visible = render.normals.abs().sum(-1) > 0
+    forward = view_costs(curv, dist_maps.to(device), torch.zeros((V, 2), dtype=torch.int64, device=device))
+    coverage = _coverage(curv, visible, target_edges.to(device), edge_threshold)
+    return float((forward + coverage).mean())
+
+
+def _coverage(
+    curv: torch.Tensor, visible: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float
+) -> torch.Tensor:
+    """``(N,)`` coverage of N canvases: the mean distance (pixels) from the target edges inside the silhouette
+    ``visible (N, H, W)``, eroded by one pixel (a 3x3 min-pool), to the canvas's own edges (``curv (N, H, W)``
+    above ``edge_threshold``); 0 where no target edge lies inside."""
+    inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
+    uncovered = target_edges & inside
+    own_dist = torch.as_tensor(distance_maps((curv > edge_threshold).cpu().numpy()), device=curv.device)
+    count = uncovered.sum((1, 2))
+    return torch.where(count > 0, (own_dist * uncovered).sum((1, 2)) / count.clamp_min(1), 0.0)

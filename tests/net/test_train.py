@@ -17,7 +17,15 @@ from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.meshes import MeshCache  # noqa: E402
 from bop_cender.net import samples as samples_module  # noqa: E402
 from bop_cender.net.targets import TargetConfig, scene_targets  # noqa: E402
-from bop_cender.net.train import CHECKPOINT, METRICS, WEIGHTS, TrainConfig, random_crop, train  # noqa: E402
+from bop_cender.net.train import (  # noqa: E402
+    CHECKPOINT,
+    METRICS,
+    WEIGHTS,
+    TrainConfig,
+    center_loss,
+    random_crop,
+    train,
+)
 from bop_cender.net.weights import load_weights  # noqa: E402
 
 
@@ -97,7 +105,9 @@ def test_runs_are_guarded(tiny_root, tmp_path) -> None:
     (tmp_path / "file").write_text("x")
     with pytest.raises(ConfigError, match="not a directory"):
         train(_config(tiny_root), tmp_path / "file", progress=False)
-    for bad in (dict(epochs=0), dict(batch_size=0), dict(lr=float("nan")), dict(width=-1.0), dict(crop=(0, 4))):
+    bad_settings = (dict(epochs=0), dict(batch_size=0), dict(lr=float("nan")), dict(width=-1.0), dict(crop=(0, 4)),
+                    dict(center_pos_weight=-1.0), dict(center_pos_weight=float("inf")))  # fmt: skip
+    for bad in bad_settings:
         with pytest.raises(ConfigError):
             _config(tiny_root, **bad)
 
@@ -134,3 +144,18 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
             tmp_path / "x",
             progress=False,
         )
+
+
+def test_the_center_pos_weight_weights_blob_pixels_only() -> None:
+    """0 is the paper's plain BCE; w weights each pixel 1 + w * target, so background pixels count as before."""
+    torch.manual_seed(0)
+    logits = torch.randn(2, 3, 8, 9)
+    target = torch.zeros(2, 3, 8, 9)
+    target[0, 1, 2:5, 3:6] = torch.tensor([0.5, 1.0, 0.5]).view(3, 1)
+    plain = torch.nn.functional.binary_cross_entropy_with_logits(logits, target)
+    assert torch.equal(center_loss(logits, target, 0.0), plain)
+    per_pixel = torch.nn.functional.binary_cross_entropy_with_logits(logits, target, reduction="none")
+    expected = (per_pixel * (1 + 10.0 * target)).mean()
+    assert torch.allclose(center_loss(logits, target, 10.0), expected)
+    background = target == 0
+    assert torch.allclose(center_loss(logits[background], target[background], 10.0), per_pixel[background].mean())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -96,3 +97,33 @@ def test_shipped_weights_are_found_or_named_missing() -> None:
             assert "no shipped network weights" in str(e)
             continue
         assert path.is_file() and np.isfinite(path.stat().st_size)
+
+
+def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
+    """``oracle-centers``: the oracle's centres with the network's curvature; ``oracle-curvature``: the reverse."""
+    from bop_cender.net.mixed import MixedPredictor
+    from bop_cender.runner import build_method
+
+    root = method_data.build(tmp_path / "dimo")
+    dataset = open_dimo(root, "real")
+    scene = dataset.loader(dataset.scene_keys[0])
+    _save(tmp_path / "w.pt", UNetSpec.dimo_lean(width=0.5))
+    request = RunRequest(dataset="dimo", data_root=str(root), split="real", out=tmp_path / "x_dimo-real.csv",
+                         heatmaps="net", weights=str(tmp_path / "w.pt"))  # fmt: skip
+    maps = {
+        source: build_method(replace(request, heatmaps=source), dataset).predictor.predict(scene)
+        for source in ("net", "oracle", "oracle-centers", "oracle-curvature")
+    }
+    assert not torch.equal(maps["net"].center, maps["oracle"].center)
+    assert torch.equal(maps["oracle-centers"].center, maps["oracle"].center)
+    assert torch.equal(maps["oracle-centers"].curvature, maps["net"].curvature)
+    assert torch.equal(maps["oracle-curvature"].center, maps["net"].center)
+    assert torch.equal(maps["oracle-curvature"].curvature, maps["oracle"].curvature)
+    mixed = build_method(replace(request, heatmaps="oracle-curvature"), dataset).predictor
+    assert isinstance(mixed, MixedPredictor) and mixed.last_seconds_per_view is None
+    mixed.predict(scene)
+    assert mixed.last_seconds_per_view > 0 and mixed.name == "net-centers+oracle-curvature"
+    with pytest.raises(ConfigError, match="unknown heatmap source 'half'"):
+        from bop_cender.runner import run
+
+        run(replace(request, heatmaps="half"), dataset)

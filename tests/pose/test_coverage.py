@@ -103,3 +103,30 @@ def test_pose_config_refuses_a_negative_coverage_weight_and_no_pass():
         PoseConfig(coverage_weight=-1.0)
     with pytest.raises(ConfigError, match="passes"):
         PoseConfig(passes=0)
+
+
+def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
+    """A part moved off its place leaves its true edges unexplained: the whole placement costs more."""
+    from bop_cender.pose.coverage import scene_cost
+
+    ds, scene, meshes, maps, cams, _ = mini
+    parts = [g for g in scene.gt if ds.models[g.obj_id].is_target]
+    edges = maps.curvature > BOX_T_B
+    dist = torch.as_tensor(distance_maps(edges.numpy()))
+    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
+
+    def cost(T_world_models):
+        T = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack(T_world_models))
+        return scene_cost([meshes(g.obj_id) for g in parts], torch.as_tensor(T, dtype=torch.float32), K, edges,
+                          dist, BOX_T_B * 1.0)  # fmt: skip
+
+    exact = cost([g.T_world_model for g in parts])
+    assert exact < 0.5
+    for i in range(len(parts)):
+        moved = [perturb(g.T_world_model, 25.0, 4.0) if j == i else g.T_world_model for j, g in enumerate(parts)]
+        assert cost(moved) > exact + 0.5
+
+
+def test_pose_config_refuses_an_unknown_acceptance():
+    with pytest.raises(ConfigError, match="acceptance"):
+        PoseConfig(acceptance="part")

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
-from bop_cender.pose.cost import candidate_costs  # noqa: E402
+from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
     PoseConfig,
     PoseTarget,
@@ -102,6 +102,29 @@ def test_scene_optimisation_places_every_object(mini):
         g = gt_of(scene, p.obj_id)
         assert np.linalg.norm(p.T_world_model[:3, 3] - g.T_world_model[:3, 3]) < 1.0
     assert sorted(p.obj_id for p in placed) == [3, 4]
+
+
+def test_scene_acceptance_keeps_a_sweep_only_where_the_whole_placement_gains(mini):
+    """With ``acceptance="scene"`` the second sweep's moves never raise the scene cost of the first sweep's
+    placement (the first sweep is the same search, so its placement is the one-pass result)."""
+    from bop_cender.pose.optimize import _scene_cost
+
+    ds, scene, meshes, maps, cams, dist = mini
+    targets = []
+    for g in scene.gt:
+        if ds.models[g.obj_id].is_target:
+            c = g.T_world_model[:3, :3] @ ds.models[g.obj_id].center + g.T_world_model[:3, 3]
+            targets.append(PoseTarget(c + np.array([3.0, -2.0, 1.0]), np.ones(len(cams.Ks)), (3, 4)))
+    base = dict(n_candidates=64, nm_maxfev=40, polish_maxfev=20, t_b=BOX_T_B)
+    args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
+    one = optimise_scene(*args, PoseConfig(**base), curvature_scale=1.0)
+    two = optimise_scene(*args, PoseConfig(**base, passes=2, acceptance="scene"), curvature_scale=1.0)
+    edges = maps.curvature > BOX_T_B
+    from bop_cender.pose.optimize import CostMaps
+
+    full = CostMaps(cams, torch.as_tensor(distance_maps(edges.numpy())), edges)
+    assert _scene_cost(two, full, meshes, BOX_T_B) <= _scene_cost(one, full, meshes, BOX_T_B) + 1e-9
+    assert [p.obj_id for p in two] == [p.obj_id for p in one]
 
 
 def test_view_weights():
