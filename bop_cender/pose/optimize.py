@@ -24,12 +24,13 @@ render cost then judges and polishes the finalists:
    pose's silhouette that it leaves unexplained), the best is polished by a short Nelder-Mead on the
    render cost (``polish_maxfev``), and its judged cost is the object's final cost (the BOP score).
 
-The paper places each object once. With ``passes`` > 1 (an option, measured in :class:`PoseConfig`)
-the objects are then swept again in the same order, each searched anew (its previous pose one more
-start) with every other object as last placed as its occluder, where those hide other pixels of it than
-when it was fitted. An object
-placed early was fitted without the parts lying on it, and its cost then charged it for their edges and
-for its own hidden contours; a wrong early pose also hid the right one of a later object.
+The paper places each object once. We sweep the objects a second time (``passes=2``, measured in
+:class:`PoseConfig`): in the same order, each searched anew (its previous pose one more start) with every
+other object as last placed as its occluder, where those hide other pixels of it than when it was fitted,
+and the new pose is kept only where the whole placement, all objects rendered together, explains the
+target better (``acceptance="scene"``). An object placed early was fitted without the parts lying on it,
+and its cost then charged it for their edges and for its own hidden contours; a wrong early pose also hid
+the right one of a later object. ``--set poses.passes=1`` is the paper's single sweep.
 
 When a centre's object id is unknown (one center channel shared by several object types), both steps
 run for every candidate id and the lowest final cost decides (the best random candidate alone picked
@@ -119,22 +120,19 @@ class PoseConfig:
         passes: sweeps over the objects. The first is the paper's sequential placement (each object
             occluded by those placed before it); each further sweep searches every object again, in the
             same order, occluded by all the others as last placed, with its previous pose as one more
-            start, and keeps the pose the judge prefers; an object that the others hide exactly as when it
-            was fitted is skipped (the same search again). Why: an object placed early was fitted without
-            the parts lying on it, and a wrong early pose hid the right one of a later object. Measured
-            with oracle heatmaps (``results/accuracy/README.md``, 2026-12-02 second section): on the
-            seed-9002 DIMO set (12 scenes, 70 parts; world-frame MSSD within 5 % of the diameter) 54
-            parts with the defaults, 54 with ``coverage_weight=1``, 55 with 2 passes, 60 with both, 57
-            with 3 passes and the judge; on the fresh seed-4242 set (BOP AR_MSSD / AR_MSSD<5%)
-            0.899 / 0.791 with the defaults, 0.903 / 0.785 with the judge, 0.858 / 0.751 with 2
-            passes, 0.877 / 0.778 with both; on
-            the T-LESS-layout seed-4243 set AR 0.878 against 0.889 with both. Not a gain that holds,
-            for twice the pose time, so the default is the paper's 1.
-        acceptance: what decides whether a further sweep's new pose replaces the old: ``object`` (the
-            judge's cost of that object alone, lower wins) or ``scene`` (the two-sided cost of all objects
-            rendered together, :func:`~bop_cender.pose.coverage.scene_cost`, lower wins). Why ``scene``: a
+            start, and keeps the new pose where ``acceptance`` prefers it; an object that the others hide
+            exactly as when it was fitted is skipped (the same search again). Why: an object placed early
+            was fitted without the parts lying on it, and a wrong early pose hid the right one of a later
+            object. Ours: 2, with ``acceptance="scene"``; the paper's is 1. Measured with oracle heatmaps
+            (``results/accuracy/README.md``, BOP AR_MSSD<5%, the same 2-core AMD EPYC): DIMO-layout seed
+            9002 0.799 -> 0.826, seed 4242 0.791 -> 0.823, T-LESS-layout seed 4243 0.822 -> 0.893 (AR
+            0.856 -> 0.891), for 1.2x (DIMO) to 2x (T-LESS) the pose time; 3 passes: see the README. With
+            ``acceptance="object"`` a second sweep lost on seed 4242 (0.751), so that stays an ablation.
+        acceptance: what decides whether a further sweep's new pose replaces the old: ``scene`` (the
+            two-sided cost of all objects rendered together, :func:`~bop_cender.pose.coverage.scene_cost`,
+            lower wins) or ``object`` (the judge's cost of that object alone, lower wins). Why ``scene``: a
             part moved onto a neighbour's edges costs itself no more, but leaves the edges of its true
-            place unexplained; only the scene sees that. Only with ``passes`` > 1.
+            place unexplained and hides the neighbour's; only the scene sees that. Only with ``passes`` > 1.
         seed: seed of the candidates (combined with the object's index in the scene).
     """
 
@@ -161,8 +159,8 @@ class PoseConfig:
     start_separation_rad: float = 0.35
     polish_maxfev: int = 200
     coverage_weight: float = 0.0
-    passes: int = 1
-    acceptance: str = "object"
+    passes: int = 2
+    acceptance: str = "scene"
 
     def __post_init__(self) -> None:
         """The named choices are checked here, so that a bad ``--set`` is one error before any scene runs."""
