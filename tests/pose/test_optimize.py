@@ -85,13 +85,19 @@ def test_refinement_recovers_a_perturbed_gt_pose(mini, refine):
     assert fev <= 300 + 8
 
 
-def test_scene_optimisation_places_every_object(mini):
-    ds, scene, meshes, maps, cams, dist = mini
+def _targets(ds, scene, cams, offset_mm) -> list[PoseTarget]:
+    """One target per GT part, its 3D centre off the true one by ``offset_mm``, either part id allowed."""
     targets = []
     for g in scene.gt:
         if ds.models[g.obj_id].is_target:
             c = g.T_world_model[:3, :3] @ ds.models[g.obj_id].center + g.T_world_model[:3, 3]
-            targets.append(PoseTarget(c + np.array([1.5, -1.0, 0.5]), np.ones(len(cams.Ks)), (3, 4)))
+            targets.append(PoseTarget(c + np.asarray(offset_mm), np.ones(len(cams.Ks)), (3, 4)))
+    return targets
+
+
+def test_scene_optimisation_places_every_object(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    targets = _targets(ds, scene, cams, [1.5, -1.0, 0.5])
     done = []
     placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
                             PoseConfig(n_candidates=400, nm_maxfev=250, t_b=BOX_T_B, passes=2, coverage_weight=1.0),
@@ -110,11 +116,7 @@ def test_scene_acceptance_keeps_a_sweep_only_where_the_whole_placement_gains(min
     from bop_cender.pose.optimize import _scene_cost
 
     ds, scene, meshes, maps, cams, dist = mini
-    targets = []
-    for g in scene.gt:
-        if ds.models[g.obj_id].is_target:
-            c = g.T_world_model[:3, :3] @ ds.models[g.obj_id].center + g.T_world_model[:3, 3]
-            targets.append(PoseTarget(c + np.array([3.0, -2.0, 1.0]), np.ones(len(cams.Ks)), (3, 4)))
+    targets = _targets(ds, scene, cams, [3.0, -2.0, 1.0])
     base = dict(n_candidates=64, nm_maxfev=40, polish_maxfev=20, t_b=BOX_T_B)
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
     one = optimise_scene(*args, PoseConfig(**base, passes=1), curvature_scale=1.0)
