@@ -148,16 +148,16 @@ def open_run_dataset(request: RunRequest) -> Dataset:
 
 def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
     """The method for a request: oracle heatmaps, the network (given or shipped weights), or one head of each."""
+    from bop_cender.net.mixed import MixedPredictor
     from bop_cender.net.oracle import OraclePredictor
 
+    _check_source(request.heatmaps)
     meshes = MeshCache(dataset.models)
     if request.heatmaps == "oracle":
         predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
     else:
         predictor = net = net_predictor(request, dataset)
         if request.heatmaps != "net":  # one head of each; the oracle's centre channels follow the network's
-            from bop_cender.net.mixed import MixedPredictor
-
             oracle = OraclePredictor(
                 dataset.models, meshes, request.config.targets, net.channel_obj_ids, device=request.device
             )
@@ -168,7 +168,14 @@ def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -
 
 def uses_network(heatmaps: str) -> bool:
     """Whether the heatmap source ``heatmaps`` (one of :data:`HEATMAP_SOURCES`) runs the network."""
-    return heatmaps != "oracle"
+    return heatmaps in HEATMAP_SOURCES and heatmaps != "oracle"
+
+
+def _check_source(heatmaps: str) -> None:
+    if heatmaps not in HEATMAP_SOURCES:
+        raise ConfigError(
+            f"unknown heatmap source {heatmaps!r}; expected one of {', '.join(HEATMAP_SOURCES)}", field="--heatmaps"
+        )
 
 
 def resolve_weights(request: RunRequest) -> RunRequest:
@@ -419,11 +426,7 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
 def _check_request(request: RunRequest) -> None:
     from bop_cender.results.files import parse_result_filename
 
-    if request.heatmaps not in HEATMAP_SOURCES:
-        raise ConfigError(
-            f"unknown heatmap source {request.heatmaps!r}; expected one of {', '.join(HEATMAP_SOURCES)}",
-            field="--heatmaps",
-        )
+    _check_source(request.heatmaps)
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
     if request.max_views is not None and request.max_views < 1:

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         " the GT); default: net where weights are shipped for the dataset or --weights is given, else oracle."
         " Ablations: oracle-centers (oracle centres, the network's curvature), oracle-curvature (the reverse)",
     )
-    p.add_argument("--weights", default=None, help="network weights (with --heatmaps net)")
+    p.add_argument("--weights", default=None, help="network weights (every --heatmaps source but oracle)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")
     p.add_argument("--out", default=None, help="results CSV (default: cendernet-<heatmaps>_<dataset>-<split>.csv here)")
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")

@@ -26,18 +26,28 @@ class PatchMaps:
     def __init__(self, shape: tuple[int, int, int, int], boxes: np.ndarray, data: np.ndarray) -> None:
         self.shape = tuple(int(s) for s in shape)
         self.boxes = np.asarray(boxes, np.int64).reshape(-1, 6)
-        self.data = np.asarray(data, np.uint8).ravel()
-        self.starts = np.concatenate([[0], np.cumsum(self.boxes[:, 4] * self.boxes[:, 5])])
+        self.data = np.asarray(data).ravel()
+        if self.data.dtype != np.uint8:
+            raise ValueError(f"patch bytes must be uint8, got {self.data.dtype}")
+        N, C, H, W = self.shape
+        n, c, y0, x0, h, w = self.boxes.T
+        inside = (n >= 0) & (n < N) & (c >= 0) & (c < C) & (y0 >= 0) & (x0 >= 0) & (h > 0) & (w > 0)
+        if not bool(np.all(inside & (y0 + h <= H) & (x0 + w <= W))) or bool(np.any(np.diff(n) < 0)):
+            raise ValueError(f"patch boxes must lie inside {self.shape} and be sorted by sample")
+        self.starts = np.concatenate([[0], np.cumsum(h * w)])
         if self.starts[-1] != self.data.size:
             raise ValueError(f"{self.data.size} bytes for patches of {self.starts[-1]}")
         self._first = np.searchsorted(self.boxes[:, 0], np.arange(self.shape[0] + 1))
 
     @staticmethod
-    def from_dense(maps: Sequence[np.ndarray]) -> PatchMaps:
-        """Patches of ``maps``: ``(C, H, W)`` uint8 arrays of one size, one per sample."""
+    def from_dense(maps: Sequence[np.ndarray] | np.ndarray) -> PatchMaps:
+        """Patches of ``maps``: ``(C, H, W)`` uint8 arrays of one size, one per sample (or one ``(N, C, H, W)``
+        array, which may hold no sample)."""
         boxes, chunks = [], []
-        shape: tuple[int, ...] | None = None
+        shape: tuple[int, ...] | None = maps.shape[1:] if isinstance(maps, np.ndarray) else None
         for n, m in enumerate(maps):
+            if m.dtype != np.uint8:
+                raise ValueError(f"map {n} is {m.dtype}, not uint8")
             if shape is None:
                 shape = m.shape
             elif m.shape != shape:

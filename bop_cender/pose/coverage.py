@@ -93,7 +93,9 @@ def two_sided_costs(
     visible = normals.abs().sum(-1) > 0
     # the paper's cost of full-frame canvases (canvas c is view c % V, as view_costs counts them)
     forward = view_costs(curv, dist_maps.to(device), torch.zeros((n * V, 2), dtype=torch.int64, device=device))
-    coverage = _coverage(curv, visible, target_edges.to(device).repeat(n, 1, 1), edge_threshold)
+    # the target edges inside the silhouette eroded by one pixel (a 3x3 min-pool), to the pose's own edges
+    inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
+    coverage = _mean_distance_to_own_edges(curv, target_edges.to(device).repeat(n, 1, 1) & inside, edge_threshold)
     w = view_weights.to(device, torch.float32)
     fwd = (forward.view(n, V) * w).sum(1).double().cpu().numpy()
     cov = (coverage.view(n, V) * w).sum(1).double().cpu().numpy()
@@ -108,11 +110,15 @@ def scene_cost(
     dist_maps: torch.Tensor,
     edge_threshold: float,
 ) -> float:
-    """The two-sided cost (weight 1) of a whole placement: all objects rendered together, against the target.
+    """The symmetric edge distance of a whole placement: all objects rendered together, against the target.
 
-    What a sweep's move is judged by with ``PoseConfig.acceptance="scene"``: a part moved onto a neighbour's
-    edges explains its own rendered edges as well as before, but the edges it leaves behind (now inside no
-    silhouette's explanation) and those it covers change the cost of the scene, not of the part.
+    What a sweep's move is judged by with ``PoseConfig.acceptance="scene"``. Forward, the paper's cost of the
+    composite: its edges must lie near target edges. Backward, over *every* target edge pixel: its
+    distance to the nearest edge the composite draws. A part moved onto a neighbour's edges costs itself no
+    more forward, but the edges of its true place are now explained by nothing and cost the scene backward;
+    a part removed or hidden does too. (Only the target edges inside the composite's silhouette, as the
+    two-sided judge counts them, would miss exactly those: a scene without one of its parts cost less than
+    the full true scene.) Target edges of parts never detected add the same to every placement compared.
 
     Args:
         meshes: the M placed objects' meshes.
@@ -120,29 +126,22 @@ def scene_cost(
         K, target_edges, dist_maps, edge_threshold: as :func:`two_sided_costs`.
 
     Returns:
-        The mean over the V views of forward (mean distance of the composite's curvature to the target
-        edges) plus coverage (mean distance of the target edges inside the composite's silhouette, eroded
-        by one pixel, to the composite's own edges), in pixels.
+        The mean over the V views of forward plus backward, in pixels (a view where the composite draws no
+        edge costs the image diagonal forward).
     """
     V = int(T_cam_model.shape[0])
     _, H, W = target_edges.shape
     device = dist_maps.device
     render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
     curv = curvature(render.normals)  # (V, H, W)
-    visible = render.normals.abs().sum(-1) > 0
     forward = view_costs(curv, dist_maps.to(device), torch.zeros((V, 2), dtype=torch.int64, device=device))
-    coverage = _coverage(curv, visible, target_edges.to(device), edge_threshold)
-    return float((forward + coverage).mean())
+    backward = _mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)
+    return float((forward + backward).mean())
 
 
-def _coverage(
-    curv: torch.Tensor, visible: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float
-) -> torch.Tensor:
-    """``(N,)`` coverage of N canvases: the mean distance (pixels) from the target edges inside the silhouette
-    ``visible (N, H, W)``, eroded by one pixel (a 3x3 min-pool), to the canvas's own edges (``curv (N, H, W)``
-    above ``edge_threshold``); 0 where no target edge lies inside."""
-    inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
-    uncovered = target_edges & inside
+def _mean_distance_to_own_edges(curv: torch.Tensor, pixels: torch.Tensor, edge_threshold: float) -> torch.Tensor:
+    """``(N,)``: the mean distance (pixels) from the ``pixels (N, H, W)`` (bool) of each canvas to the canvas's own
+    edges (``curv (N, H, W)`` above ``edge_threshold``); 0 where no pixel is given."""
     own_dist = torch.as_tensor(distance_maps((curv > edge_threshold).cpu().numpy()), device=curv.device)
-    count = uncovered.sum((1, 2))
-    return torch.where(count > 0, (own_dist * uncovered).sum((1, 2)) / count.clamp_min(1), 0.0)
+    count = pixels.sum((1, 2))
+    return torch.where(count > 0, (own_dist * pixels).sum((1, 2)) / count.clamp_min(1), 0.0)

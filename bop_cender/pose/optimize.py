@@ -129,8 +129,8 @@ class PoseConfig:
             0.856 -> 0.891), for 1.2x (DIMO) to 2x (T-LESS) the pose time; 3 passes: see the README. With
             ``acceptance="object"`` a second sweep lost on seed 4242 (0.751), so that stays an ablation.
         acceptance: what decides whether a further sweep's new pose replaces the old: ``scene`` (the
-            two-sided cost of all objects rendered together, :func:`~bop_cender.pose.coverage.scene_cost`,
-            lower wins) or ``object`` (the judge's cost of that object alone, lower wins). Why ``scene``: a
+            symmetric edge distance of all objects rendered together against the target,
+            :func:`~bop_cender.pose.coverage.scene_cost`, lower wins) or ``object`` (the judge's cost of that object alone, lower wins). Why ``scene``: a
             part moved onto a neighbour's edges costs itself no more, but leaves the edges of its true
             place unexplained and hides the neighbour's; only the scene sees that. Only with ``passes`` > 1.
         seed: seed of the candidates (combined with the object's index in the scene).
@@ -307,7 +307,7 @@ def optimise_scene(
                     else:
                         scene_now = trial_cost
                 placed[idx] = moved
-                contexts[idx] = occ
+                contexts[idx] = occ  # searched under these occluders, kept or not: a third sweep skips alike
             if progress is not None:
                 progress(sweep * len(targets) + idx + 1, total)
     return placed

@@ -41,5 +41,13 @@ def test_an_all_zero_set_and_bad_input() -> None:
         patched.dense([3])
     with pytest.raises(ValueError, match="map 1 is"):
         PatchMaps.from_dense([np.zeros((2, 5, 6), np.uint8), np.zeros((2, 5, 7), np.uint8)])
+    with pytest.raises(ValueError, match="not uint8"):
+        PatchMaps.from_dense([np.full((1, 5, 6), 0.6)])  # a float map would be truncated to zeros
+    with pytest.raises(ValueError, match="sorted by sample"):
+        PatchMaps((2, 1, 5, 6), np.array([[1, 0, 0, 0, 1, 1], [0, 0, 0, 0, 1, 1]]), np.ones(2, np.uint8))
+    with pytest.raises(ValueError, match="inside"):
+        PatchMaps((1, 1, 5, 6), np.array([[0, 0, 4, 0, 2, 1]]), np.ones(2, np.uint8))
+    empty_scene = PatchMaps.from_dense(np.zeros((0, 2, 5, 6), np.uint8))  # a scene without views adds nothing
+    assert len(PatchMaps.concat([empty_scene, patched])) == 3
     with pytest.raises(ValueError, match="different sizes"):
         PatchMaps.concat([patched, PatchMaps.from_dense([np.zeros((1, 5, 6), np.uint8)])])

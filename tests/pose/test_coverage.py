@@ -106,7 +106,7 @@ def test_pose_config_refuses_a_negative_coverage_weight_and_no_pass():
 
 
 def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
-    """A part moved off its place leaves its true edges unexplained: the whole placement costs more."""
+    """A part moved off its place, or left out, leaves its true edges unexplained: the whole placement costs more."""
     from bop_cender.pose.coverage import scene_cost
 
     ds, scene, meshes, maps, cams, _ = mini
@@ -122,6 +122,11 @@ def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
 
     exact = cost([g.T_world_model for g in parts])
     assert exact < 0.5
+    # a part missing from the placement leaves its edges unexplained (the review's counterexample)
+    T = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([parts[0].T_world_model]))
+    missing = scene_cost([meshes(parts[0].obj_id)], torch.as_tensor(T, dtype=torch.float32), K, edges, dist,
+                         BOX_T_B * 1.0)  # fmt: skip
+    assert missing > exact + 0.5
     for i in range(len(parts)):
         moved = [perturb(g.T_world_model, 25.0, 4.0) if j == i else g.T_world_model for j, g in enumerate(parts)]
         assert cost(moved) > exact + 0.5
