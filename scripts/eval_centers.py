@@ -15,6 +15,7 @@ fewer than two, and no triangulation can find it) and the nearest detected centr
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 
@@ -24,6 +25,8 @@ from bop_cender.datasets import open_with_demo
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNetConfig
 from bop_cender.net.oracle import OraclePredictor
+from bop_cender.net.predictor import NetPredictor
+from bop_cender.net.weights import load_weights, shipped_weights_path
 from bop_cender.visibility import pile_visibility
 
 SETTINGS = {
@@ -38,19 +41,38 @@ def main() -> None:
     ap.add_argument("--split", default="sim")
     ap.add_argument("--scenes", type=int, default=None)
     ap.add_argument("--misses", action="store_true", help="print each miss and false centre of the first setting")
+    ap.add_argument("--weights", default=None, help="a network's weights file, or 'shipped' (default: the oracle)")
+    ap.add_argument("--peak-thresholds", default=None, help="comma-separated stage-2 peak thresholds to compare")
+    ap.add_argument("--setting", action="append", default=[], metavar="KEY=V[,KEY=V]",
+                    help="a CenterConfig to compare (our defaults but these fields), e.g. peak_threshold=0.1,"
+                    "min_view_score=0.1; repeatable")  # fmt: skip
     args = ap.parse_args()
+    settings = SETTINGS
+    if args.peak_thresholds:
+        thresholds = [float(t) for t in args.peak_thresholds.split(",")]
+        settings = {f"peak threshold {t:g}": replace(CenterConfig(), peak_threshold=t) for t in thresholds}
+    if args.setting:
+        settings = {}
+        for text in args.setting:
+            fields = dict(item.split("=", 1) for item in text.split(","))
+            defaults = CenterConfig()
+            settings[text] = replace(defaults, **{k: type(getattr(defaults, k))(v) for k, v in fields.items()})
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshCache(ds.models)
-    oracle = OraclePredictor(ds.models, meshes, config.targets)
-    found = dict.fromkeys(SETTINGS, 0)
-    false = dict.fromkeys(SETTINGS, 0)
-    image_targets_found = dict.fromkeys(SETTINGS, 0)
-    errors: dict[str, list[float]] = {k: [] for k in SETTINGS}
+    if args.weights is None:
+        predictor = OraclePredictor(ds.models, meshes, config.targets)
+    else:
+        path = shipped_weights_path("dimo") if args.weights == "shipped" else args.weights
+        predictor = NetPredictor(load_weights(path, dataset="dimo"))
+    found = dict.fromkeys(settings, 0)
+    false = dict.fromkeys(settings, 0)
+    image_targets_found = dict.fromkeys(settings, 0)
+    errors: dict[str, list[float]] = {k: [] for k in settings}
     total = image_targets = 0
     for key in ds.scene_keys[: args.scenes]:
         scene = ds.scene(key)
-        maps = oracle.predict(scene).center.numpy()
+        maps = predictor.predict(scene).center.numpy()
         Ks = np.stack([v.K for v in scene.views])
         T_cw = np.stack([v.T_cam_world for v in scene.views])
         gts = [g for g in scene.gt if g.obj_id in ds.models]
@@ -65,7 +87,7 @@ def main() -> None:
         fract = pile_visibility(meshes.many([g.obj_id for g in gts]), T_cm, Ks, H, W).fract[:, targets]  # (V, M)
         per_image = (fract >= 0.1).sum(0)  # (M,) images where each GT centre is a target
         image_targets += int(per_image.sum())
-        for s, (name, setting) in enumerate(SETTINGS.items()):
+        for s, (name, setting) in enumerate(settings.items()):
             centers = detect_centers(maps, Ks, T_cw, setting, None, {0: len(gt)})
             P = np.array([c.position for c in centers]).reshape(-1, 3)
             dist = np.linalg.norm(gt[:, None] - P[None], axis=-1) if len(P) else np.full((len(gt), 1), np.inf)
@@ -78,7 +100,7 @@ def main() -> None:
                 _print_misses(key, maps[:, 0], Ks, T_cw, gt, nearest, dist, centers, setting, per_image)
     print(f"{len(ds.scene_keys[: args.scenes])} scenes, {total} GT centres, {image_targets} per-image targets"
           f" ({ds.root}, split {args.split})")  # fmt: skip
-    for name in SETTINGS:
+    for name in settings:
         med = np.median(errors[name]) if errors[name] else float("nan")
         print(
             f"{name}: {found[name]}/{total} found within 5 mm ({found[name] / max(total, 1):.3f}), "

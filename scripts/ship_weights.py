@@ -59,6 +59,20 @@ def subset_figures(weights_path: Path, dataset: str, seed: int) -> dict:
     return {**subset, "views": report.views, "metrics": report.metrics}
 
 
+def _pretraining_stages(source: Path, dataset: str) -> list[dict]:
+    """The training stages of ``source``: a run folder (one stage: its config and history), or the card of earlier
+    shipped weights (its own pretraining stages, then its last run), so that a fine-tune of shipped weights keeps
+    their whole history on its card."""
+    if source.suffix == ".json":
+        card = json.loads(source.read_text())
+        earlier = card.get("pretraining") or []
+        earlier = [earlier] if isinstance(earlier, dict) else earlier  # cards before chains had one stage
+        last = {"run": f"{card['weights']} ({source.name})", "config": card["trained_on"]["config"]}
+        return [*earlier, last | {"history": card.get("history", [])}]
+    pre = load_weights(source / "weights.pt", dataset=dataset)
+    return [{"run": str(source), "config": pre.extra.get("config", {}), "history": pre.extra.get("history", [])}]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run_dir", type=Path)
@@ -69,8 +83,10 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--pretrained-run",
         type=Path,
-        default=None,
-        help="the run that --init-weights came from (its epochs on the card)",
+        action="append",
+        default=[],
+        help="a run folder (or the card of shipped weights) that the weights were fine-tuned from through"
+        " --init-weights (its epochs on the card); repeat for a chain, earliest first",
     )
     ap.add_argument("--subset-seed", type=int, default=None,
                     help="seed of the card's fixed subset (default: 9003 DIMO, 9105 T-LESS)")  # fmt: skip
@@ -79,10 +95,8 @@ def main(argv=None) -> int:
     weights = load_weights(source, dataset=args.dataset)
     history = weights.extra.get("history", [])
     config = weights.extra.get("config", {})
-    pre_history, pre_config = [], {}
-    if args.pretrained_run is not None:
-        pre = load_weights(args.pretrained_run / "weights.pt", dataset=args.dataset)
-        pre_history, pre_config = pre.extra.get("history", []), pre.extra.get("config", {})
+    pretraining = [stage for run in args.pretrained_run for stage in _pretraining_stages(run, args.dataset)]
+    pre_history = [h for stage in pretraining for h in stage["history"]]
     target = ROOT / "bop_cender" / "net" / "weights" / SHIPPED[args.dataset]
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(source, target)
@@ -101,9 +115,7 @@ def main(argv=None) -> int:
         "command": args.command,
         "epochs": weights.extra.get("epoch") + len(pre_history),
         "wall_s": round(sum(h.get("wall_s", 0.0) for h in pre_history + history), 1),
-        "pretraining": {"run": str(args.pretrained_run), "config": pre_config, "history": pre_history}
-        if args.pretrained_run
-        else None,
+        "pretraining": pretraining,
         "machine": f"{bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores, torch {torch.__version__}",
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],

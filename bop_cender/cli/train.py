@@ -36,9 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
-        choices=("dimo", "dimo-lean", "tless", "tless-lean"),
+        choices=("dimo", "dimo-lean", "dimo-context", "tless", "tless-lean"),
         default=None,
-        help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean)",
+        help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
+        " dimo-lean with dilated context convolutions, a 3x wider receptive field)",
     )
     p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
@@ -60,6 +61,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=0.0,
         metavar="W",
         help="weight center pixels by 1 + W * target (default 0: the paper's plain BCE; helps T-LESS's 30 channels)",
+    )
+    p.add_argument(
+        "--center-loss",
+        choices=("bce", "focal"),
+        default="bce",
+        help="center heatmap loss: the paper's BCE (default) or CenterNet's focal loss (sharp peaks; see README)",
+    )
+    p.add_argument(
+        "--center-loss-weight",
+        type=positive_number("--center-loss-weight"),
+        default=1.0,
+        metavar="W",
+        help="weight of the center loss beside the curvature BCE (default 1)",
     )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
@@ -99,7 +113,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
-        center_pos_weight=args.center_pos_weight,
+        center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
+        center_loss_weight=args.center_loss_weight,
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

@@ -22,6 +22,7 @@ from bop_cender.net.train import (  # noqa: E402
     METRICS,
     WEIGHTS,
     TrainConfig,
+    center_focal_loss,
     center_loss,
     random_crop,
     train,
@@ -106,7 +107,9 @@ def test_runs_are_guarded(tiny_root, tmp_path) -> None:
     with pytest.raises(ConfigError, match="not a directory"):
         train(_config(tiny_root), tmp_path / "file", progress=False)
     bad_settings = (dict(epochs=0), dict(batch_size=0), dict(lr=float("nan")), dict(width=-1.0), dict(crop=(0, 4)),
-                    dict(center_pos_weight=-1.0), dict(center_pos_weight=float("inf")))  # fmt: skip
+                    dict(center_pos_weight=-1.0), dict(center_pos_weight=float("inf")), dict(center_loss="l2"),
+                    dict(center_loss="focal", center_pos_weight=10.0), dict(center_loss_weight=0.0),
+                    dict(center_loss_weight=float("nan")))  # fmt: skip
     for bad in bad_settings:
         with pytest.raises(ConfigError):
             _config(tiny_root, **bad)
@@ -144,6 +147,18 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
             tmp_path / "x",
             progress=False,
         )
+    # a lean network starts a context one (its new convolutions start as the identity), not the reverse
+    context = train(
+        _config(tiny_root, epochs=1, val_split=None, variant="dimo-context", init_weights=str(first)),
+        tmp_path / "context",
+        progress=False,
+    )
+    assert context.epochs_done == 1
+    context_weights = tmp_path / "context" / WEIGHTS
+    assert load_weights(context_weights).model.spec.context_dilations == (2, 4, 8)
+    with pytest.raises(ConfigError, match="not this run's"):
+        train(_config(tiny_root, epochs=1, val_split=None, init_weights=str(context_weights)), tmp_path / "y",
+              progress=False)  # fmt: skip
 
 
 def test_the_center_pos_weight_weights_blob_pixels_only() -> None:
@@ -157,3 +172,45 @@ def test_the_center_pos_weight_weights_blob_pixels_only() -> None:
     per_pixel = torch.nn.functional.binary_cross_entropy_with_logits(logits, target, reduction="none")
     expected = (per_pixel * (1 + 10.0 * target)).mean()
     assert torch.allclose(center_loss(logits, target, 10.0), expected)
+
+
+def _blob(h: int, w: int, v: float, u: float, sigma: float) -> torch.Tensor:
+    rows, cols = torch.meshgrid(torch.arange(h) + 0.5, torch.arange(w) + 0.5, indexing="ij")
+    return torch.exp(-((rows - v) ** 2 + (cols - u) ** 2) / (2 * sigma**2))
+
+
+def test_the_focal_loss_counts_each_blob_peak_once_and_forgives_near_misses() -> None:
+    """CenterNet's loss: positives are the blobs' peak pixels (one per blob, even off-centre ones), the loss is
+    normalised by their number, and a prediction one pixel off the peak costs less than one far away."""
+    target = torch.maximum(_blob(32, 40, 10.3, 12.8, 3.0), _blob(32, 40, 22.6, 30.1, 2.0)).view(1, 1, 32, 40)
+    peaks = (target >= 0.9) & (target >= torch.nn.functional.max_pool2d(target, 3, stride=1, padding=1))
+    assert int(peaks.sum()) == 2 and bool(peaks[0, 0, 10, 12]) and bool(peaks[0, 0, 22, 30])
+
+    def logits_with_peak_at(v: int, u: int) -> torch.Tensor:
+        logits = torch.full_like(target, -8.0)
+        logits[0, 0, 22, 30] = 4.0
+        logits[0, 0, v, u] = 4.0
+        return logits
+
+    exact = center_focal_loss(logits_with_peak_at(10, 12), target)
+    near = center_focal_loss(logits_with_peak_at(10, 13), target)
+    far = center_focal_loss(logits_with_peak_at(25, 5), target)
+    assert exact < near < far
+    # hand-computed: the two peaks at p = sigmoid(4) cost (1 - p)^2 * -log p each; the background at
+    # sigmoid(-8) costs next to nothing; the loss is their sum over the two blobs
+    p = torch.sigmoid(torch.tensor(4.0))
+    assert abs(float(exact) - float((1 - p) ** 2 * -torch.log(p))) < 1e-4
+    # a batch of two images with the same blobs: the same normalised loss
+    assert torch.allclose(center_focal_loss(logits_with_peak_at(10, 12).repeat(2, 1, 1, 1), target.repeat(2, 1, 1, 1)),
+                          exact)  # fmt: skip
+    # no blob at all: the loss is the background's alone and finite
+    assert torch.isfinite(center_focal_loss(torch.zeros(1, 1, 8, 8), torch.zeros(1, 1, 8, 8)))
+
+
+def test_a_focal_run_lowers_its_loss(tiny_root, tmp_path) -> None:
+    torch.set_num_threads(2)
+    config = _config(tiny_root, epochs=4, batch_size=2, lr=1e-2, augment=False, center_loss="focal",
+                     center_loss_weight=0.1, val_split=None)  # fmt: skip
+    summary = train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
+    centers = [r.train_center_loss for r in summary.history]
+    assert centers[-1] < 0.7 * centers[0], centers

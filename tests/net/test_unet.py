@@ -14,6 +14,7 @@ from bop_cender.net.unet import UNet, UNetSpec, count_parameters
         (UNetSpec.dimo(width=0.25), (32, 40)),
         (UNetSpec.dimo(width=0.25), (31, 45)),  # odd: padded to the stride and cropped back
         (UNetSpec.dimo_lean(), (37, 50)),
+        (UNetSpec.dimo_context(), (37, 50)),
         (UNetSpec.tless(center_channels=5, width=0.125), (54, 72)),
         (UNetSpec.tless(center_channels=5, width=0.125), (50, 61)),
         (UNetSpec.tless_lean(center_channels=3), (40, 41)),
@@ -75,3 +76,45 @@ def test_width_scales_the_features_and_the_spec_round_trips() -> None:
         UNetSpec.dimo(width=0)
     with pytest.raises(ValueError, match="image must be"):
         UNet(UNetSpec.dimo_lean())(torch.rand(1, 1, 16, 16))
+
+
+def _receptive_radius(model: UNet, size: tuple[int, int] = (256, 320)) -> int:
+    """How far (pixels) from the centre pixel an input change still reaches the centre logit (eval mode)."""
+    model.eval()
+    image = torch.rand(1, 3, *size, generator=torch.Generator().manual_seed(0)).requires_grad_()
+    center, _ = model(image)
+    center[0, 0, size[0] // 2, size[1] // 2].backward()
+    reached = image.grad.abs().sum(1)[0] > 0
+    rows = torch.nonzero(reached.any(1)).flatten()
+    return int(max(size[0] // 2 - rows.min(), rows.max() - size[0] // 2))
+
+
+def test_the_context_variant_widens_the_receptive_field_and_old_specs_have_none() -> None:
+    torch.manual_seed(0)
+    lean, context = UNet(UNetSpec.dimo_lean()), UNet(UNetSpec.dimo_context())
+    for layer in context.context.layers:  # trained: the residuals are no longer zero
+        torch.nn.init.ones_(layer[1].weight)
+    assert _receptive_radius(lean) < 70 < 120 < _receptive_radius(context)  # 61 and the image edge (128)
+    assert count_parameters(context) < 1.3 * count_parameters(lean)
+    spec = UNetSpec.named("dimo-context")
+    assert spec.context_dilations == (2, 4, 8) and UNetSpec.from_dict(spec.as_dict()) == spec
+    old = UNetSpec.dimo_lean().as_dict()
+    del old["context_dilations"]  # a weights file written before the field existed
+    assert UNetSpec.from_dict(old) == UNetSpec.dimo_lean() and UNet(UNetSpec.from_dict(old)).context is None
+    with pytest.raises(ValueError, match="dilations"):
+        UNetSpec(context_dilations=(0,))
+
+
+def test_a_context_network_started_from_lean_weights_computes_what_they_did() -> None:
+    torch.manual_seed(1)
+    lean, context = UNet(UNetSpec.dimo_lean()).eval(), UNet(UNetSpec.dimo_context()).eval()
+    missing, unexpected = context.load_state_dict(lean.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("context.") for k in missing)
+    image = torch.rand(2, 3, 48, 64)
+    with torch.no_grad():
+        for a, b in zip(lean(image), context(image), strict=True):
+            assert torch.equal(a, b)
+    context.train()
+    center, curvature = context(image)
+    (center.sum() + curvature.sum()).backward()
+    assert context.context.layers[0][1].weight.grad.abs().sum() > 0  # the residuals can leave zero
