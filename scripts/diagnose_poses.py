@@ -10,7 +10,8 @@ the world frame with that view's ``T_cam_world``. Each part falls in one class:
 - ``wrong id``: no estimate of its id near it, but one of another id (a similar part placed there);
 - ``no estimate``: nothing within 10 mm (stage 2 missed its centre, or the centre was used elsewhere).
 
-With ``--list`` each part outside ``< 5 %`` is printed with its mean visible fraction over the views,
+With ``--list`` each part outside ``< 5 %`` is printed with its mean visible fraction over the views (rendered
+for the whole pile, carriers included),
 the centre error, the rotation error (degrees, before symmetries) and MSSD / diameter:
 
     python scripts/diagnose_poses.py RESULTS.csv --data-root DATA/dimo_test --split sim [--list]
@@ -30,7 +31,9 @@ from bop_cender.data.registry import DatasetRequest
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.datasets import open_with_demo
 from bop_cender.eval.pose_errors import hull_vertices, mssd
+from bop_cender.meshes import MeshCache
 from bop_cender.results.bop_csv import read_bop_results
+from bop_cender.visibility import pile_visibility
 
 CLASSES = ("< 5 %", "5-10 %", "10-25 %", "wrong pose", "wrong id", "no estimate")
 NEAR_MM = 10.0
@@ -48,6 +51,7 @@ def main() -> None:
     by_image: dict[tuple[int, int], list] = defaultdict(list)
     for r in rows:
         by_image[(r.scene_id, r.im_id)].append(r)
+    meshes = MeshCache(ds.models)
     hulls = {i: hull_vertices(np.asarray(m.mesh.vertices)) for i, m in ds.models.items() if m.is_target}
     counts: Counter[str] = Counter()
     visib: dict[str, list[float]] = defaultdict(list)
@@ -65,12 +69,17 @@ def main() -> None:
         centre_e = np.array(
             [T[:3, :3] @ ds.models[e.obj_id].center + T[:3, 3] for T, e in zip(T_we, ests, strict=True)]
         )
-        for g in scene.gt:
-            model = ds.models.get(g.obj_id)
-            if model is None or not model.is_target:
+        gts = [g for g in scene.gt if g.obj_id in ds.models]  # carriers too: they hide parts
+        Ks = np.stack([w.K for w in scene.views])
+        T_cm = np.einsum("vij,mjk->vmik", np.stack([w.T_cam_world for w in scene.views]),
+                         np.stack([g.T_world_model for g in gts]))  # fmt: skip
+        fract = pile_visibility(meshes.many([g.obj_id for g in gts]), T_cm, Ks, view.height, view.width).fract
+        for m, g in enumerate(gts):
+            model = ds.models[g.obj_id]
+            if not model.is_target:
                 continue
             cls, detail = _classify(g, model, ests, T_we, centre_e, hulls[g.obj_id])
-            v = float(np.mean(list(g.visib_fract.values()))) if g.visib_fract else float("nan")
+            v = float(fract[:, m].mean())
             counts[cls] += 1
             visib[cls].append(v)
             per_obj[g.obj_id][cls] += 1

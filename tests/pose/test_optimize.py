@@ -134,15 +134,49 @@ def test_scene_acceptance_keeps_a_move_only_where_the_whole_placement_gains(mini
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
     config = dict(t_b=BOX_T_B, passes=2)
     proposals.update({i: perturb(T, 25.0, 10.0) for i, T in parts.items()})  # worse for the scene
-    refused = optimise_scene(*args, PoseConfig(**config), curvature_scale=1.0)
+    refused = optimise_scene(*args, PoseConfig(**config, acceptance="scene"), curvature_scale=1.0)
     for p in refused:
         assert np.array_equal(p.T_world_model, first[p.obj_id]) and p.evaluations == 15 and p.cost == 0.0
     taken_by_object = optimise_scene(*args, PoseConfig(**config, acceptance="object"), curvature_scale=1.0)
     assert all(np.array_equal(p.T_world_model, proposals[p.obj_id]) for p in taken_by_object)
     proposals.update(parts)  # the true poses: better for the scene
-    taken = optimise_scene(*args, PoseConfig(**config), curvature_scale=1.0)
+    taken = optimise_scene(*args, PoseConfig(**config, acceptance="scene"), curvature_scale=1.0)
     assert all(np.array_equal(p.T_world_model, parts[p.obj_id]) for p in taken)
-    assert PoseConfig().passes == 2 and PoseConfig().acceptance == "scene"  # ours; the paper's is one pass
+    assert PoseConfig().passes == 2 and PoseConfig().acceptance == "finalists"  # ours; the paper's is one pass
+
+
+def test_finalists_acceptance_judges_every_refined_pose_by_the_scene(mini, monkeypatch):
+    """A second-sweep search whose own best is off the true place but whose other finalist is the true pose:
+    ``acceptance="scene"`` sees only the own best and keeps the first sweep's pose; ``"finalists"`` judges
+    every finalist by the scene cost, takes the true one and polishes it (it stays on the truth)."""
+    from bop_cender.pose import optimize
+
+    ds, scene, meshes, maps, cams, dist = mini
+    parts = {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
+    targets = _targets(ds, scene, cams, [0.0, 0.0, 0.0])
+    first = {i: perturb(T, 12.0, 6.0) for i, T in parts.items()}  # the first sweep: off the truth
+    own_best = {i: perturb(T, 25.0, 10.0) for i, T in parts.items()}  # what each search ranks first
+
+    def search(target, *args, incumbent=None, finalists=None, **kwargs):
+        obj_id = min(parts, key=lambda i: np.linalg.norm(parts[i][:3, 3] - target.center))
+        if incumbent is None:
+            return PlacedObject(obj_id, first[obj_id], 0.0, 10)
+        if finalists is not None:
+            finalists += [PlacedObject(obj_id, own_best[obj_id], -1.0, 0), PlacedObject(obj_id, parts[obj_id], 0.5, 0)]
+        return PlacedObject(obj_id, own_best[obj_id], -1.0, incumbent.evaluations + 5)
+
+    monkeypatch.setattr(optimize, "optimise_object", search)
+    monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
+    args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
+    config = dict(t_b=BOX_T_B, passes=2, polish_maxfev=60)
+    kept = optimise_scene(*args, PoseConfig(**config, acceptance="scene"), curvature_scale=1.0)
+    assert all(np.array_equal(p.T_world_model, first[p.obj_id]) for p in kept)
+    chosen = optimise_scene(*args, PoseConfig(**config, acceptance="finalists"), curvature_scale=1.0)
+    for p in chosen:
+        T = parts[p.obj_id]
+        R_err = np.degrees(Rotation.from_matrix(p.T_world_model[:3, :3] @ T[:3, :3].T).magnitude())
+        assert R_err < 0.5 and np.linalg.norm(p.T_world_model[:3, 3] - T[:3, 3]) < 0.5, (p.obj_id, R_err)
+        assert p.evaluations > 15  # the polish's evaluations are counted
 
 
 def test_view_weights():
