@@ -12,6 +12,7 @@ from bop_cender.centers import (
     find_peaks,
     merge_candidates,
     peak_rays,
+    refine_centers,
     sample_scores,
 )
 from bop_cender.geometry.camera import camera_center_in_world
@@ -177,3 +178,17 @@ def test_refined_duplicates_are_one_centre_without_a_known_count():
     maps = blob_maps(truth, T_cw)
     centers = detect_centers(maps, np.repeat(K[None], 8, 0), T_cw, CenterConfig(d_c=1.0))
     assert len(centers) == 2
+
+
+def test_refine_centers_moves_every_start_to_its_own_blob_at_once():
+    """All starts step together, each to the maximum of the summed score nearest it; a start on nothing
+    (score 0 everywhere around) stays put."""
+    T = ring_cameras(5)
+    truth = np.array([[0.0, 0.0, 0.0], [60.0, -30.0, 20.0]])
+    maps = blob_maps(truth, T)[:, 0]
+    starts = np.array([[3.0, -2.0, 2.5], [57.0, -27.0, 23.0], [400.0, 400.0, 400.0]])
+    out = refine_centers(starts, maps, np.repeat(K[None], len(T), 0), T, CenterConfig())
+    assert out.shape == (3, 3)
+    np.testing.assert_array_less(np.linalg.norm(out[:2] - truth, axis=1), TOL_MM)
+    np.testing.assert_array_equal(out[2], starts[2])
+    assert refine_centers(np.zeros((0, 3)), maps, np.repeat(K[None], len(T), 0), T, CenterConfig()).shape == (0, 3)
