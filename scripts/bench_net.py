@@ -1,7 +1,7 @@
 """Benchmark stage 1: training images/s and inference ms per view of the U-Net variants, CPU and CUDA.
 
 The paper's variants (``dimo`` 320x256, ``tless`` 720x540) and ours for 2 CPU cores (``dimo-lean``, the
-shipped DIMO model, and ``tless-lean``), on random images of each variant's size (whole images; T-LESS
+shipped DIMO model, ``dimo-context``, the lean one with dilated context blocks, and ``tless-lean``), on random images of each variant's size (whole images; T-LESS
 training also on the 270x360 crops that we train it on). Inference: batch of one view and the batch of a
 7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up; training: forward, BCE on
 both heads, backward and an Adam step on batches of 8 (T-LESS 4). CUDA with bf16 autocast, as
@@ -30,6 +30,7 @@ from bop_cender.net.unet import UNet, UNetSpec, count_parameters
 VARIANTS = [  # name, spec, (H, W), views per scene, training batch, training crop
     ("dimo (paper)", UNetSpec.dimo(), (256, 320), 7, 8, None),
     ("dimo-lean (shipped)", UNetSpec.dimo_lean(), (256, 320), 7, 8, None),
+    ("dimo-context", UNetSpec.dimo_context(), (256, 320), 7, 8, None),
     ("tless (paper)", UNetSpec.tless(), (540, 720), 5, 4, (270, 360)),
     ("tless-lean", UNetSpec.tless_lean(), (540, 720), 5, 4, (270, 360)),
 ]
