@@ -21,8 +21,9 @@ render cost then judges and polishes the finalists:
    by the full edge model, and the best ``top_k`` of those refined by Nelder-Mead on the edge cost;
 2. the refined poses are judged by the paper's render cost (or, with ``coverage_weight`` > 0, by the
    two-sided cost of :mod:`bop_cender.pose.coverage`: the render cost plus the target edges inside the
-   pose's silhouette that it leaves unexplained), the best is polished by a short Nelder-Mead on the
-   render cost (``polish_maxfev``), and its judged cost is the object's final cost (the BOP score).
+   pose's silhouette that it leaves unexplained), and the judged cost of the best is the object's final
+   cost (the BOP score). Optionally (``polish_maxfev`` > 0, off by default since 2026-12-03) the best is
+   polished first by a short Nelder-Mead on the render cost.
 
 The paper places each object once. We sweep the objects twice more (``passes=3``, measured in
 :class:`PoseConfig`): in the same order, each searched anew (its previous pose one more start) with every
@@ -108,10 +109,14 @@ class PoseConfig:
         start_separation_rad: the ``top_k`` starts of the edge search are taken best first, each at
             least this far in rotation from the ones before (ours: 0.35 rad, the spacing of 2,000 random
             rotations: without it the starts are often one basin three times); 0: the best ``top_k``.
-        polish_maxfev: render-cost evaluations of the final polish (``edges`` only; 0: none; ours: 200,
-            from a simplex of a quarter of ``nm_initial_*``: on a fresh DIMO-layout set, seed 4242, 24
-            scenes, oracle heatmaps, AR_MSSD<5% 0.758 with 60, 0.783 with 200 and with 400 (the polish
-            converges first), for 22 % more pose time).
+        polish_maxfev: render-cost evaluations of a final polish of the judged best (``edges`` only, from
+            a simplex of a quarter of ``nm_initial_*``; ours: 0, none). With one sweep and the paper's
+            judge it helped (seed 4242, oracle: AR_MSSD<5% 0.758 with 60, 0.783 with 200). With three sweeps
+            judged by the scene it costs accuracy where it is finest and half the pose time: the render
+            cost is quantised to the pixel grid, the edge proxy that the search converged on is not
+            (bilinear in the distance maps). Measured (``results/accuracy/README.md``), 200 -> 0:
+            oracle AR_MSSD<5% 0.835 -> 0.870 (DIMO seed 4242), 0.868 -> 0.843 (seed 9002), T-LESS AR
+            0.892 -> 0.891; shipped network 0.397 -> 0.417 (sim), 0.102 -> 0.141 (real); pose time 0.4-0.5x.
         view_weights: ``center`` (per-view center scores, the paper) or ``uniform``.
         coverage_weight: weight of the coverage term in the two-sided cost that judges the refined poses
             (:mod:`bop_cender.pose.coverage`: the target edges inside a pose's silhouette that it leaves
@@ -136,7 +141,8 @@ class PoseConfig:
             the default: every refined finalist of the new search, each start of each candidate id, is
             judged by the scene cost, the symmetric edge distance of all objects rendered together against
             the target, :func:`~bop_cender.pose.coverage.scene_cost`; the lowest wins if it is below the
-            current placement's, and a finalist the search did not polish is polished then), ``scene``
+            current placement's; with ``polish_maxfev`` > 0 a chosen finalist the search did not polish is
+            polished then), ``scene``
             (the same judge for the search's own best only) or ``object`` (the judge's cost of that object
             alone, lower wins). Why the scene: a part moved onto a neighbour's edges costs itself no more,
             but leaves the edges of its true place unexplained and hides the neighbour's; only the scene
@@ -171,7 +177,7 @@ class PoseConfig:
     candidate_segments: int = 600
     rerank: int = 100
     start_separation_rad: float = 0.35
-    polish_maxfev: int = 200
+    polish_maxfev: int = 0
     coverage_weight: float = 0.0
     passes: int = 3
     acceptance: str = "finalists"
