@@ -116,7 +116,7 @@ class PoseConfig:
             cost is quantised to the pixel grid, the edge proxy that the search converged on is not
             (bilinear in the distance maps). Measured (``results/accuracy/README.md``), 200 -> 0:
             oracle AR_MSSD<5% 0.835 -> 0.870 (DIMO seed 4242), 0.868 -> 0.843 (seed 9002), T-LESS AR
-            0.892 -> 0.891; shipped network 0.397 -> 0.417 (sim), 0.102 -> 0.141 (real); pose time 0.4-0.5x.
+            0.892 -> 0.891; shipped network 0.397 -> 0.417 (sim, seed 9002), 0.102 -> 0.141 (real), 0.444 -> 0.419 (sim, seed 4242); pose time 0.4-0.5x.
         view_weights: ``center`` (per-view center scores, the paper) or ``uniform``.
         coverage_weight: weight of the coverage term in the two-sided cost that judges the refined poses
             (:mod:`bop_cender.pose.coverage`: the target edges inside a pose's silhouette that it leaves
