@@ -10,7 +10,8 @@
    score-weighted mean (a chain of phantom midpoints between two objects cannot pull them together, as
    single-linkage clustering would).
 5. Each merged point is refined by maximising its summed, bilinearly sampled heatmap score over the views
-   (Nelder-Mead, every candidate in lockstep: :func:`refine_centers`); its per-view scores are kept (stage 3 reads them as visibility).
+   (Nelder-Mead, every candidate in lockstep: :func:`refine_centers`); its per-view scores are kept (stage 3
+   reads them as visibility).
 6. Points outside every view's frustum, or scoring ``min_view_score`` in fewer than ``min_views`` views,
    are dropped.
 7. Selection by peak ownership (ours, :func:`select_centers`): a view's peak explains one centre.
@@ -34,6 +35,7 @@ import numpy as np
 from skimage.feature import peak_local_max
 
 from bop_cender.geometry.camera import camera_center_in_world
+from bop_cender.pose.simplex import batched_nelder_mead
 
 
 @dataclass(frozen=True)
@@ -242,8 +244,6 @@ def refine_centers(
 
     Why batched: a pile gives a few hundred merged candidates, and one ``scipy.optimize.minimize`` each
     spent 3.6 s of a 7-view, 8-part scene in per-call overhead (``results/bench/run_*``)."""
-    from bop_cender.pose.simplex import batched_nelder_mead
-
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return points

@@ -23,6 +23,7 @@ a longer polish). The mean visible fraction says whether the misses are the buri
 from __future__ import annotations
 
 import argparse
+import sys
 from collections import Counter, defaultdict
 
 import numpy as np
@@ -30,6 +31,7 @@ import numpy as np
 from bop_cender.data.registry import DatasetRequest
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.datasets import open_with_demo
+from bop_cender.errors import BopCenderError
 from bop_cender.eval.pose_errors import hull_vertices, mssd
 from bop_cender.meshes import MeshCache
 from bop_cender.results.bop_csv import read_bop_results
@@ -85,6 +87,8 @@ def main() -> None:
             per_obj[g.obj_id][cls] += 1
             if args.list and cls != CLASSES[0]:
                 print(f"  {key} obj {g.obj_id}: {cls:11s} visible {v:.2f} {detail}")
+    if scenes == 0:
+        sys.exit(f"error: {args.results} has no rows for the first image of any scene of {ds.root}, split {args.split}")
     total = sum(counts.values())
     print(f"{args.results}: {scenes} scenes, {total} target parts ({ds.root}, split {args.split})")
     print(f"{'class':12s} {'parts':>5s} {'share':>6s} {'mean visible':>12s}")
@@ -125,4 +129,7 @@ def _classify(g, model, ests, T_we, centre_e, hull) -> tuple[str, str]:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except BopCenderError as e:
+        sys.exit(f"error: {e}")

@@ -15,6 +15,7 @@ fewer than two, and no triangulation can find it) and the nearest detected centr
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -22,6 +23,7 @@ import numpy as np
 from bop_cender.centers import CenterConfig, detect_centers, find_peaks, project_points
 from bop_cender.data.registry import DatasetRequest
 from bop_cender.datasets import open_with_demo
+from bop_cender.errors import BopCenderError
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNetConfig
 from bop_cender.net.oracle import OraclePredictor
@@ -42,21 +44,14 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=None)
     ap.add_argument("--misses", action="store_true", help="print each miss and false centre of the first setting")
     ap.add_argument("--weights", default=None, help="a network's weights file, or 'shipped' (default: the oracle)")
-    ap.add_argument("--peak-thresholds", default=None, help="comma-separated stage-2 peak thresholds to compare")
     ap.add_argument("--setting", action="append", default=[], metavar="KEY=V[,KEY=V]",
                     help="a CenterConfig to compare (our defaults but these fields), e.g. peak_threshold=0.1,"
-                    "min_view_score=0.1; repeatable")  # fmt: skip
+                    "min_view_score=0.1; repeatable (default: ours and the paper's)")  # fmt: skip
     args = ap.parse_args()
-    settings = SETTINGS
-    if args.peak_thresholds:
-        thresholds = [float(t) for t in args.peak_thresholds.split(",")]
-        settings = {f"peak threshold {t:g}": replace(CenterConfig(), peak_threshold=t) for t in thresholds}
-    if args.setting:
-        settings = {}
-        for text in args.setting:
-            fields = dict(item.split("=", 1) for item in text.split(","))
-            defaults = CenterConfig()
-            settings[text] = replace(defaults, **{k: type(getattr(defaults, k))(v) for k, v in fields.items()})
+    try:
+        settings = {text: _setting(text) for text in args.setting} or SETTINGS
+    except ValueError as e:
+        ap.error(f"--setting: {e}")
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshCache(ds.models)
@@ -109,6 +104,18 @@ def main() -> None:
         )
 
 
+def _setting(text: str) -> CenterConfig:
+    """``KEY=V[,KEY=V]`` as our :class:`CenterConfig` with those fields changed (ValueError names what is wrong)."""
+    defaults = CenterConfig()
+    changes = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        if not sep or not hasattr(defaults, key):
+            raise ValueError(f"{item!r} is not FIELD=VALUE of a CenterConfig field")
+        changes[key] = type(getattr(defaults, key))(value)
+    return replace(defaults, **changes)
+
+
 def _print_misses(key, maps, Ks, T_cw, gt, nearest, dist, centers, setting, per_image) -> None:
     xy, front = project_points(gt, Ks, T_cw)  # (V, M, 2)
     peaks = [find_peaks(m, setting.peak_threshold, setting.peak_min_distance)[0] for m in maps]
@@ -124,4 +131,7 @@ def _print_misses(key, maps, Ks, T_cw, gt, nearest, dist, centers, setting, per_
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except BopCenderError as e:
+        sys.exit(f"error: {e}")

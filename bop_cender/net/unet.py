@@ -92,7 +92,7 @@ class UNetSpec:
     @staticmethod
     def dimo_context(width: float = 1.0) -> UNetSpec:
         """:meth:`dimo_lean` with residual context convolutions of dilations 2, 4, 8 after the bottleneck (1/8
-        resolution): a receptive field of about 330 px instead of 107, for 3 % more MACs."""
+        resolution): a receptive field of about 330 px instead of 107, for 4 % more MACs (1.07 against 1.03 GMAC per 320x256 view)."""
         return UNetSpec((16, 24, 32), (2, 2, 2), 16, 1, width, "dimo-context", (2, 4, 8))
 
     @staticmethod

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 import torch
@@ -317,6 +317,10 @@ def optimise_scene(
         if progress is not None:
             progress(n + 1, total)
     scene_now: float | None = None  # the scene cost of ``placed`` (acceptance scene or finalists), once computed
+
+    def scene(trial: list[PlacedObject]) -> float:
+        return _scene_cost(trial, fine, meshes, edge_threshold)
+
     for sweep in range(1, config.passes):
         for idx, i in enumerate(order):
             others = placed[:idx] + placed[idx + 1 :]
@@ -327,15 +331,12 @@ def optimise_scene(
                 moved = fit(i, others, occ, sweep, placed[idx], pool)
                 if config.acceptance != "object":
                     if scene_now is None:
-                        scene_now = _scene_cost(placed, fine, meshes, edge_threshold)
-
-                    def polish(obj: PlacedObject, i: int = i, occ: torch.Tensor | None = occ) -> PlacedObject:
-                        return polish_placed(obj, targets[i], fine, occ, meshes, model_centers, config, edge_threshold)
-
-                    moved, scene_now = _choose_by_scene(
-                        placed, idx, moved, pool, scene_now, lambda trial: _scene_cost(trial, fine, meshes, edge_threshold),
-                        polish if config.polish_maxfev > 0 else None,
-                    )  # fmt: skip
+                        scene_now = scene(placed)
+                    polish = None
+                    if config.polish_maxfev > 0:
+                        polish = partial(polish_placed, target=targets[i], maps=fine, occluder_depth=occ, meshes=meshes,
+                                         model_centers=model_centers, config=config, edge_threshold=edge_threshold)  # fmt: skip
+                    moved, scene_now = _choose_by_scene(placed, idx, moved, pool, scene_now, scene, polish)
                 placed[idx] = moved
                 contexts[idx] = occ  # searched under these occluders, kept or not: a third sweep skips alike
             if progress is not None:
@@ -352,18 +353,19 @@ def _choose_by_scene(
     scene: Callable[[list[PlacedObject]], float],
     polish: Callable[[PlacedObject], PlacedObject] | None,
 ) -> tuple[PlacedObject, float]:
-    """A further sweep's choice for object ``idx``: of its current pose, the new search's best ``moved`` and
-    (``acceptance="finalists"``) the search's other finalists ``pool``, the one whose placement has the
-    lowest scene cost (``scene``); ties keep the current pose. A finalist the search did not polish is
-    polished when chosen (``polish``), the polished pose kept where the scene does not lose by it.
+    """A further sweep's choice for object ``idx``: of its current pose and the new search's poses (its best
+    ``moved``, or with ``acceptance="finalists"`` all its refined finalists ``pool``, the best among them),
+    the one whose placement has the lowest scene cost (``scene``); ties keep the current pose. A finalist
+    other than the search's best was not polished by the search: it is polished when chosen (``polish``),
+    the polished pose kept where the scene does not lose by it.
 
     Returns the chosen object (its evaluations: all the new search and polish spent) and the scene cost."""
     best, best_cost, spent = placed[idx], scene_now, moved.evaluations
-    for option in [moved] if pool is None else [moved, *pool]:
+    for option in pool or [moved]:
         cost = scene(_with(placed, idx, option))
         if cost < best_cost:
             best, best_cost = option, cost
-    if pool and polish is not None and best is not moved and best is not placed[idx]:
+    if polish is not None and best is not placed[idx] and not np.array_equal(best.T_world_model, moved.T_world_model):
         polished = polish(best)
         spent += polished.evaluations - best.evaluations
         cost = scene(_with(placed, idx, polished))
@@ -410,7 +412,6 @@ def optimise_object(
     earlier sweep, refined as one more start (its evaluations are added to the result's). ``finalists``: where
     given, every refined pose of every candidate id is appended to it (final cost each, 0 evaluations), so
     that a caller can judge them otherwise (``acceptance="finalists"``)."""
-    weights = torch.as_tensor(view_weights(target.view_scores, config.view_weights), dtype=torch.float32)
     n = config.n_candidates
     R = Rotation.random(n, random_state=rng).as_matrix()
     centers = target.center[None] + rng.normal(0.0, config.translation_sigma_mm, size=(n, 3))
@@ -421,14 +422,12 @@ def optimise_object(
         mesh, center_model = meshes(obj_id), model_centers(obj_id)
         T = _poses(R, centers, center_model)
         extra = incumbent.T_world_model[None] if incumbent is not None and incumbent.obj_id == obj_id else None
-        problem = Refinement(
-            target.center, center_model, mesh, maps.cameras, maps.dist, weights, occ, config, maps.edges, edge_threshold
-        )
+        problem = _refinement(target, obj_id, maps, occ, meshes, model_centers, config, edge_threshold)
         if config.search_cost == "edges":
             model = edges(obj_id) if edges is not None else edge_model_of(mesh, config.edge_segment_mm)
             T_ref, c_ref, fev = _search_on_edges(T, model, problem, extra)
         else:
-            costs = _cost(mesh, T, coarse[0].cameras, coarse[0].dist, weights, coarse[1], cost_threads)
+            costs = _cost(mesh, T, coarse[0].cameras, coarse[0].dist, problem.weights, coarse[1], cost_threads)
             starts = T[np.argsort(costs, kind="stable")[: max(1, config.top_k)]]
             starts = starts if extra is None else np.concatenate([starts, extra])
             refine = _refine_lockstep if config.refiner == "lockstep" else _refine_scipy
@@ -450,9 +449,9 @@ def _search_on_edges(
     T: np.ndarray, model: EdgeModel, problem: Refinement, extra: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Candidates ``T (n, 4, 4)`` ranked and refined on the edge cost, the finalists judged (two-sided cost,
-    or the render cost with ``coverage_weight`` 0) and the best polished on the render cost. ``extra (e, 4,
-    4)``: poses refined as starts beside the best candidates (an earlier sweep's pose). Returns the
-    finalists' poses ``(k, 4, 4)``, their final costs ``(k,)`` and the evaluations."""
+    or the render cost with ``coverage_weight`` 0) and, with ``polish_maxfev`` > 0, the best polished on the
+    render cost. ``extra (e, 4, 4)``: poses refined as starts beside the best candidates (an earlier sweep's
+    pose). Returns the finalists' poses ``(k, 4, 4)``, their final costs ``(k,)`` and the evaluations."""
     config = problem.config
     sparse = model.sparse(config.candidate_segments)
     coarse_costs = problem.edge_cost(T, sparse)
@@ -469,12 +468,11 @@ def _search_on_edges(
     evaluations += len(T_ref)
     if config.polish_maxfev > 0:
         k = int(np.argmin(final))
-        T_pol, c_pol, fev = _polish(T_ref[k : k + 1], problem)
+        T_pol, c_pol, fev = _polish_one(T_ref[k], float(render[k]), problem)
         evaluations += fev
-        if c_pol[0] < render[k]:  # the polish lowered the paper's cost: keep it, judged again
+        if c_pol is not None:
             T_ref, final = T_ref.copy(), final.copy()
-            T_ref[k] = T_pol[0]
-            final[k] = c_pol[0] if judged is None else problem.judge(T_pol)[0]
+            T_ref[k], final[k] = T_pol, c_pol
     return T_ref, final, evaluations
 
 
@@ -491,6 +489,17 @@ def _polish(T: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray,
     return _refine_lockstep(T, replace(problem, config=polish))
 
 
+def _polish_one(T: np.ndarray, render_cost: float, problem: Refinement) -> tuple[np.ndarray, float | None, int]:
+    """Pose ``T (4, 4)`` of render cost ``render_cost`` polished (:func:`_polish`): the polished pose and its final
+    cost (the render cost, or judged again with ``coverage_weight`` > 0) where the polish lowered the render
+    cost, else ``T`` and None; and the evaluations spent."""
+    T_pol, c_pol, fev = _polish(T[None], problem)
+    if not c_pol[0] < render_cost:
+        return T, None, fev
+    final = float(c_pol[0]) if problem.config.coverage_weight <= 0 else float(problem.judge(T_pol)[0])
+    return T_pol[0], final, fev
+
+
 def polish_placed(
     obj: PlacedObject,
     target: PoseTarget,
@@ -501,22 +510,33 @@ def polish_placed(
     config: PoseConfig,
     edge_threshold: float | None = None,
 ) -> PlacedObject:
-    """``obj`` polished (:func:`_polish`) against the full-resolution ``maps`` under ``occluder_depth``, where
-    that lowers its render cost (its final cost judged again with ``coverage_weight`` > 0); else ``obj``.
-    For a finalist that was not its search's best, so not polished there (``acceptance="finalists"``)."""
+    """``obj`` polished (:func:`_polish_one`) against the full-resolution ``maps`` under ``occluder_depth``
+    where that lowers its render cost, else ``obj`` (its evaluations counted either way). For a finalist
+    that was not its search's best, so not polished there (``acceptance="finalists"``)."""
+    problem = _refinement(target, obj.obj_id, maps, occluder_depth, meshes, model_centers, config, edge_threshold)
+    T, cost, fev = _polish_one(obj.T_world_model, float(problem.cost(obj.T_world_model[None])[0]), problem)
+    evaluations = obj.evaluations + fev + 1
+    if cost is None:
+        return replace(obj, evaluations=evaluations)
+    return PlacedObject(obj.obj_id, T, cost, evaluations)
+
+
+def _refinement(
+    target: PoseTarget,
+    obj_id: int,
+    maps: CostMaps,
+    occluder_depth: torch.Tensor | None,
+    meshes: Callable[[int], RenderMesh],
+    model_centers: Callable[[int], np.ndarray],
+    config: PoseConfig,
+    edge_threshold: float | None,
+) -> Refinement:
+    """What object ``obj_id`` at ``target`` is refined against: ``maps`` (full resolution) under the occluders."""
     weights = torch.as_tensor(view_weights(target.view_scores, config.view_weights), dtype=torch.float32)
-    mesh, center_model = meshes(obj.obj_id), model_centers(obj.obj_id)
-    problem = Refinement(
-        target.center, center_model, mesh, maps.cameras, maps.dist, weights, occluder_depth, config, maps.edges,
-        edge_threshold,
+    return Refinement(
+        target.center, model_centers(obj_id), meshes(obj_id), maps.cameras, maps.dist, weights, occluder_depth,
+        config, maps.edges, edge_threshold,
     )  # fmt: skip
-    start = obj.T_world_model[None]
-    before = problem.cost(start)[0]
-    T_pol, c_pol, fev = _polish(start, problem)
-    if not c_pol[0] < before:
-        return replace(obj, evaluations=obj.evaluations + fev + 1)
-    cost = float(c_pol[0]) if config.coverage_weight <= 0 else float(problem.judge(T_pol)[0])
-    return PlacedObject(obj.obj_id, T_pol[0], cost, obj.evaluations + fev + 1)
 
 
 def _diverse(T: np.ndarray, k: int, separation_rad: float) -> np.ndarray:
