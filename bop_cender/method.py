@@ -127,13 +127,17 @@ class CenDerNet:
         Ks = np.stack([v.K for v in scene.views])
         T_cw = np.stack([v.T_cam_world for v in scene.views])
         counts = self._known_counts(scene, heatmaps) if self.config.known_counts else None
-        centers = detect_centers(
-            heatmaps.center.detach().cpu().numpy(), Ks, T_cw, self.config.centers, heatmaps.channel_obj_ids, counts
-        )
+        center_maps = heatmaps.center.detach().cpu().numpy()  # (V, C, H, W)
+        centers = detect_centers(center_maps, Ks, T_cw, self.config.centers, heatmaps.channel_obj_ids, counts)
         t2 = time.perf_counter()
         candidate_ids = self._candidate_ids(scene)
         targets = [
-            PoseTarget(c.position, c.view_scores, (c.obj_id,) if c.obj_id is not None else candidate_ids)
+            PoseTarget(
+                c.position,
+                c.view_scores,
+                (c.obj_id,) if c.obj_id is not None else candidate_ids,
+                center_maps[:, c.channel],
+            )
             for c in centers
         ]
         H, W = heatmaps.size

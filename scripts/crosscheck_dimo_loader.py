@@ -11,6 +11,7 @@ Exits 0 with a message when the loader file is not given or absent: it is never 
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import sys
 from pathlib import Path
@@ -19,13 +20,17 @@ import numpy as np
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 2 or not Path(argv[0]).is_file():
-        print("DIMO's dimo_loader.py not given or not found: cross-check skipped (usage in the docstring).")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("dimo_loader", nargs="?", help="DIMO's scripts/dimo_loader.py (outside this repository)")
+    ap.add_argument("dataset_root", nargs="?", help="a DIMO-layout dataset root")
+    args = ap.parse_args(argv)
+    if args.dataset_root is None or not Path(args.dimo_loader).is_file():
+        print("DIMO's dimo_loader.py not given or not found: cross-check skipped (see --help).")
         return 0
-    spec = importlib.util.spec_from_file_location("dimo_loader", argv[0])
+    spec = importlib.util.spec_from_file_location("dimo_loader", args.dimo_loader)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    root = Path(argv[1])
+    root = Path(args.dataset_root)
     from bop_cender.data.dimo import DimoSelection, open_dimo
 
     cameras = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith(("real_", "sim_")))

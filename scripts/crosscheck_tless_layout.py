@@ -12,6 +12,7 @@ Exits 0 with a message when the toolkit is not importable: it is never a depende
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -19,19 +20,20 @@ import numpy as np
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 2:
-        print(__doc__)
-        return 0
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("toolkit_dir", help="folder holding bop_toolkit_lib (outside this repository)")
+    ap.add_argument("dataset_root", help="a T-LESS-layout dataset root")
+    args = ap.parse_args(argv)
     from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
 
     try:
-        import_toolkit(argv[0])
+        import_toolkit(args.toolkit_dir)
     except ToolkitUnavailable as e:
         print(f"cross-check not run: {e}", file=sys.stderr)
         return 2
     from bop_toolkit_lib import dataset_params, inout
 
-    root = Path(argv[1])
+    root = Path(args.dataset_root)
     from bop_cender.data.bop_io import load_depth
     from bop_cender.data.tless import open_tless
 

@@ -46,7 +46,7 @@ def main() -> None:
     ap.add_argument("results")
     ap.add_argument("--data-root", default=None)
     ap.add_argument("--split", default="sim")
-    ap.add_argument("--list", action="store_true", help="print every part outside the 5 % class")
+    ap.add_argument("--list", action="store_true", help="print every part outside the 5 %% class")
     args = ap.parse_args()
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))
     rows = read_bop_results(args.results)

@@ -46,7 +46,7 @@ class HeatmapMetricsConfig:
 
     Attributes:
         peak_threshold: minimum value of a predicted center peak; default stage 2's
-            (``CenterConfig.peak_threshold``, 0.3), so the figures count the peaks stage 2 triangulates.
+            (``CenterConfig.peak_threshold``, 0.15), so the figures count the peaks stage 2 triangulates.
         peak_min_distance: ``peak_local_max``'s ``min_distance`` (pixels) for predicted and GT peaks;
             default stage 2's (``CenterConfig.peak_min_distance``, 2).
         pixel_tolerance: a predicted peak at most this many pixels (Euclidean, between pixel centres)

@@ -95,7 +95,7 @@ def two_sided_costs(
     forward = view_costs(curv, dist_maps.to(device), torch.zeros((n * V, 2), dtype=torch.int64, device=device))
     # the target edges inside the silhouette eroded by one pixel (a 3x3 min-pool), to the pose's own edges
     inside = -F.max_pool2d(-visible[:, None].float(), 3, stride=1, padding=1)[:, 0] > 0.5
-    coverage = _mean_distance_to_own_edges(curv, target_edges.to(device).repeat(n, 1, 1) & inside, edge_threshold)
+    coverage = mean_distance_to_own_edges(curv, target_edges.to(device).repeat(n, 1, 1) & inside, edge_threshold)
     w = view_weights.to(device, torch.float32)
     fwd = (forward.view(n, V) * w).sum(1).double().cpu().numpy()
     cov = (coverage.view(n, V) * w).sum(1).double().cpu().numpy()
@@ -135,11 +135,11 @@ def scene_cost(
     render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
     curv = curvature(render.normals)  # (V, H, W)
     forward = view_costs(curv, dist_maps.to(device), torch.zeros((V, 2), dtype=torch.int64, device=device))
-    backward = _mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)
+    backward = mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)
     return float((forward + backward).mean())
 
 
-def _mean_distance_to_own_edges(curv: torch.Tensor, pixels: torch.Tensor, edge_threshold: float) -> torch.Tensor:
+def mean_distance_to_own_edges(curv: torch.Tensor, pixels: torch.Tensor, edge_threshold: float) -> torch.Tensor:
     """``(N,)``: the mean distance (pixels) from the ``pixels (N, H, W)`` (bool) of each canvas to the canvas's own
     edges (``curv (N, H, W)`` above ``edge_threshold``); 0 where no pixel is given."""
     own_dist = torch.as_tensor(distance_maps((curv > edge_threshold).cpu().numpy()), device=curv.device)

@@ -71,7 +71,7 @@ def curvature_scene(seed: int = 0, views: int = 4) -> tuple[torch.Tensor, torch.
 
 def test_defaults_are_those_of_stages_2_and_3():
     cfg = HeatmapMetricsConfig()
-    assert cfg.peak_threshold == CenterConfig().peak_threshold == 0.3
+    assert cfg.peak_threshold == CenterConfig().peak_threshold == 0.15
     assert cfg.peak_min_distance == CenterConfig().peak_min_distance == 2
     assert cfg.curvature_threshold == PoseConfig().t_b == 0.75
     assert (cfg.pixel_tolerance, cfg.gt_peak_threshold) == (5.0, 0.5)
@@ -116,8 +116,8 @@ def test_a_blob_in_the_wrong_channel_is_a_false_positive_and_a_false_negative():
 
 def test_predicted_peaks_use_stage_2_threshold():
     gt = maps([(20.5, 20.5)])
-    assert counts(center_figures(maps([(20.5, 20.5)], peak=0.25), gt)) == (0, 0, 1)
-    assert counts(center_figures(maps([(20.5, 20.5)], peak=0.35), gt)) == (1, 0, 0)
+    assert counts(center_figures(maps([(20.5, 20.5)], peak=0.1), gt)) == (0, 0, 1)
+    assert counts(center_figures(maps([(20.5, 20.5)], peak=0.2), gt)) == (1, 0, 0)
 
 
 def test_matching_is_one_to_one_and_finds_the_most_pairs():

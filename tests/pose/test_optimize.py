@@ -132,7 +132,7 @@ def test_scene_acceptance_keeps_a_move_only_where_the_whole_placement_gains(mini
     monkeypatch.setattr(optimize, "optimise_object", known_answer)
     monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
-    config = dict(t_b=BOX_T_B, passes=2)
+    config = dict(t_b=BOX_T_B, passes=2, scene_polish_maxfev=0)  # the sweeps alone
     proposals.update({i: perturb(T, 25.0, 10.0) for i, T in parts.items()})  # worse for the scene
     refused = optimise_scene(*args, PoseConfig(**config, acceptance="scene"), curvature_scale=1.0)
     for p in refused:
@@ -168,7 +168,7 @@ def test_finalists_acceptance_judges_every_refined_pose_by_the_scene(mini, monke
     monkeypatch.setattr(optimize, "optimise_object", search)
     monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
-    config = dict(t_b=BOX_T_B, passes=2, polish_maxfev=60)
+    config = dict(t_b=BOX_T_B, passes=2, polish_maxfev=60, scene_polish_maxfev=0)  # the sweeps alone
     kept = optimise_scene(*args, PoseConfig(**config, acceptance="scene"), curvature_scale=1.0)
     assert all(np.array_equal(p.T_world_model, first[p.obj_id]) for p in kept)
     chosen = optimise_scene(*args, PoseConfig(**config, acceptance="finalists"), curvature_scale=1.0)

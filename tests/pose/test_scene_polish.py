@@ -1,0 +1,189 @@
+"""The final scene polish: the windowed scene cost ranks poses as the full scene cost does, and the polish
+moves a slightly wrong part onto its true pose (only where the whole scene gains)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+from method_data import BOX_T_B, perturb  # noqa: E402
+
+from bop_cender.pose.coverage import scene_cost  # noqa: E402
+from bop_cender.pose.optimize import (  # noqa: E402
+    CostMaps,
+    PlacedObject,
+    PoseConfig,
+    PoseTarget,
+    optimise_scene,
+    polish_on_scene,
+)
+from bop_cender.pose.scene_polish import scene_window  # noqa: E402
+
+EDGE_THRESHOLD = BOX_T_B  # the fixture's curvature scale is 1
+
+
+def _parts(ds, scene):
+    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
+
+
+def _full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) -> float:
+    ids = sorted(poses)
+    T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
+    Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    return scene_cost(
+        [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, EDGE_THRESHOLD
+    )
+
+
+def test_window_cost_ranks_poses_as_the_full_scene_cost(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    moving, other = sorted(parts)
+    trials = np.stack([parts[moving]] + [perturb(parts[moving], a, s) for a, s in ((1, 0.5), (3, 1), (6, 2), (10, 4))])
+    window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks, cams.T_cam_world,
+                          edges, dist, EDGE_THRESHOLD, margin_px=12)  # fmt: skip
+    h, w = window.size
+    assert h <= cams.height and w <= cams.width and window.other_depth.shape == (len(cams.Ks), h, w)
+    windowed = window.costs(trials)
+    full = np.array([_full_scene_cost(meshes, {**parts, moving: T}, cams, edges, dist) for T in trials])
+    assert np.all(np.diff(windowed) > 0), windowed  # the truth first, then growing with the perturbation
+    assert np.all(np.diff(full) > 0), full
+    assert np.corrcoef(windowed, full)[0, 1] > 0.95
+
+
+def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    fine = CostMaps(cams, dist, edges)
+    ids = sorted(parts)
+    start = {ids[0]: parts[ids[0]], ids[1]: perturb(parts[ids[1]], 3.0, 1.5)}
+    placed = [PlacedObject(i, start[i], 1.0, 7) for i in ids]
+    targets = [
+        PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in start.items()
+    ]
+    config = PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=150)
+    polished = polish_on_scene(placed, targets, fine, meshes, lambda i: ds.models[i].center, config, EDGE_THRESHOLD)
+    moved = polished[1]
+    T = parts[ids[1]]
+    R_err = np.degrees(Rotation.from_matrix(moved.T_world_model[:3, :3] @ T[:3, :3].T).magnitude())
+    assert R_err < 1.0 and np.linalg.norm(moved.T_world_model[:3, 3] - T[:3, 3]) < 0.5, R_err
+    assert moved.evaluations > 7 and moved.cost != 1.0  # its evaluations counted, its cost that of the new pose
+    before = _full_scene_cost(meshes, start, cams, edges, dist)
+    after = _full_scene_cost(meshes, {p.obj_id: p.T_world_model for p in polished}, cams, edges, dist)
+    assert after < before
+    # the part already at its true pose stays there (a polish never makes the scene worse)
+    R0 = np.degrees(Rotation.from_matrix(polished[0].T_world_model[:3, :3] @ parts[ids[0]][:3, :3].T).magnitude())
+    assert R0 < 0.5 and np.linalg.norm(polished[0].T_world_model[:3, 3] - parts[ids[0]][:3, 3]) < 0.3
+
+
+def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
+    """A window cost that prefers a wrong pose: the full scene cost refuses it and the old pose stays."""
+    from bop_cender.pose import scene_polish
+
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    ids = sorted(parts)
+    wrong = {i: perturb(T, 20.0, 8.0) for i, T in parts.items()}
+    monkeypatch.setattr(scene_polish.SceneWindow, "costs",
+                        lambda self, T: np.array([np.linalg.norm(t[:3, 3] - wrong[ids[0]][:3, 3]) for t in T]))  # fmt: skip
+    placed = [PlacedObject(i, parts[i], 0.5, 3) for i in ids]
+    targets = [
+        PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in parts.items()
+    ]
+    out = polish_on_scene(placed, targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center,
+                          PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60), EDGE_THRESHOLD)  # fmt: skip
+    for p, q in zip(out, placed, strict=True):
+        assert np.array_equal(p.T_world_model, q.T_world_model) and p.cost == 0.5 and p.evaluations > 3
+
+
+def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch):
+    from bop_cender.pose import optimize
+
+    ds, scene, meshes, maps, cams, dist = mini
+    parts = _parts(ds, scene)
+    calls = []
+    monkeypatch.setattr(optimize, "optimise_object",
+                        lambda target, *a, **k: PlacedObject(min(parts, key=lambda i: np.linalg.norm(parts[i][:3, 3] - target.center)),
+                                                             parts[3], 0.0, 1))  # fmt: skip
+    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, *a, **k: calls.append(len(placed)) or placed)
+    targets = [PoseTarget(T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in parts.items()]
+    args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
+    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=0), curvature_scale=1.0)
+    assert calls == []
+    assert PoseConfig().scene_polish_maxfev == 100 and PoseConfig().center_weight == 1.0  # ours; the paper has neither
+    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10), curvature_scale=1.0)
+    assert calls == [2]
+
+
+@pytest.mark.parametrize("field", ["scene_polish_maxfev", "scene_polish_margin_px"])
+def test_a_negative_scene_polish_setting_is_a_config_error(field):
+    from bop_cender.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=field):
+        PoseConfig(**{field: -1})
+
+
+def _center_setup(mini, obj_id=3):
+    from bop_cender.geometry.sampling import sample_scores
+
+    ds, scene, meshes, maps, cams, dist = mini
+    T = _parts(ds, scene)[obj_id]
+    center_map = maps.center[:, 0].numpy()  # (V, H, W): the fixture's one shared centre channel
+    c = T[:3, :3] @ ds.models[obj_id].center + T[:3, 3]
+    scores = sample_scores(c[None], center_map, cams.Ks, cams.T_cam_world)[0]
+    return ds, cams, T, center_map, scores
+
+
+def test_center_term_is_zero_at_the_detected_centre_and_grows_away_from_it(mini):
+    from bop_cender.pose.optimize import center_term
+
+    ds, cams, T, center_map, scores = _center_setup(mini)
+    shifted = []
+    for d in (0.0, 2.0, 5.0, 10.0, 40.0):
+        S = T.copy()
+        S[:3, 3] += d * np.array([0.6, -0.8, 0.0])
+        shifted.append(S)
+    w = np.full(len(cams.Ks), 1.0 / len(cams.Ks))
+    terms = center_term(np.stack(shifted), ds.models[3].center, scores, center_map, w, cams, 2.0)
+    assert terms[0] == pytest.approx(0.0, abs=1e-9)
+    assert np.all(np.diff(terms) > 0), terms
+    assert terms[-1] <= 2.0 * scores.max() + 1e-9  # at most the weight times the score it can lose
+    # a rotation about the centre keeps the centre: no term
+    R = T.copy()
+    R[:3, :3] = Rotation.from_euler("z", 40, degrees=True).as_matrix() @ T[:3, :3]
+    R[:3, 3] = T[:3, :3] @ ds.models[3].center + T[:3, 3] - R[:3, :3] @ ds.models[3].center
+    assert center_term(R[None], ds.models[3].center, scores, center_map, w, cams, 2.0)[0] == pytest.approx(0, abs=1e-9)
+    assert np.all(center_term(np.stack(shifted), ds.models[3].center, scores, center_map, w, cams, 0.0) == 0)
+    assert np.all(center_term(np.stack(shifted), ds.models[3].center, scores, None, w, cams, 2.0) == 0)
+
+
+def test_the_judged_scene_cost_adds_each_objects_centre_term(mini):
+    from bop_cender.pose.optimize import _judged_scene_cost, _scene_cost
+
+    ds, scene, meshes, maps, cams, dist = mini
+    _, _, T, center_map, scores = _center_setup(mini)
+    edges = maps.curvature > BOX_T_B
+    fine = CostMaps(cams, dist, edges)
+    parts = _parts(ds, scene)
+    moved = T.copy()
+    moved[:3, 3] += np.array([6.0, -8.0, 0.0])
+    placed = [PlacedObject(3, moved, 0.0, 0), PlacedObject(4, parts[4], 0.0, 0)]
+    c4 = parts[4][:3, :3] @ ds.models[4].center + parts[4][:3, 3]
+    targets = [
+        PoseTarget(T[:3, :3] @ ds.models[3].center + T[:3, 3], scores, (3,), center_map),
+        PoseTarget(c4, np.ones(len(cams.Ks)), (4,), None),  # no map: no term
+    ]
+    args = (placed, targets, fine, meshes, lambda i: ds.models[i].center)
+    plain = _scene_cost(placed, fine, meshes, EDGE_THRESHOLD)
+    assert _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=0.0), EDGE_THRESHOLD) == plain
+    with_term = _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=1.0), EDGE_THRESHOLD)
+    assert with_term > plain + 0.05
