@@ -175,7 +175,10 @@ class PoseConfig:
             discs 5-10 mm off their centres). A fixed tighter bound (8 mm) helped the oracle (AR_MSSD<5%
             0.890 -> 0.905, seed 9002) but would hold a network's centres, 10-20 mm off, too tight; the
             heatmap scales the term by how sure the centre is. Measured with the scene polish (oracle):
-            0 -> 1 -> 3: 0.890 -> 0.940 -> 0.929 (seed 9002), 0.926 -> 0.967 with 1 (seed 4242).
+            0 -> 1 -> 3: 0.890 -> 0.940 -> 0.929 (seed 9002), 0.926 -> 0.967 with 1 (seed 4242). The term is
+            part of each object's final cost, so of its BOP score. With ``search_cost="render"`` (the
+            paper's search, an ablation) the candidates and their refinement do not see it; the sweeps'
+            judge and the scene polish do.
         seed: seed of the candidates (combined with the object's index in the scene).
     """
 
