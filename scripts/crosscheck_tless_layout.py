@@ -7,7 +7,7 @@ TOOLKIT_DIR holds ``bop_toolkit_lib`` (thodan/bop_toolkit, kept OUTSIDE this rep
 ``dataset_params.get_split_params``/``get_model_params`` for ``tless`` (so folder and file names
 must be exactly what it expects), ``inout.load_scene_camera``, ``load_scene_gt``, ``load_json``,
 ``load_depth`` and ``load_ply`` on every scene, image and model, and compares with our loader.
-Exits 0 with a message when the toolkit is not importable: it is never a dependency.
+Exits 2 with a message when the toolkit is not importable: it is never a dependency.
 """
 
 from __future__ import annotations

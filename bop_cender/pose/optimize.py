@@ -33,6 +33,12 @@ together, explains the target best, if better than before (``acceptance="finalis
 and its cost then charged it for their edges and for its own hidden contours; a wrong early pose also hid
 the right one of a later object. ``--set poses.passes=1`` is the paper's single sweep.
 
+Two more steps are ours (measured in :class:`PoseConfig`): a **centre term** in every cost above and in the
+sweeps' judge (``center_weight``: how far the center heatmap at the pose's centre falls below its value at
+the detected 3D centre; part of the final cost), and after the sweeps a **scene polish**
+(``scene_polish_maxfev``, :mod:`bop_cender.pose.scene_polish`): each object refined on the scene cost in
+windows around it, the others fixed, kept where the whole scene gains.
+
 When a centre's object id is unknown (one center channel shared by several object types), both steps
 run for every candidate id and the lowest final cost decides (the best random candidate alone picked
 the wrong part in tests: a coarse candidate of a similar part can beat a slightly misaligned one).
@@ -219,7 +225,7 @@ class PoseConfig:
                     f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
                 )
         for name in ("scene_polish_maxfev", "scene_polish_margin_px", "center_weight"):
-            if getattr(self, name) < 0:
+            if not getattr(self, name) >= 0:  # NaN too
                 raise ConfigError(f"poses.{name}: expected 0 or more, got {getattr(self, name)}", field="--set")
         if self.passes < 1:
             raise ConfigError(f"poses.passes: expected at least 1, got {self.passes}", field="--set")
@@ -395,10 +401,13 @@ def polish_on_scene(
     """Each of ``placed`` (in order; ``targets[i]`` is the target of ``placed[i]``) refined on the scene cost in
     windows around it, the others fixed (:mod:`bop_cender.pose.scene_polish`): Nelder-Mead from a simplex a
     quarter of ``nm_initial_*``, ``scene_polish_maxfev`` evaluations, within the search's bounds about the
-    object's 3D centre. The polished pose replaces the old where the full scene cost falls; its final cost
-    is then its render cost under all the others (as a sweep's). ``scene_now``: the scene cost of ``placed``
-    where known. Returns the new placement."""
+    object's 3D centre. The polished pose replaces the old where the full scene cost (plus the centre terms,
+    :func:`_judged_scene_cost`) falls; its final cost is then its judged cost under all the others (render or
+    two-sided, plus its centre term, as a sweep's). ``scene_now``: the judged scene cost of ``placed`` where
+    known. Returns the new placement."""
     placed = list(placed)
+    if not placed:
+        return placed
     polish = replace(
         config,
         nm_initial_rotation_rad=config.nm_initial_rotation_rad / 4,
@@ -578,13 +587,14 @@ def _polish(T: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray,
 
 def _polish_one(T: np.ndarray, render_cost: float, problem: Refinement) -> tuple[np.ndarray, float | None, int]:
     """Pose ``T (4, 4)`` of render cost ``render_cost`` polished (:func:`_polish`): the polished pose and its final
-    cost (the render cost, or judged again with ``coverage_weight`` > 0) where the polish lowered the render
-    cost, else ``T`` and None; and the evaluations spent."""
+    cost (the render cost, or judged again with ``coverage_weight`` > 0, plus the centre term) where the
+    polish lowered the render cost plus the centre term, else ``T`` and None; and the evaluations spent."""
     T_pol, c_pol, fev = _polish(T[None], problem)
-    if not c_pol[0] < render_cost:
+    center_pol = float(problem.center_term(T_pol)[0])
+    if not c_pol[0] + center_pol < render_cost + float(problem.center_term(T[None])[0]):
         return T, None, fev
     final = float(c_pol[0]) if problem.config.coverage_weight <= 0 else float(problem.judge(T_pol)[0])
-    return T_pol[0], final, fev
+    return T_pol[0], final + center_pol, fev
 
 
 def polish_placed(

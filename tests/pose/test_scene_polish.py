@@ -124,12 +124,15 @@ def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch)
     assert calls == [2]
 
 
-@pytest.mark.parametrize("field", ["scene_polish_maxfev", "scene_polish_margin_px"])
-def test_a_negative_scene_polish_setting_is_a_config_error(field):
+@pytest.mark.parametrize("field", ["scene_polish_maxfev", "scene_polish_margin_px", "center_weight"])
+@pytest.mark.parametrize("value", [-1, float("nan")])
+def test_a_negative_or_nan_stage3_setting_is_a_config_error(field, value):
     from bop_cender.errors import ConfigError
 
+    if isinstance(PoseConfig().__getattribute__(field), int) and value != value:
+        pytest.skip("an int field cannot be NaN")
     with pytest.raises(ConfigError, match=field):
-        PoseConfig(**{field: -1})
+        PoseConfig(**{field: value})
 
 
 def _center_setup(mini, obj_id=3):
@@ -187,3 +190,32 @@ def test_the_judged_scene_cost_adds_each_objects_centre_term(mini):
     assert _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=0.0), EDGE_THRESHOLD) == plain
     with_term = _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=1.0), EDGE_THRESHOLD)
     assert with_term > plain + 0.05
+
+
+def test_the_judge_and_the_polish_pair_each_placed_object_with_its_own_target(mini, monkeypatch):
+    """Objects are placed most visible first, so ``placed[k]`` is not ``targets[k]``: the scene judge and the
+    polish must see each object beside its own target (its centre and centre map)."""
+    from bop_cender.pose import optimize
+
+    ds, scene, meshes, maps, cams, dist = mini
+    parts = _parts(ds, scene)
+    ids = sorted(parts)
+    centre = {i: T[:3, :3] @ ds.models[i].center + T[:3, 3] for i, T in parts.items()}
+    # the first target is the less visible one: it is placed second
+    targets = [PoseTarget(centre[ids[0]], np.full(len(cams.Ks), 0.2), (ids[0],), maps.center[:, 0].numpy()),
+               PoseTarget(centre[ids[1]], np.full(len(cams.Ks), 0.9), (ids[1],), maps.center[:, 0].numpy())]  # fmt: skip
+    monkeypatch.setattr(optimize, "optimise_object",
+                        lambda target, *a, **k: PlacedObject(target.obj_ids[0], parts[target.obj_ids[0]], 0.0, 1))  # fmt: skip
+    monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
+    seen = []
+
+    def judged(placed, tgts, *a, **k):
+        seen.append([(p.obj_id, t.obj_ids[0]) for p, t in zip(placed, tgts, strict=True)])
+        return 0.0
+
+    monkeypatch.setattr(optimize, "_judged_scene_cost", judged)
+    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, tgts, *a, **k: judged(placed, tgts) or placed)
+    placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
+                            PoseConfig(t_b=BOX_T_B, passes=2, scene_polish_maxfev=10), curvature_scale=1.0)  # fmt: skip
+    assert [p.obj_id for p in placed] == [ids[1], ids[0]]  # most visible first
+    assert seen and all(pair == [(ids[1], ids[1]), (ids[0], ids[0])] for pair in seen)
