@@ -5,7 +5,8 @@
    candidates of one object) and a batch of 1 (one Nelder-Mead step of the scipy refiner). CPU, and
    CUDA where present.
    The same for the edge-point proxy that ranks the candidates and drives most of Nelder-Mead
-   (``search_cost=edges``, :mod:`bop_cender.pose.edge_cost`).
+   (``search_cost=edges``, :mod:`bop_cender.pose.edge_cost`), and the scene polish's windowed scene cost
+   against the full scene cost (:mod:`bop_cender.pose.scene_polish`).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
@@ -122,6 +123,53 @@ def scene_timings(
     return out
 
 
+def scene_polish_costs(data_root: str | None, split: str, seconds: float) -> list[tuple[str, int, float, float]]:
+    """The scene polish's cost against the full scene cost it stands for, on the first scene of the split (GT
+    poses, oracle maps, CPU, one torch thread): ms per pose of the full scene cost (all parts rendered in
+    every full frame) and of the windowed cost of the first part (:mod:`bop_cender.pose.scene_polish`) for
+    batches of 1 (a Nelder-Mead step) and 7 (its first simplex). Returns ``(what, batch, poses/s, ms per call)``."""
+    from bop_cender.data.registry import DatasetRequest
+    from bop_cender.datasets import open_with_demo
+    from bop_cender.meshes import MeshCache
+    from bop_cender.method import CenDerNetConfig
+    from bop_cender.net.oracle import OraclePredictor
+    from bop_cender.pose.cost import distance_maps
+    from bop_cender.pose.coverage import scene_cost
+    from bop_cender.pose.scene_polish import scene_window
+
+    ds = open_with_demo(DatasetRequest("dimo", data_root, split))
+    config = CenDerNetConfig.for_dataset("dimo")
+    meshes = MeshCache(ds.models)
+    scene = ds.scene(ds.scene_keys[0])
+    maps = OraclePredictor(ds.models, meshes, config.targets).predict(scene)
+    edges = maps.curvature > config.poses.t_b
+    dist = torch.as_tensor(distance_maps(edges.numpy()))
+    threshold = config.poses.t_b * config.targets.curvature_scale
+    parts = [g for g in scene.gt if ds.models[g.obj_id].is_target]
+    Ks = np.stack([v.K for v in scene.views])
+    T_cw = np.stack([v.T_cam_world for v in scene.views])
+    T_cm = torch.as_tensor(
+        np.einsum("vij,mjk->vmik", T_cw, np.stack([g.T_world_model for g in parts])), dtype=torch.float32
+    )
+    part_meshes = [meshes(g.obj_id) for g in parts]
+    window = scene_window(part_meshes[0], parts[0].T_world_model, [(meshes(g.obj_id), g.T_world_model) for g in parts[1:]],
+                          Ks, T_cw, edges, dist, threshold, config.poses.scene_polish_margin_px)  # fmt: skip
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    cpu = torch.device("cpu")
+    K = torch.as_tensor(Ks, dtype=torch.float32)
+    rows = [(f"full scene cost ({len(parts)} parts, {len(Ks)} views)", 1,
+             *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold), cpu, 1, seconds))]  # fmt: skip
+    for batch in (1, 7):
+        T = np.repeat(parts[0].T_world_model[None], batch, 0)
+        rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}", batch,
+                     *_calls_per_second(lambda T=T: window.costs(T), cpu, batch, seconds)))  # fmt: skip
+    torch.set_num_threads(threads)
+    for what, batch, calls, ms in rows:
+        print(f"scene polish: {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data-root", default=None, help="DIMO-layout dataset (default: the embedded demo)")
@@ -164,6 +212,7 @@ def main() -> None:
                 flush=True,
             )
     torch.set_num_threads(threads)
+    polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds)
     scenes = scene_timings(
         args.data_root,
         args.split,
@@ -186,6 +235,9 @@ def main() -> None:
     lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
               "| device | batch | model | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
     lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in edge_rows]
+    lines += ["", "## Scene polish: the windowed scene cost against the full one (first scene, GT poses, CPU, 1 thread)",
+              "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
+    lines += [f"| {w} | {b} | {c:,.0f} | {m:.2f} |" for w, b, c, m in polish_rows]
     lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config)", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip

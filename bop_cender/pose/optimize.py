@@ -358,10 +358,8 @@ def optimise_scene(
             progress(n + 1, total)
     scene_now: float | None = None  # the scene cost of ``placed`` (acceptance scene or finalists), once computed
 
-    in_order = [targets[i] for i in order]  # the target of placed[k] is in_order[k]
-
-    def scene(trial: list[PlacedObject]) -> float:
-        return _judged_scene_cost(trial, in_order, fine, meshes, model_centers, config, edge_threshold)
+    # the target of placed[k] is targets[order[k]]
+    judge = SceneJudge([targets[i] for i in order], fine, meshes, model_centers, config, edge_threshold)
 
     for sweep in range(1, config.passes):
         for idx, i in enumerate(order):
@@ -373,41 +371,35 @@ def optimise_scene(
                 moved = fit(i, others, occ, sweep, placed[idx], pool)
                 if config.acceptance != "object":
                     if scene_now is None:
-                        scene_now = scene(placed)
+                        scene_now = judge.cost(placed)
                     polish = None
                     if config.polish_maxfev > 0:
                         polish = partial(polish_placed, target=targets[i], maps=fine, occluder_depth=occ, meshes=meshes,
                                          model_centers=model_centers, config=config, edge_threshold=edge_threshold)  # fmt: skip
-                    moved, scene_now = _choose_by_scene(placed, idx, moved, pool, scene_now, scene, polish)
+                    moved, scene_now = _choose_by_scene(placed, idx, moved, pool, scene_now, judge.cost, polish)
                 placed[idx] = moved
                 contexts[idx] = occ  # searched under these occluders, kept or not: a third sweep skips alike
             if progress is not None:
                 progress(sweep * len(targets) + idx + 1, total)
     if config.scene_polish_maxfev > 0 and placed:
-        placed = polish_on_scene(placed, in_order, fine, meshes, model_centers, config, edge_threshold, scene_now)
+        placed = polish_on_scene(placed, judge, scene_now)
     return placed
 
 
 def polish_on_scene(
-    placed: list[PlacedObject],
-    targets: Sequence[PoseTarget],
-    maps: CostMaps,
-    meshes: Callable[[int], RenderMesh],
-    model_centers: Callable[[int], np.ndarray],
-    config: PoseConfig,
-    edge_threshold: float,
-    scene_now: float | None = None,
+    placed: list[PlacedObject], judge: SceneJudge, scene_now: float | None = None
 ) -> list[PlacedObject]:
-    """Each of ``placed`` (in order; ``targets[i]`` is the target of ``placed[i]``) refined on the scene cost in
-    windows around it, the others fixed (:mod:`bop_cender.pose.scene_polish`): Nelder-Mead from a simplex a
+    """Each of ``placed`` (in order; ``judge.targets[i]`` is the target of ``placed[i]``) refined on the scene cost
+    in windows around it, the others fixed (:mod:`bop_cender.pose.scene_polish`): Nelder-Mead from a simplex a
     quarter of ``nm_initial_*``, ``scene_polish_maxfev`` evaluations, within the search's bounds about the
-    object's 3D centre. The polished pose replaces the old where the full scene cost (plus the centre terms,
-    :func:`_judged_scene_cost`) falls; its final cost is then its judged cost under all the others (render or
-    two-sided, plus its centre term, as a sweep's). ``scene_now``: the judged scene cost of ``placed`` where
-    known. Returns the new placement."""
+    object's 3D centre. The polished pose replaces the old where ``judge.cost`` (the full scene cost plus the
+    centre terms) falls; its final cost is then its judged cost under all the others (render or two-sided,
+    plus its centre term, as a sweep's). ``scene_now``: ``judge.cost(placed)`` where known. Returns the new
+    placement."""
     placed = list(placed)
     if not placed:
         return placed
+    maps, meshes, config = judge.maps, judge.meshes, judge.config
     polish = replace(
         config,
         nm_initial_rotation_rad=config.nm_initial_rotation_rad / 4,
@@ -415,21 +407,24 @@ def polish_on_scene(
         nm_maxfev=config.scene_polish_maxfev,
     )
     if scene_now is None:
-        scene_now = _judged_scene_cost(placed, targets, maps, meshes, model_centers, config, edge_threshold)
+        scene_now = judge.cost(placed)
     for idx, obj in enumerate(placed):
         others = placed[:idx] + placed[idx + 1 :]
         window = scene_window(
             meshes(obj.obj_id), obj.T_world_model, [(meshes(o.obj_id), o.T_world_model) for o in others],
-            maps.cameras.Ks, maps.cameras.T_cam_world, maps.edges, maps.dist, edge_threshold,
+            maps.cameras.Ks, maps.cameras.T_cam_world, maps.edges, maps.dist, judge.edge_threshold,
             config.scene_polish_margin_px,
         )  # fmt: skip
-        occ = _occluder_depth(others, maps.cameras, meshes) if config.occlusion and others else None
-        problem = _refinement(targets[idx], obj.obj_id, maps, occ, meshes, model_centers, polish, edge_threshold)
+        # the occluders only matter for the final cost of a kept pose: rendered then, not for every part
+        problem = _refinement(judge.targets[idx], obj.obj_id, maps, None, meshes, judge.model_centers, polish,
+                              judge.edge_threshold)  # fmt: skip
         T_new, _, fev = _refine_lockstep(obj.T_world_model[None], problem, partial(_polish_cost, window, problem))
         trial = _with(placed, idx, replace(obj, T_world_model=T_new[0]))
-        cost = _judged_scene_cost(trial, targets, maps, meshes, model_centers, config, edge_threshold)
+        cost = judge.cost(trial)
         spent = obj.evaluations + fev + 1
         if cost < scene_now:
+            if config.occlusion and others:
+                problem = replace(problem, occluder_depth=_occluder_depth(others, maps.cameras, meshes))
             final = problem.judge(T_new) + problem.center_term(T_new)
             placed[idx] = PlacedObject(obj.obj_id, T_new[0], float(final[0]), spent + 1)
             scene_now = cost
@@ -548,15 +543,13 @@ def _search_on_edges(
     pose). Returns the finalists' poses ``(k, 4, 4)``, their final costs ``(k,)`` and the evaluations."""
     config = problem.config
     sparse = model.sparse(config.candidate_segments)
-    coarse_costs = problem.edge_cost(T, sparse) + problem.center_term(T)
+    coarse_costs = problem.search_cost(T, sparse)
     pool = np.argsort(coarse_costs, kind="stable")[: max(1, config.rerank, config.top_k)]
-    pool = pool[np.argsort(problem.edge_cost(T[pool], model) + problem.center_term(T[pool]), kind="stable")]
+    pool = pool[np.argsort(problem.search_cost(T[pool], model), kind="stable")]
     starts = T[pool[_diverse(T[pool], max(1, config.top_k), config.start_separation_rad)]]
     if extra is not None:
         starts = np.concatenate([starts, extra])
-    T_ref, _, fev = _refine_lockstep(
-        starts, problem, lambda poses: problem.edge_cost(poses, model) + problem.center_term(poses)
-    )
+    T_ref, _, fev = _refine_lockstep(starts, problem, partial(problem.search_cost, model=model))
     evaluations = len(T) + len(pool) + fev
     judged = problem.two_sided(T_ref) if config.coverage_weight > 0 else None
     render = problem.cost(T_ref) if judged is None else judged.forward
@@ -726,9 +719,13 @@ class Refinement:
 
     def center_term(self, T_world_model: np.ndarray) -> np.ndarray:
         """``(n,)`` :func:`center_term` of poses ``(n, 4, 4)`` of this object."""
-        w = self.weights.detach().cpu().double().numpy()
-        return center_term(T_world_model, self.center_model, self.view_scores, self.center_map, w, self.cameras,
-                           self.config.center_weight)  # fmt: skip
+        return center_term(T_world_model, self.center_model, self.view_scores, self.center_map, self._weights_np,
+                           self.cameras, self.config.center_weight)  # fmt: skip
+
+    @cached_property
+    def _weights_np(self) -> np.ndarray:
+        """``weights`` as float64 NumPy ``(V,)``, once (the centre term reads them at every evaluation)."""
+        return self.weights.detach().cpu().double().numpy()
 
     @cached_property
     def edge_occluder(self) -> torch.Tensor | None:
@@ -759,6 +756,10 @@ class Refinement:
     def judge(self, T_world_model: np.ndarray) -> np.ndarray:
         """``(n,)`` final costs of poses ``(n, 4, 4)``: two-sided where ``coverage_weight > 0``, else the render cost."""
         return self.two_sided(T_world_model).total if self.config.coverage_weight > 0 else self.cost(T_world_model)
+
+    def search_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
+        """``(n,)`` what the edge search ranks and refines poses ``(n, 4, 4)`` by: the edge cost plus the centre term."""
+        return self.edge_cost(T_world_model, model) + self.center_term(T_world_model)
 
     def edge_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
         """``(n,)`` edge-point costs (:func:`~bop_cender.pose.edge_cost.edge_costs`) of poses ``(n, 4, 4)``."""
@@ -923,24 +924,29 @@ def center_term(
     return center_weight * (drop * weights).sum(1) / max(float(weights.sum()), 1e-12)
 
 
-def _judged_scene_cost(
-    placed: Sequence[PlacedObject],
-    targets: Sequence[PoseTarget],
-    maps: CostMaps,
-    meshes: Callable[[int], RenderMesh],
-    model_centers: Callable[[int], np.ndarray],
-    config: PoseConfig,
-    edge_threshold: float,
-) -> float:
-    """What the sweeps and the scene polish judge a placement by: its scene cost (:func:`_scene_cost`) plus,
-    with ``center_weight`` > 0, each object's :func:`center_term` (``targets[i]`` is that of ``placed[i]``)."""
-    cost = _scene_cost(placed, maps, meshes, edge_threshold)
-    if config.center_weight > 0:
-        for obj, target in zip(placed, targets, strict=True):
-            w = view_weights(target.view_scores, config.view_weights)
-            cost += float(center_term(obj.T_world_model[None], model_centers(obj.obj_id), target.view_scores,
-                                      target.center_map, w, maps.cameras, config.center_weight)[0])  # fmt: skip
-    return cost
+@dataclass(frozen=True)
+class SceneJudge:
+    """What a whole placement is judged against: the targets in placement order (``targets[k]`` is that of
+    ``placed[k]``), the full-resolution ``maps`` (with their binarised ``edges``), the meshes and model centres
+    of the object ids, the settings and the raw curvature of a pose's own edges (``edge_threshold``)."""
+
+    targets: Sequence[PoseTarget]
+    maps: CostMaps
+    meshes: Callable[[int], RenderMesh]
+    model_centers: Callable[[int], np.ndarray]
+    config: PoseConfig
+    edge_threshold: float
+
+    def cost(self, placed: Sequence[PlacedObject]) -> float:
+        """What the sweeps and the scene polish judge ``placed`` by: its scene cost (:func:`_scene_cost`) plus,
+        with ``center_weight`` > 0, each object's :func:`center_term`."""
+        cost = _scene_cost(placed, self.maps, self.meshes, self.edge_threshold)
+        if self.config.center_weight > 0:
+            for obj, target in zip(placed, self.targets, strict=True):
+                w = view_weights(target.view_scores, self.config.view_weights)
+                cost += float(center_term(obj.T_world_model[None], self.model_centers(obj.obj_id), target.view_scores,
+                                          target.center_map, w, self.maps.cameras, self.config.center_weight)[0])  # fmt: skip
+        return cost
 
 
 def _occluder_depth(

@@ -11,8 +11,9 @@ scene cost from the placed pose brings it to 0.6 degrees, and the other four dis
 mm to under 0.2 mm. The render cost's polish (``PoseConfig.polish_maxfev``) did not do this: it is the
 paper's one-sided cost of one object, blind to the target edges a tilted pose leaves unexplained.
 
-How, cheaply. The scene cost renders every object in every full frame (about 30-50 ms on 2 CPU cores
-for 5 parts in 7 views). Only one object moves, so the cost is taken in a window around it in each view
+How, cheaply. The scene cost renders every object in every full frame (23 ms per pose for 4 parts in 7
+views on one CPU thread, against 4.5 ms for the windowed cost: ``python scripts/bench_run.py``, section "Scene
+polish"). Only one object moves, so the cost is taken in a window around it in each view
 (its bounding box's projection plus a margin): the other objects are rendered once into the windows,
 each trial pose of the moving one is rendered into them alone and composited by depth, and the forward and
 backward terms are those of :func:`~bop_cender.pose.coverage.scene_cost` inside the windows (normalised

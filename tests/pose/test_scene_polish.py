@@ -20,6 +20,7 @@ from bop_cender.pose.optimize import (  # noqa: E402
     PlacedObject,
     PoseConfig,
     PoseTarget,
+    SceneJudge,
     optimise_scene,
     polish_on_scene,
 )
@@ -70,7 +71,9 @@ def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
         PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in start.items()
     ]
     config = PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=150)
-    polished = polish_on_scene(placed, targets, fine, meshes, lambda i: ds.models[i].center, config, EDGE_THRESHOLD)
+    polished = polish_on_scene(
+        placed, SceneJudge(targets, fine, meshes, lambda i: ds.models[i].center, config, EDGE_THRESHOLD)
+    )
     moved = polished[1]
     T = parts[ids[1]]
     R_err = np.degrees(Rotation.from_matrix(moved.T_world_model[:3, :3] @ T[:3, :3].T).magnitude())
@@ -99,8 +102,9 @@ def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
     targets = [
         PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in parts.items()
     ]
-    out = polish_on_scene(placed, targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center,
-                          PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60), EDGE_THRESHOLD)  # fmt: skip
+    judge = SceneJudge(targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center,
+                       PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60), EDGE_THRESHOLD)  # fmt: skip
+    out = polish_on_scene(placed, judge)
     for p, q in zip(out, placed, strict=True):
         assert np.array_equal(p.T_world_model, q.T_world_model) and p.cost == 0.5 and p.evaluations > 3
 
@@ -169,8 +173,8 @@ def test_center_term_is_zero_at_the_detected_centre_and_grows_away_from_it(mini)
     assert np.all(center_term(np.stack(shifted), ds.models[3].center, scores, None, w, cams, 2.0) == 0)
 
 
-def test_the_judged_scene_cost_adds_each_objects_centre_term(mini):
-    from bop_cender.pose.optimize import _judged_scene_cost, _scene_cost
+def test_the_scene_judge_adds_each_objects_centre_term(mini):
+    from bop_cender.pose.optimize import _scene_cost
 
     ds, scene, meshes, maps, cams, dist = mini
     _, _, T, center_map, scores = _center_setup(mini)
@@ -185,10 +189,10 @@ def test_the_judged_scene_cost_adds_each_objects_centre_term(mini):
         PoseTarget(T[:3, :3] @ ds.models[3].center + T[:3, 3], scores, (3,), center_map),
         PoseTarget(c4, np.ones(len(cams.Ks)), (4,), None),  # no map: no term
     ]
-    args = (placed, targets, fine, meshes, lambda i: ds.models[i].center)
+    args = (targets, fine, meshes, lambda i: ds.models[i].center)
     plain = _scene_cost(placed, fine, meshes, EDGE_THRESHOLD)
-    assert _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=0.0), EDGE_THRESHOLD) == plain
-    with_term = _judged_scene_cost(*args, PoseConfig(t_b=BOX_T_B, center_weight=1.0), EDGE_THRESHOLD)
+    assert SceneJudge(*args, PoseConfig(t_b=BOX_T_B, center_weight=0.0), EDGE_THRESHOLD).cost(placed) == plain
+    with_term = SceneJudge(*args, PoseConfig(t_b=BOX_T_B, center_weight=1.0), EDGE_THRESHOLD).cost(placed)
     assert with_term > plain + 0.05
 
 
@@ -209,12 +213,12 @@ def test_the_judge_and_the_polish_pair_each_placed_object_with_its_own_target(mi
     monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
     seen = []
 
-    def judged(placed, tgts, *a, **k):
-        seen.append([(p.obj_id, t.obj_ids[0]) for p, t in zip(placed, tgts, strict=True)])
+    def judged(judge, placed):
+        seen.append([(p.obj_id, t.obj_ids[0]) for p, t in zip(placed, judge.targets, strict=True)])
         return 0.0
 
-    monkeypatch.setattr(optimize, "_judged_scene_cost", judged)
-    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, tgts, *a, **k: judged(placed, tgts) or placed)
+    monkeypatch.setattr(optimize.SceneJudge, "cost", judged)
+    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, judge, *a, **k: judged(judge, placed) or placed)
     placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
                             PoseConfig(t_b=BOX_T_B, passes=2, scene_polish_maxfev=10), curvature_scale=1.0)  # fmt: skip
     assert [p.obj_id for p in placed] == [ids[1], ids[0]]  # most visible first
