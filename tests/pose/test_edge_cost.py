@@ -164,3 +164,55 @@ def test_the_edge_occluder_is_the_nearest_placed_surface_around_each_pixel():
     occ[0, 2, 3] = 50.0
     wide = edge_occluder(occ)[0]
     assert wide[1, 1] == 100.0 and wide[2, 2] == 50.0 and wide[1, 4] == 50.0 and wide[0, 0] == 0.0
+
+
+def _one_segment(a: np.ndarray, b: np.ndarray):
+    """An EdgeModel of one always-drawn crease segment from ``a`` to ``b`` (model frame, mm)."""
+    from bop_cender.pose.edge_cost import EdgeModel
+
+    facing = torch.tensor([[[0.0, 0.0, 0.0, -1.0], [0.0, 0.0, 0.0, -1.0]]])  # n . eye - d = 1 > 0: faces the camera
+    return EdgeModel(
+        vertices=torch.tensor(np.stack([a, b]), dtype=torch.float32),
+        segments=torch.tensor([[0, 1]]),
+        planes=facing,
+        crease=torch.tensor([True]),
+        edge_segments=torch.tensor([[0, 1]]),
+    )
+
+
+def test_edge_points_are_projected_by_the_full_intrinsics_and_dropped_behind_the_near_plane():
+    """On a distance map equal to the column (d = u - 0.5 at pixel-centre coordinates u), the cost of one segment is
+    the mean column of its projected sample points: the midpoint of its projected ends, ``K (R X + t) / z`` with a
+    skewed K (a NumPy reference); a segment with an end behind ``near`` is not drawn (the image diagonal)."""
+    H, W = 200, 300
+    dist = torch.arange(W, dtype=torch.float32).expand(1, H, W).contiguous()
+    K = np.array([[250.0, 7.0, 140.0], [0.0, 240.0, 95.0], [0.0, 0.0, 1.0]])
+    R = Rotation.from_euler("xyz", [8, -5, 12], degrees=True).as_matrix()
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, [3.0, -2.0, 400.0]
+    a, b = np.array([-20.0, 5.0, 3.0]), np.array([15.0, -8.0, -4.0])
+
+    def cost(model, T_cm, near=1.0):
+        return float(edge_costs(model, torch.tensor(T_cm[None, None], dtype=torch.float32),
+                                torch.tensor(K[None], dtype=torch.float32), dist, torch.ones(1), near=near)[0])  # fmt: skip
+
+    def u(p):
+        x = K @ (R @ p + T[:3, 3])
+        return x[0] / x[2]
+
+    assert cost(_one_segment(a, b), T) == pytest.approx((u(a) + u(b)) / 2 - 0.5, abs=1e-3)
+    # a 3 mm segment 10 mm in front of the camera: costed where both ends are in front of `near`, not drawn where
+    # one end is behind it
+    close = T.copy()
+    close[2, 3] = 10.0
+    c, d = np.array([0.5, 0.3, -1.5]), np.array([-0.4, -0.2, 1.2])
+    z = (R @ np.stack([c, d]).T)[2] + 10.0
+    near = float(z.mean())
+    assert z.min() < near < z.max() and z.min() > 1.0
+
+    def u_close(p):
+        x = K @ (R @ p + close[:3, 3])
+        return x[0] / x[2]
+
+    assert cost(_one_segment(c, d), close, near=1.0) == pytest.approx((u_close(c) + u_close(d)) / 2 - 0.5, abs=1e-2)
+    assert cost(_one_segment(c, d), close, near=near) == pytest.approx(np.hypot(H, W))

@@ -87,6 +87,64 @@ def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
     assert R0 < 0.5 and np.linalg.norm(polished[0].T_world_model[:3, 3] - parts[ids[0]][:3, 3]) < 0.3
 
 
+def test_window_drops_target_edges_along_its_inner_sides_only():
+    """Target edges within WINDOW_BORDER_PX of a window side inside the image are left out (a neighbour's edges
+    spilling across it); a side on the image border keeps its edges."""
+    from bop_cender.pose.scene_polish import WINDOW_BORDER_PX, _inside_border
+
+    top, left = torch.tensor([0, 10, 40]), torch.tensor([5, 0, 60])  # view 2's window ends on the image's corner
+    keep = _inside_border(top, left, (20, 20), (60, 80), WINDOW_BORDER_PX)
+    b = WINDOW_BORDER_PX
+    assert keep.shape == (3, 20, 20)
+    # view 0: the top side is the image's top (kept); left, right, bottom inside the image (dropped)
+    assert keep[0, 0, b:-b].all() and not keep[0, -b:].any() and not keep[0, :, :b].any() and not keep[0, :, -b:].any()
+    # view 1: the left side is the image's left (kept)
+    assert keep[1, b:-b, 0].all() and not keep[1, :b].any() and not keep[1, :, -b:].any()
+    # view 2: bottom and right sides are the image's (kept)
+    assert keep[2, -1, b:].all() and keep[2, b:, -1].all() and not keep[2, :b].any() and not keep[2, :, :b].any()
+    assert keep[:, b:-b, b:-b].all()
+
+
+def test_scene_window_drops_the_border_rows_in_a_real_window(mini):
+    ds, scene, meshes, maps, cams, dist = mini
+    parts = _parts(ds, scene)
+    moving, other = sorted(parts)
+    everywhere = torch.ones_like(maps.curvature, dtype=torch.bool)
+    window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks, cams.T_cam_world,
+                          everywhere, dist, EDGE_THRESHOLD, margin_px=12)  # fmt: skip
+    h, w = window.size
+    inner = (window.offsets[:, 0] > 0) & (window.offsets[:, 0] + h < cams.height)
+    assert inner.any()  # a window with its top and bottom sides inside the image drops their rows
+    assert not window.target_edges[inner][:, 0].any() and not window.target_edges[inner][:, -1].any()
+    assert window.target_edges[inner][:, h // 2, w // 2].all()
+    sides = (window.offsets[:, 1] > 0) & (window.offsets[:, 1] + w < cams.width)
+    assert sides.any()
+    assert not window.target_edges[sides][:, :, 0].any() and not window.target_edges[sides][:, :, -1].any()
+
+
+def test_scene_polish_stops_at_its_own_tolerances(mini):
+    """The polish's Nelder-Mead stops where its simplex is within scene_polish_xatol / _fatol (loose: after a few
+    steps), else at scene_polish_maxfev; the search's nm_xatol / nm_fatol do not decide it."""
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    ids = sorted(parts)
+    placed = [PlacedObject(i, perturb(parts[i], 2.0, 1.0), 1.0, 0) for i in ids]
+    targets = [PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,))
+               for i, T in parts.items()]  # fmt: skip
+
+    def spent(**tolerances) -> list[int]:
+        config = PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60, nm_xatol=1e-9, nm_fatol=1e-9, **tolerances)
+        judge = SceneJudge(targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center, config,
+                           EDGE_THRESHOLD)  # fmt: skip
+        return [p.evaluations for p in polish_on_scene(placed, judge)]
+
+    tight = spent(scene_polish_xatol=1e-9, scene_polish_fatol=1e-9)
+    loose = spent(scene_polish_xatol=50.0, scene_polish_fatol=50.0)
+    assert all(n >= 60 for n in tight), tight  # the budget, plus the judge's evaluations
+    assert all(n < 20 for n in loose), loose  # the first simplex is already within the tolerances
+
+
 def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
     """A window cost that prefers a wrong pose: the full scene cost refuses it and the old pose stays."""
     from bop_cender.pose import scene_polish
@@ -128,7 +186,10 @@ def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch)
     assert calls == [2]
 
 
-@pytest.mark.parametrize("field", ["scene_polish_maxfev", "scene_polish_margin_px", "center_weight"])
+@pytest.mark.parametrize(
+    "field",
+    ["scene_polish_maxfev", "scene_polish_margin_px", "scene_polish_xatol", "scene_polish_fatol", "center_weight"],
+)
 @pytest.mark.parametrize("value", [-1, float("nan")])
 def test_a_negative_or_nan_stage3_setting_is_a_config_error(field, value):
     from bop_cender.errors import ConfigError
