@@ -249,3 +249,53 @@ def test_a_later_sweep_keeps_the_incumbent_pose_when_no_candidate_is_better(mini
     alone = optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config,
                             np.random.default_rng(5), edge_threshold=BOX_T_B)  # fmt: skip
     assert found.cost <= alone.cost
+
+
+def test_screening_refines_more_starts_briefly_and_continues_the_best(mini, monkeypatch):
+    """With screen_starts > top_k the edge search first refines screen_starts diverse starts for screen_maxfev
+    evaluations, then the top_k best of them (by their refined cost) for nm_maxfev; without it, top_k starts
+    once (screen_starts 0; the default is 8). Where the right basin's best candidate ranks below a wrong one's, only
+    refining tells them apart."""
+    from bop_cender.pose import optimize
+    from bop_cender.pose.optimize import CostMaps, optimise_object
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
+    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
+    fine = (CostMaps(cams, dist, maps.curvature > BOX_T_B), None)
+    calls = []
+    original = optimize._refine_lockstep
+
+    def recording(starts, problem, cost=None):
+        out = original(starts, problem, cost)
+        calls.append((len(starts), problem.config.nm_maxfev, starts.copy(), out[0], out[1]))
+        return out
+
+    monkeypatch.setattr(optimize, "_refine_lockstep", recording)
+    common = dict(n_candidates=64, rerank=32, top_k=2, t_b=BOX_T_B, nm_maxfev=40, start_separation_rad=0.0)
+    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center,
+                    PoseConfig(**common, screen_starts=6, screen_maxfev=10), np.random.default_rng(1),
+                    edge_threshold=BOX_T_B)  # fmt: skip
+    (n1, fev1, _, screened, screened_costs), (n2, fev2, continued, _, _) = calls
+    assert (n1, fev1, n2, fev2) == (6, 10, 2, 40)
+    # the continued starts are the screen's two best refined poses
+    np.testing.assert_array_equal(continued, screened[np.argsort(screened_costs, kind="stable")[:2]])
+    calls.clear()
+    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, PoseConfig(**common, screen_starts=0),
+                    np.random.default_rng(1), edge_threshold=BOX_T_B)  # fmt: skip
+    assert [(n, fev) for n, fev, *_ in calls] == [(2, 40)]
+
+
+def test_the_search_screen_is_on_for_dimo_and_off_for_tless_layouts_unless_set():
+    from dataclasses import asdict
+
+    from bop_cender.method import CenDerNetConfig
+
+    assert CenDerNetConfig.for_dataset("dimo").poses.screen_starts == PoseConfig().screen_starts == 8
+    assert CenDerNetConfig.for_dataset("tless").poses.screen_starts == 0
+    assert CenDerNetConfig.for_dataset("bop").poses.screen_starts == 0
+    assert CenDerNetConfig.for_dataset("tless", screen_starts=5).poses.screen_starts == 5
+    assert CenDerNetConfig.for_dataset("tless").with_settings(["poses.screen_starts=6"]).poses.screen_starts == 6
+    tless, dimo = asdict(CenDerNetConfig.for_dataset("tless").poses), asdict(PoseConfig())
+    assert {k: v for k, v in tless.items() if dimo[k] != v} == {"screen_starts": 0}  # nothing else differs

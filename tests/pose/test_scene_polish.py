@@ -188,7 +188,15 @@ def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch)
 
 @pytest.mark.parametrize(
     "field",
-    ["scene_polish_maxfev", "scene_polish_margin_px", "scene_polish_xatol", "scene_polish_fatol", "center_weight"],
+    [
+        "scene_polish_maxfev",
+        "scene_polish_margin_px",
+        "scene_polish_xatol",
+        "scene_polish_fatol",
+        "center_weight",
+        "screen_starts",
+        "screen_maxfev",
+    ],  # fmt: skip
 )
 @pytest.mark.parametrize("value", [-1, float("nan")])
 def test_a_negative_or_nan_stage3_setting_is_a_config_error(field, value):
