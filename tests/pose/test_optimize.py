@@ -299,3 +299,22 @@ def test_the_search_screen_is_on_for_dimo_and_off_for_tless_layouts_unless_set()
     assert CenDerNetConfig.for_dataset("tless").with_settings(["poses.screen_starts=6"]).poses.screen_starts == 6
     tless, dimo = asdict(CenDerNetConfig.for_dataset("tless").poses), asdict(PoseConfig())
     assert {k: v for k, v in tless.items() if dimo[k] != v} == {"screen_starts": 0}  # nothing else differs
+
+
+def test_the_screen_takes_its_starts_even_where_rerank_is_smaller(mini, monkeypatch):
+    """The re-ranked pool holds at least screen_starts candidates (rerank 4 < screen 6: still 6 screened)."""
+    from bop_cender.pose import optimize
+    from bop_cender.pose.optimize import CostMaps, optimise_object
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
+    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
+    fine = (CostMaps(cams, dist, maps.curvature > BOX_T_B), None)
+    sizes = []
+    original = optimize._refine_lockstep
+    monkeypatch.setattr(optimize, "_refine_lockstep", lambda s, p, c=None: sizes.append(len(s)) or original(s, p, c))
+    config = PoseConfig(n_candidates=64, rerank=4, top_k=2, t_b=BOX_T_B, nm_maxfev=20, screen_starts=6, screen_maxfev=8)
+    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
+                    edge_threshold=BOX_T_B)  # fmt: skip
+    assert sizes == [6, 2]
