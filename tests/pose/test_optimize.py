@@ -251,19 +251,26 @@ def test_a_later_sweep_keeps_the_incumbent_pose_when_no_candidate_is_better(mini
     assert found.cost <= alone.cost
 
 
+def _search_setup(mini):
+    """``(dataset, meshes, the target of object 3 at its GT centre, full-resolution maps without occluders)``."""
+    from bop_cender.pose.optimize import CostMaps
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
+    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
+    return ds, meshes, target, (CostMaps(cams, dist, maps.curvature > BOX_T_B), None)
+
+
 def test_screening_refines_more_starts_briefly_and_continues_the_best(mini, monkeypatch):
     """With screen_starts > top_k the edge search first refines screen_starts diverse starts for screen_maxfev
     evaluations, then the top_k best of them (by their refined cost) for nm_maxfev; without it, top_k starts
     once (screen_starts 0; the default is 8). Where the right basin's best candidate ranks below a wrong one's, only
     refining tells them apart."""
     from bop_cender.pose import optimize
-    from bop_cender.pose.optimize import CostMaps, optimise_object
+    from bop_cender.pose.optimize import optimise_object
 
-    ds, scene, meshes, maps, cams, dist = mini
-    g = gt_of(scene, 3)
-    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
-    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
-    fine = (CostMaps(cams, dist, maps.curvature > BOX_T_B), None)
+    ds, meshes, target, fine = _search_setup(mini)
     calls = []
     original = optimize._refine_lockstep
 
@@ -304,13 +311,9 @@ def test_the_search_screen_is_on_for_dimo_and_off_for_tless_layouts_unless_set()
 def test_the_screen_takes_its_starts_even_where_rerank_is_smaller(mini, monkeypatch):
     """The re-ranked pool holds at least screen_starts candidates (rerank 4 < screen 6: still 6 screened)."""
     from bop_cender.pose import optimize
-    from bop_cender.pose.optimize import CostMaps, optimise_object
+    from bop_cender.pose.optimize import optimise_object
 
-    ds, scene, meshes, maps, cams, dist = mini
-    g = gt_of(scene, 3)
-    center3d = g.T_world_model[:3, :3] @ ds.models[3].center + g.T_world_model[:3, 3]
-    target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
-    fine = (CostMaps(cams, dist, maps.curvature > BOX_T_B), None)
+    ds, meshes, target, fine = _search_setup(mini)
     sizes = []
     original = optimize._refine_lockstep
     monkeypatch.setattr(optimize, "_refine_lockstep", lambda s, p, c=None: sizes.append(len(s)) or original(s, p, c))
