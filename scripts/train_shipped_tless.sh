@@ -5,7 +5,9 @@
 # 1), training 90-100 s per epoch at one torch thread (8 images/s) beside another job, 53 s at two threads alone.
 # Not yet a network worth shipping, so no T-LESS weights are shipped: with the paper's plain BCE every center map
 # stays near 0 (maximum 0.016 after 3 epochs); with --center-pos-weight 10 (below) the validation center F1 is
-# 0-0.07 over 30 epochs (curvature AP 0.06 -> 0.40); 100 gives false peaks everywhere. 768 images are ~80 per
+# 0-0.07 over 30 epochs (curvature AP 0.06 -> 0.40); 100 gives false peaks everywhere; the focal centre loss
+# (--center-loss focal --center-loss-weight 0.1, which made the DIMO network find centres): no centre peak above
+# 0.15 in 7 epochs (2026-12-03, curvature AP 0.21). 768 images are ~80 per
 # object id for 30 channels of similar parts: see the closing notes of issue 9.
 set -euo pipefail
 DATA=${DATA:-data}
