@@ -321,3 +321,26 @@ def test_the_screen_takes_its_starts_even_where_rerank_is_smaller(mini, monkeypa
     optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
                     edge_threshold=BOX_T_B)  # fmt: skip
     assert sizes == [6, 2]
+
+
+def test_the_screened_starts_that_go_on_are_kept_apart_in_rotation(mini, monkeypatch):
+    """After the screen, the top_k that go on are chosen by _diverse from the screened poses ranked by refined cost
+    (screened starts often meet in one basin)."""
+    from bop_cender.pose import optimize
+    from bop_cender.pose.optimize import optimise_object
+
+    ds, meshes, target, fine = _search_setup(mini)
+    chosen = []
+    original = optimize._diverse
+
+    def recording(T, k, separation):
+        out = original(T, k, separation)
+        chosen.append((len(T), k, separation, out))
+        return out
+
+    monkeypatch.setattr(optimize, "_diverse", recording)
+    config = PoseConfig(n_candidates=64, rerank=16, top_k=2, t_b=BOX_T_B, nm_maxfev=20, screen_starts=6, screen_maxfev=8,
+                        start_separation_rad=0.3)  # fmt: skip
+    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
+                    edge_threshold=BOX_T_B)  # fmt: skip
+    assert [(n, k, sep) for n, k, sep, _ in chosen] == [(16, 6, 0.3), (6, 2, 0.3)]
