@@ -1,15 +1,20 @@
 """Small pieces shared by the DIMO and T-LESS writers: BOP JSON entries, atomic scene folders.
 
-A scene folder is written into a hidden ``.NAME.partial`` sibling and renamed when complete, then its
-done marker is written (:mod:`bop_cender.synth.done`, outside the real layout): that is what makes
-``bop-cender synth`` resumable. A scene whose marker is there and matches is skipped; any other folder
-(interrupted, truncated, from an older run) is written again.
+A scene folder is written into a hidden ``.NAME.partial-<pid>-<token>`` sibling of its own and renamed when
+complete, then its done marker is written (:mod:`bop_cender.synth.done`, outside the real layout): that is
+what makes ``bop-cender synth`` resumable. A scene whose marker is there and matches is skipped; any other
+folder (interrupted, truncated, from an older run) is written again. The temporary folder is the writer's
+own, so that two writers of one scene (a second ``synth`` started while the first one's workers still ran)
+never write into, or delete, each other's: each renames a complete folder (before, they shared one
+``.NAME.partial``, and the first to finish renamed a folder that the second had emptied: scene folders with
+5 of 8 images, marked done). Leftovers of writers that are no longer running are removed.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import uuid
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -61,9 +66,8 @@ def scene_folder(final_dir: Path, extra: Sequence[Path] = ()) -> Iterator[Path |
         yield None
         return
     forget(final_dir)
-    tmp = final_dir.with_name(f".{final_dir.name}.partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    _remove_dead_partials(final_dir)
+    tmp = final_dir.with_name(f".{final_dir.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     tmp.mkdir(parents=True)
     try:
         yield tmp
@@ -74,6 +78,31 @@ def scene_folder(final_dir: Path, extra: Sequence[Path] = ()) -> Iterator[Path |
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
+
+
+def _remove_dead_partials(final_dir: Path) -> None:
+    """Remove ``final_dir``'s temporary siblings whose writer process is gone (an interrupted run's), and the
+    ``.NAME.partial`` of versions before the per-writer names."""
+    parent = final_dir.parent
+    if not parent.is_dir():
+        return
+    for tmp in parent.glob(f".{final_dir.name}.partial*"):
+        pid_text = tmp.name.removeprefix(f".{final_dir.name}.partial").lstrip("-").split("-")[0]
+        if pid_text.isdigit() and _process_alive(int(pid_text)):
+            continue
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
 
 
 @dataclass

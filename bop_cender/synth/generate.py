@@ -149,10 +149,13 @@ class _Worker:
 
 #: This process's worker (set by :func:`_init_worker`: a pool's initializer, or :func:`generate` itself).
 _WORKER: _Worker | None = None
+#: The process that started this worker (a pool worker stops once it is gone, see :func:`_run_job`).
+_PARENT_PID: int | None = None
 
 
-def _init_worker(layout: str, spec, threads: int) -> None:
-    global _WORKER
+def _init_worker(layout: str, spec, threads: int, parent_pid: int | None = None) -> None:
+    global _WORKER, _PARENT_PID
+    _PARENT_PID = parent_pid
     torch.set_num_threads(threads)
     impl = LAYOUTS[layout]
     models = impl.models(spec)
@@ -160,7 +163,11 @@ def _init_worker(layout: str, spec, threads: int) -> None:
 
 
 def _run_job(root: str, job) -> int:
+    """One scene job. A pool worker whose ``synth`` was killed (its parent gone) takes no further job: the queued
+    ones would otherwise go on being written behind the user's back, beside a resumed run."""
     assert _WORKER is not None, "_init_worker runs first"
+    if _PARENT_PID is not None and os.getppid() != _PARENT_PID:
+        os._exit(1)
     return _WORKER.run(root, job)
 
 
@@ -213,7 +220,7 @@ def generate(
             # MKL's allocator and the OpenMP pool mid-use, which can hang the worker (see eval/render_process.py).
             ctx = get_context("spawn")
             with ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_init_worker, initargs=(layout, spec, threads)
+                workers, mp_context=ctx, initializer=_init_worker, initargs=(layout, spec, threads, os.getpid())
             ) as pool:
                 futures = [pool.submit(_run_job, str(root), job) for job in todo]
                 for f in as_completed(futures):

@@ -92,3 +92,69 @@ def test_the_cli_says_what_is_left_and_counts_only_that(tmp_path: Path, capsys):
     assert "synth tless: 1/1 scene (100%) done" in err
     assert "1 scene folders written, 2 already complete" in err
     assert "\r" not in err and "\x1b" not in err
+
+
+def test_two_writers_of_one_scene_each_rename_a_complete_folder(tmp_path: Path):
+    """A second writer of a scene (a resumed synth beside the first one's surviving workers) neither empties nor
+    deletes the first one's temporary folder: whichever finishes last, the scene folder holds all its files."""
+    from bop_cender.synth.bop_files import scene_folder
+
+    final = tmp_path / "train_pbr" / "000007"
+    final.parent.mkdir(parents=True)
+    files = [f"rgb/{i:06d}.jpg" for i in range(4)]
+
+    def fill(folder: Path, tag: str) -> None:
+        for rel in files:
+            (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+            (folder / rel).write_text(tag)
+
+    with scene_folder(final) as first:
+        fill(first, "a")
+        with scene_folder(final) as second:
+            assert second != first and first.is_dir()
+            fill(second, "b")
+        assert scene_done(final) and {p.read_text() for p in (final / "rgb").iterdir()} == {"b"}
+        assert all((first / rel).is_file() for rel in files)  # untouched by the second writer
+    assert scene_done(final) and sorted(p.name for p in (final / "rgb").iterdir()) == [Path(f).name for f in files]
+    assert not list(final.parent.glob(".*partial*"))
+
+
+def test_leftovers_of_dead_writers_are_removed_and_a_live_writers_kept(tmp_path: Path):
+    import os
+    import subprocess
+    import sys
+
+    from bop_cender.synth.bop_files import scene_folder
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(gone.stdout)
+    parent = tmp_path / "test_primesense"
+    dead = parent / f".000001.partial-{dead_pid}-0000abcd"
+    old = parent / ".000001.partial"  # the name before per-writer folders
+    live = parent / f".000001.partial-{os.getppid()}-0000beef"  # pytest's parent: alive
+    for folder in (dead, old, live):
+        folder.mkdir(parents=True)
+        (folder / "scene_gt.json").write_text("{")
+    with scene_folder(parent / "000001") as tmp:
+        (tmp / "scene_gt.json").write_text("{}")
+    assert not dead.exists() and not old.exists() and live.is_dir() and scene_done(parent / "000001")
+
+
+def test_a_pool_worker_whose_synth_is_gone_takes_no_further_job(monkeypatch):
+    class Exited(Exception):
+        pass
+
+    def fake_exit(code):
+        raise Exited(code)
+
+    ran = []
+    monkeypatch.setattr(
+        generate_module, "_WORKER", type("W", (), {"run": lambda self, root, job: ran.append(job) or 1})()
+    )
+    monkeypatch.setattr(generate_module.os, "_exit", fake_exit)
+    monkeypatch.setattr(generate_module, "_PARENT_PID", generate_module.os.getppid())
+    assert generate_module._run_job("root", ("test", 1)) == 1  # its parent is there: it works
+    monkeypatch.setattr(generate_module, "_PARENT_PID", generate_module.os.getppid() + 100000)
+    with pytest.raises(Exited):
+        generate_module._run_job("root", ("test", 2))
+    assert ran == [("test", 1)]
