@@ -21,7 +21,7 @@ import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -55,7 +55,8 @@ class RunRequest:
             (:data:`HEATMAP_SOURCES`: ``oracle-centers``, ``oracle-curvature``).
         weights: network weights (every source but ``oracle``).
         seed: seed of the view grouping and of the method's random candidates.
-        config: the method's settings.
+        config: the method's settings (None: :meth:`CenDerNetConfig.for_dataset` of ``dataset``, as ``run``
+            makes them: T-LESS / BOP targets and stage 3 differ from DIMO's).
         workers: processes; scenes are spread over them.
         limit_scenes: only the first K scenes of the split (None: all).
         resume: keep the shards of an earlier, interrupted run with the same settings.
@@ -75,7 +76,7 @@ class RunRequest:
     heatmaps: str = "oracle"
     weights: str | None = None
     seed: int = 0
-    config: CenDerNetConfig = field(default_factory=CenDerNetConfig)
+    config: CenDerNetConfig = None  # type: ignore[assignment]  # set in __post_init__
     workers: int = 1
     limit_scenes: int | None = None
     resume: bool = False
@@ -83,6 +84,10 @@ class RunRequest:
     device: str = "cpu"
     vis_dir: Path | None = None
     max_views: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.config is None:
+            object.__setattr__(self, "config", CenDerNetConfig.for_dataset(self.dataset))
 
     def fingerprint(self) -> str:
         """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume)."""
@@ -210,7 +215,9 @@ def net_predictor(request: RunRequest, dataset: Dataset):
             f" / {request.config.targets.curvature_scale:g} (--set targets.curvature_scale=...)",
             file=weights.path,
         )
-    return NetPredictor(weights, device=request.device)
+    return NetPredictor(
+        weights, device=request.device, known_object_ids=request.config.known_counts, flips=request.config.test_flips
+    )
 
 
 def run(

@@ -44,6 +44,7 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=None)
     ap.add_argument("--misses", action="store_true", help="print each miss and false centre of the first setting")
     ap.add_argument("--weights", default=None, help="a network's weights file, or 'shipped' (default: the oracle)")
+    ap.add_argument("--test-flips", type=int, choices=(1, 2, 4), default=1, help="the network's test flips (default 1)")
     ap.add_argument("--setting", action="append", default=[], metavar="KEY=V[,KEY=V]",
                     help="a CenterConfig to compare (our defaults but these fields), e.g. peak_threshold=0.1,"
                     "min_view_score=0.1; repeatable (default: ours and the paper's)")  # fmt: skip
@@ -59,7 +60,7 @@ def main() -> None:
         predictor = OraclePredictor(ds.models, meshes, config.targets)
     else:
         path = shipped_weights_path("dimo") if args.weights == "shipped" else args.weights
-        predictor = NetPredictor(load_weights(path, dataset="dimo"))
+        predictor = NetPredictor(load_weights(path, dataset="dimo"), flips=args.test_flips)
     found = dict.fromkeys(settings, 0)
     false = dict.fromkeys(settings, 0)
     image_targets_found = dict.fromkeys(settings, 0)

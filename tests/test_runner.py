@@ -220,3 +220,17 @@ def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
     assert summary.scenes == 1 and not summary.failed and summary.estimates == 2
     sidecar = json.loads(out.with_suffix(".json").read_text())
     assert sidecar["extra"]["heatmaps"] == "oracle-centers" and sidecar["extra"]["weights"] == str(weights)
+
+
+def test_a_request_without_a_config_gets_its_datasets_settings(tmp_path):
+    """API callers get what `run --dataset D` uses: T-LESS targets (per-object channels, s_e 1.25) and stage 3
+    without the screen, not DIMO's."""
+    for dataset in ("dimo", "tless", "bop"):
+        request = RunRequest(dataset=dataset, data_root=None, split="test", out=tmp_path / "x.csv")
+        assert request.config == CenDerNetConfig.for_dataset(dataset)
+    tless = RunRequest(dataset="tless", data_root=None, split="test", out=tmp_path / "x.csv")
+    assert tless.config.targets.per_object_channels and tless.config.poses.screen_starts == 0
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.top_k=2"])
+    assert (
+        RunRequest(dataset="tless", data_root=None, split="test", out=tmp_path / "x.csv", config=given).config is given
+    )

@@ -35,6 +35,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="center peaks above this count (default: stage 2's, CenterConfig.peak_threshold)",
     )
+    p.add_argument(
+        "--test-flips",
+        type=int,
+        choices=(1, 2, 4),
+        default=1,
+        help="network passes per view whose center maps are averaged: 1 the network alone (default, as `run`'s"
+        " test_flips and the cards), 2 and its left-right flip, 4 and its up-down flips too",
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_heatmaps)
 
@@ -71,8 +79,8 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
         path = Path(args.weights) if args.weights else shipped_weights_path(kind)
         weights = load_weights(path, dataset=args.dataset)
         targets = weights.targets
-        predictor = NetPredictor(weights, device=device)
-        source = str(path)
+        predictor = NetPredictor(weights, device=device, flips=args.test_flips)
+        source = str(path) + ("" if args.test_flips == 1 else f" ({args.test_flips} test flips)")
     keys = dataset.scene_keys[: args.limit_scenes] if args.limit_scenes else dataset.scene_keys
     metrics_config = HeatmapMetricsConfig()
     if args.peak_threshold is not None:

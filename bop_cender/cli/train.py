@@ -36,10 +36,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
-        choices=("dimo", "dimo-lean", "dimo-context", "tless", "tless-lean"),
+        choices=("dimo", "dimo-lean", "dimo-context", "tless", "tless-lean", "tless-factored"),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
-        " dimo-lean with dilated context convolutions, a 3x wider receptive field)",
+        " dimo-lean with dilated context convolutions, a 3x wider receptive field; tless-factored: one"
+        " class-agnostic center map times a per-pixel object class, for T-LESS's 30 ids)",
     )
     p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
@@ -74,6 +75,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=1.0,
         metavar="W",
         help="weight of the center loss beside the curvature BCE (default 1)",
+    )
+    p.add_argument(
+        "--class-loss-weight",
+        type=positive_number("--class-loss-weight"),
+        default=0.1,
+        metavar="W",
+        help="tless-factored only: weight of the per-pixel object-class cross-entropy (default 0.1)",
     )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
@@ -114,7 +122,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
-        center_loss_weight=args.center_loss_weight,
+        center_loss_weight=args.center_loss_weight, class_loss_weight=args.class_loss_weight,
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

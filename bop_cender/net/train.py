@@ -74,6 +74,9 @@ class TrainConfig:
         center_loss_weight: the center loss's weight in the sum with the curvature BCE (the backbone is
             shared: the focal loss, normalised by a handful of blobs per image, is far larger than a per-pixel
             mean and would otherwise drive the shared features alone).
+        class_loss_weight: for a network with factored centers (``tless-factored``): the weight of the
+            per-pixel object-class cross-entropy (:func:`center_class_loss`); the center loss then applies to
+            the class-agnostic center logit against the max over the channels' targets.
     """
 
     dataset: str
@@ -95,6 +98,7 @@ class TrainConfig:
     center_pos_weight: float = 0.0
     center_loss: str = "bce"
     center_loss_weight: float = 1.0
+    class_loss_weight: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size"):
@@ -116,6 +120,8 @@ class TrainConfig:
             )
         if not (math.isfinite(self.center_loss_weight) and self.center_loss_weight > 0):
             raise ConfigError(f"must be a positive number, got {self.center_loss_weight}", field="--center-loss-weight")
+        if not (math.isfinite(self.class_loss_weight) and self.class_loss_weight > 0):
+            raise ConfigError(f"must be a positive number, got {self.class_loss_weight}", field="--class-loss-weight")
         if self.crop is not None and min(self.crop) < 1:
             raise ConfigError(f"crop sizes must be >= 1, got {self.crop}", field="--crop")
         for name in ("limit_scenes", "val_limit_scenes"):
@@ -301,13 +307,34 @@ def center_focal_loss(
     return -total / peaks.sum().clamp(min=1)
 
 
-def _center_loss(config: TrainConfig, logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """The training run's center loss, weighted by ``config.center_loss_weight``."""
+#: Pixels whose strongest blob exceeds this are classified by a factored head's class loss (about 1.55 sigma from
+#: a centre: the blob's core, where stage 2's peaks and their per-view scores are read).
+CLASS_TARGET_MIN = 0.3
+
+
+def center_class_loss(class_logits: torch.Tensor, target: torch.Tensor, min_target: float = CLASS_TARGET_MIN):
+    """Cross-entropy of a factored head's ``class_logits (B, C, H, W)`` over the pixels where the strongest of the
+    center ``target (B, C, H, W)`` blobs exceeds ``min_target``, against that blob's channel (the nearer centre
+    where two overlap); 0 where no pixel qualifies."""
+    strongest, label = target.max(dim=1)
+    label = torch.where(strongest > min_target, label, torch.full_like(label, -100))
+    if not (label >= 0).any():
+        return class_logits.sum() * 0.0
+    return F.cross_entropy(class_logits, label, ignore_index=-100)
+
+
+def _center_loss(config: TrainConfig, logits: torch.Tensor, target: torch.Tensor, factored: bool) -> torch.Tensor:
+    """The training run's center loss, weighted by ``config.center_loss_weight``; for a factored head's ``logits
+    (B, 1 + C, H, W)`` that of the class-agnostic logit against the channels' max, plus the class loss."""
+    extra = 0.0
+    if factored:
+        extra = config.class_loss_weight * center_class_loss(logits[:, 1:], target)
+        logits, target = logits[:, :1], target.amax(dim=1, keepdim=True)
     if config.center_loss == "focal":
         loss = center_focal_loss(logits, target)
     else:
         loss = center_loss(logits, target, config.center_pos_weight)
-    return config.center_loss_weight * loss
+    return config.center_loss_weight * loss + extra
 
 
 def _epoch_generator(seed: int, epoch: int, salt: int) -> torch.Generator:
@@ -331,8 +358,8 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
             image, center, curvature = random_crop(image, center, curvature, config.crop, gen)
         image, center, curvature = augment(image, center, curvature, aug, gen)
         with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=device.type == "cuda"):
-            center_logits, curvature_logits = model(image)
-        loss_center = _center_loss(config, center_logits.float(), center)
+            center_logits, curvature_logits = model.forward_raw(image)
+        loss_center = _center_loss(config, center_logits.float(), center, model.spec.factored_centers)
         loss_curvature = F.binary_cross_entropy_with_logits(curvature_logits.float(), curvature)
         loss = loss_center + loss_curvature
         optimiser.zero_grad(set_to_none=True)

@@ -27,8 +27,9 @@ bottom and right to a multiple of the total stride and the outputs cropped back.
 Variants: :meth:`UNetSpec.dimo` (paper, 320x256, 32/32/64 with heads of 32), :meth:`UNetSpec.tless`
 (paper, 720x540, 64/128/256, heads of 128, first stride 3), :meth:`UNetSpec.dimo_lean`, ours for DIMO on
 2 CPU cores: a first stride of 2 (every feature at half resolution or less) and fewer channels, about 15x
-cheaper than the paper's (see ``results/bench/``), and :meth:`UNetSpec.dimo_context`, the lean one with
-the dilated context blocks above.
+cheaper than the paper's (see ``results/bench/``), :meth:`UNetSpec.dimo_context`, the lean one with
+the dilated context blocks above, and :meth:`UNetSpec.tless_factored`, ours for T-LESS: factored centers
+(:func:`factored_center_logits`) and context blocks.
 """
 
 from __future__ import annotations
@@ -53,6 +54,10 @@ class UNetSpec:
         name: the variant's name, for cards and messages.
         context_dilations: dilations of residual 3x3 convolutions after the bottleneck (empty: none, the
             paper's network); weights files written before this field existed have none.
+        factored_centers: with several center channels, the center head predicts one class-agnostic center
+            logit and ``center_channels`` class logits, and channel ``k``'s probability is
+            ``sigmoid(center) * softmax(classes)_k`` (ours, see :func:`factored_center_logits`); False: one
+            independent logit per channel (the paper's). Weights files written before this field have False.
     """
 
     channels: tuple[int, int, int] = (32, 32, 64)
@@ -62,6 +67,7 @@ class UNetSpec:
     width: float = 1.0
     name: str = "dimo"
     context_dilations: tuple[int, ...] = ()
+    factored_centers: bool = False
 
     def __post_init__(self) -> None:
         if len(self.channels) != 3 or len(self.strides) != 3:
@@ -72,6 +78,8 @@ class UNetSpec:
             raise ValueError(f"width must be > 0, got {self.width}")
         if any(d < 1 for d in self.context_dilations):
             raise ValueError(f"context dilations must be >= 1, got {self.context_dilations}")
+        if self.factored_centers and self.center_channels < 2:
+            raise ValueError("factored centers need at least 2 center channels (one per object id)")
 
     @staticmethod
     def dimo(width: float = 1.0) -> UNetSpec:
@@ -101,14 +109,22 @@ class UNetSpec:
         return UNetSpec((16, 32, 48), (3, 2, 2), 32, center_channels, width, "tless-lean")
 
     @staticmethod
+    def tless_factored(center_channels: int = 30, width: float = 1.0) -> UNetSpec:
+        """:meth:`tless_lean` with factored centers (one class-agnostic center map times a per-pixel object class)
+        and context convolutions of dilations 2, 4, 8 at 1/12 resolution (the whole view: an object's id comes
+        from its size, and its size in pixels from the pile around it)."""
+        return UNetSpec((16, 32, 48), (3, 2, 2), 32, center_channels, width, "tless-factored", (2, 4, 8), True)
+
+    @staticmethod
     def named(name: str, center_channels: int = 1, width: float = 1.0) -> UNetSpec:
-        """A variant by name: ``dimo``, ``dimo-lean``, ``dimo-context``, ``tless``, ``tless-lean``."""
+        """A variant by name: ``dimo``, ``dimo-lean``, ``dimo-context``, ``tless``, ``tless-lean``, ``tless-factored``."""
         makers = {
             "dimo": lambda: UNetSpec.dimo(width),
             "dimo-lean": lambda: UNetSpec.dimo_lean(width),
             "dimo-context": lambda: UNetSpec.dimo_context(width),
             "tless": lambda: UNetSpec.tless(center_channels, width),
             "tless-lean": lambda: UNetSpec.tless_lean(center_channels, width),
+            "tless-factored": lambda: UNetSpec.tless_factored(center_channels, width),
         }
         if name not in makers:
             raise ValueError(f"unknown network variant {name!r}; expected one of {sorted(makers)}")
@@ -141,6 +157,7 @@ class UNetSpec:
             width=float(d["width"]),
             name=str(d["name"]),
             context_dilations=tuple(int(x) for x in d.get("context_dilations", ())),
+            factored_centers=bool(d.get("factored_centers", False)),
         )
 
 
@@ -221,13 +238,24 @@ class UNet(nn.Module):
         self.context = _Context(c3, spec.context_dilations) if spec.context_dilations else None
         self.d2 = _Block(c3 + c2, c3)
         self.d1 = _Block(c3 + c1, c3)
-        self.center_head = _Head(c3, h, spec.center_channels)
+        self.center_head = _Head(c3, h, spec.center_channels + (1 if spec.factored_centers else 0))
         self.curvature_head = _Head(c3, h, 1)
         # Logits start near the targets' mean (mostly background) so early losses are not dominated by it.
         for head in (self.center_head, self.curvature_head):
             nn.init.constant_(head.body[-1].bias, -4.0)
+        if spec.factored_centers:  # the class logits start uniform
+            nn.init.zeros_(self.center_head.body[-1].bias[1:])
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Center logits ``(B, C, H, W)`` (factored ones combined) and curvature logits ``(B, H, W)``."""
+        center, curvature = self.forward_raw(image)
+        if self.spec.factored_centers:
+            center = factored_center_logits(center)
+        return center, curvature
+
+    def forward_raw(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """What the heads output: center ``(B, C, H, W)``, or ``(B, 1 + C, H, W)`` (class-agnostic center logit, then
+        class logits) for factored centers, and curvature logits ``(B, H, W)``; training's losses use these."""
         if image.dim() != 4 or image.shape[1] != 3:
             raise ValueError(f"image must be (B, 3, H, W), got {tuple(image.shape)}")
         H, W = image.shape[-2:]
@@ -247,6 +275,22 @@ class UNet(nn.Module):
             center = _resize(center, x.shape[-2:])
             curvature = _resize(curvature, x.shape[-2:])
         return center[..., :H, :W], curvature[:, 0, :H, :W]
+
+
+def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:
+    """Per-channel center logits ``(B, C, H, W)`` from a factored head's ``raw (B, 1 + C, H, W)``.
+
+    Channel ``k``'s probability is ``p_k = sigmoid(raw[:, 0]) * softmax(raw[:, 1:])_k``: where an object's centre
+    is (shared by all ids, so every object's blobs train it) times which object is there (a per-pixel
+    classification, trained on every pixel of every blob). The logit ``log p_k - log(1 - p_k)`` is computed in
+    log space, so that ``sigmoid`` of it gives ``p_k`` back without overflow.
+    Why (ours, not the paper's): with one independent channel per object id (T-LESS: 30), each channel sees the
+    blobs of one object only (about 80 of 768 training images), and on our CPU budget no channel rose above
+    stage 2's threshold (``scripts/train_shipped_tless.sh``).
+    """
+    log_p = F.logsigmoid(raw[:, :1]) + F.log_softmax(raw[:, 1:], dim=1)
+    log_p = log_p.clamp(max=-1e-7)  # p < 1: log(1 - p) stays finite
+    return log_p - torch.log(-torch.expm1(log_p))
 
 
 def _resize(x: torch.Tensor, size) -> torch.Tensor:

@@ -11,6 +11,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parents[1]))
 import method_data  # noqa: E402
 
+from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.bop_io import write_image  # noqa: E402
 from bop_cender.data.registry import DatasetRequest, open_dataset  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
@@ -22,6 +23,7 @@ from bop_cender.net.train import (  # noqa: E402
     METRICS,
     WEIGHTS,
     TrainConfig,
+    center_class_loss,
     center_focal_loss,
     center_loss,
     random_crop,
@@ -214,3 +216,45 @@ def test_a_focal_run_lowers_its_loss(tiny_root, tmp_path) -> None:
     summary = train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
     centers = [r.train_center_loss for r in summary.history]
     assert centers[-1] < 0.7 * centers[0], centers
+
+
+def test_the_class_loss_classifies_blob_cores_by_their_strongest_channel() -> None:
+    """Pixels where the strongest blob exceeds 0.3 are labelled with its channel (the nearer centre where two
+    overlap); the background is ignored; no blob: 0, with a gradient path."""
+    target = torch.zeros(1, 3, 20, 30)
+    target[0, 0] = _blob(20, 30, 10.0, 8.0, 3.0)
+    target[0, 2] = _blob(20, 30, 10.0, 14.0, 3.0)
+    logits = torch.zeros(1, 3, 20, 30)
+    logits[0, 0, :, :11] = 10.0  # channel 0 left of the midpoint, channel 2 right of it: all right
+    logits[0, 2, :, 11:] = 10.0
+    good = center_class_loss(logits, target)
+    assert good < 1e-3
+    swapped = center_class_loss(logits.flip(1), target)  # channel 0 and 2 exchanged: all wrong
+    assert swapped > 5
+    uniform = center_class_loss(torch.zeros(1, 3, 20, 30), target)
+    assert abs(float(uniform) - float(torch.log(torch.tensor(3.0)))) < 1e-5
+    # the background's logits do not matter
+    noisy = logits.clone()
+    noisy[0, :, :, 25:] = torch.randn(3, 20, 5) * 50
+    assert torch.allclose(center_class_loss(noisy, target), good)
+    empty = center_class_loss(torch.zeros(1, 3, 4, 4, requires_grad=True), torch.zeros(1, 3, 4, 4))
+    assert float(empty.detach()) == 0.0 and empty.requires_grad
+
+
+def test_a_factored_run_trains_center_and_class(tiny_root, tmp_path) -> None:
+    """A tiny T-LESS-style run of the factored variant (two object ids, one channel each) lowers its center loss
+    (class-agnostic focal + class cross-entropy) and writes weights that load with their factored spec."""
+    torch.set_num_threads(2)
+    root = tmp_path / "tless"
+    assert main(["synth", "--layout", "tless", "--out", str(root), "--scenes", "1", "--views", "2", "--pbr-scenes",
+                 "0", "--seed", "5", "--no-contact-sheets"]) == 0  # fmt: skip
+    config = TrainConfig(dataset="tless", data_root=str(root), split="test", epochs=4, batch_size=2, lr=1e-2,
+                         variant="tless-factored", width=0.5, seed=3, augment=False, center_loss="focal",
+                         center_loss_weight=0.1, class_loss_weight=1.0)  # fmt: skip
+    summary = train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
+    centers = [r.train_center_loss for r in summary.history]
+    assert centers[-1] < 0.8 * centers[0], centers
+    weights = load_weights(tmp_path / "run" / WEIGHTS, dataset="tless")
+    assert weights.model.spec.factored_centers and len(weights.channel_obj_ids) == weights.model.spec.center_channels
+    with pytest.raises(ConfigError, match="class-loss-weight"):
+        _config(tiny_root, class_loss_weight=0.0)

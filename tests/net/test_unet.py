@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from bop_cender.net.unet import UNet, UNetSpec, count_parameters
+from bop_cender.net.unet import UNet, UNetSpec, count_parameters, factored_center_logits
 
 
 @pytest.mark.parametrize(
@@ -18,6 +18,7 @@ from bop_cender.net.unet import UNet, UNetSpec, count_parameters
         (UNetSpec.tless(center_channels=5, width=0.125), (54, 72)),
         (UNetSpec.tless(center_channels=5, width=0.125), (50, 61)),
         (UNetSpec.tless_lean(center_channels=3), (40, 41)),
+        (UNetSpec.tless_factored(center_channels=4), (40, 41)),
     ],
 )
 def test_outputs_have_the_input_size_and_the_spec_channels(spec, size, device) -> None:
@@ -118,3 +119,36 @@ def test_a_context_network_started_from_lean_weights_computes_what_they_did() ->
     center, curvature = context(image)
     (center.sum() + curvature.sum()).backward()
     assert context.context.layers[0][1].weight.grad.abs().sum() > 0  # the residuals can leave zero
+
+
+def test_factored_centers_are_a_center_probability_times_a_class_probability() -> None:
+    """sigmoid of the combined logit of channel k is sigmoid(center) * softmax(classes)_k, finite even where the
+    raw logits are extreme; the channels of one pixel sum to the center probability."""
+    torch.manual_seed(2)
+    raw = torch.randn(2, 1 + 5, 6, 7) * 4
+    raw[0, 0, 0, 0], raw[0, 1, 0, 0] = 60.0, 80.0  # p -> 1 in channel 0: the logit stays finite
+    raw[1, 0, 0, 0] = -90.0
+    combined = factored_center_logits(raw)
+    assert combined.shape == (2, 5, 6, 7) and torch.isfinite(combined).all()
+    p = torch.sigmoid(combined)
+    expected = torch.sigmoid(raw[:, :1]) * torch.softmax(raw[:, 1:], dim=1)
+    assert torch.allclose(p, expected, atol=1e-6)
+    assert torch.allclose(p.sum(1), torch.sigmoid(raw[:, 0]), atol=1e-5)
+    assert combined[0, 0, 0, 0] > 10  # near-certain: a large logit, not a clamp at 0
+
+
+def test_the_factored_variant_outputs_one_more_raw_channel_and_round_trips() -> None:
+    spec = UNetSpec.named("tless-factored", center_channels=6)
+    assert spec.factored_centers and spec.context_dilations and UNetSpec.from_dict(spec.as_dict()) == spec
+    model = UNet(spec).eval()
+    image = torch.rand(1, 3, 36, 48)
+    with torch.no_grad():
+        raw, curvature_raw = model.forward_raw(image)
+        center, curvature = model(image)
+    assert raw.shape == (1, 7, 36, 48) and center.shape == (1, 6, 36, 48)
+    assert torch.allclose(center, factored_center_logits(raw)) and torch.equal(curvature, curvature_raw)
+    old = UNetSpec.tless_lean(center_channels=6).as_dict()
+    del old["factored_centers"]  # a weights file written before the field existed
+    assert not UNetSpec.from_dict(old).factored_centers
+    with pytest.raises(ValueError, match="at least 2 center channels"):
+        UNetSpec(center_channels=1, factored_centers=True)

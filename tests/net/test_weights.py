@@ -15,7 +15,7 @@ import method_data  # noqa: E402
 
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
-from bop_cender.net.predictor import NetPredictor  # noqa: E402
+from bop_cender.net.predictor import NetPredictor, predict_probabilities, restrict_classes  # noqa: E402
 from bop_cender.net.targets import TargetConfig  # noqa: E402
 from bop_cender.net.unet import UNet, UNetSpec  # noqa: E402
 from bop_cender.net.weights import load_weights, save_weights, shipped_weights_path, weights_payload  # noqa: E402
@@ -87,6 +87,75 @@ def test_the_predictor_gives_probabilities_of_every_view(tmp_path) -> None:
     _save(tmp_path / "t.pt", UNetSpec.tless_lean(center_channels=1, width=0.5), "tless", (3,))
     with pytest.raises(ConfigError, match="trained for 'tless'"):
         net_predictor(RunRequest(**{**request.__dict__, "weights": str(tmp_path / "t.pt")}), dataset)
+
+
+def test_restricting_a_factored_network_to_the_known_ids_renormalises_its_classes() -> None:
+    """p_k = o * s_k: the restricted maps keep each pixel's centre probability o, give the absent ids nothing and
+    share o among the present ids in the proportions of their class probabilities."""
+    torch.manual_seed(4)
+    o = torch.rand(2, 1, 5, 6)
+    s = torch.softmax(torch.randn(2, 4, 5, 6), dim=1)
+    present = torch.tensor([True, False, True, False])
+    out = restrict_classes(o * s, present)
+    assert torch.allclose(out.sum(1, keepdim=True), o, atol=1e-6)
+    assert float(out[:, [1, 3]].abs().max()) == 0.0
+    expected = o * s[:, [0, 2]] / s[:, [0, 2]].sum(1, keepdim=True)
+    assert torch.allclose(out[:, [0, 2]], expected, atol=1e-6)
+    assert float(restrict_classes(torch.zeros(1, 4, 2, 2), present).abs().max()) == 0.0  # no mass: stays 0
+
+
+def test_the_predictor_restricts_a_factored_network_to_the_scene_ids(tmp_path) -> None:
+    root = method_data.build(tmp_path / "dimo")
+    scene = open_dimo(root, "real").loader(open_dimo(root, "real").scene_keys[0])
+    ids = (3, 4, 7)  # the scene holds parts 3 and 4 (and the carrier 100), not 7
+    model = _save(tmp_path / "f.pt", UNetSpec.tless_factored(center_channels=3, width=0.25), "tless", ids)
+    with torch.no_grad():
+        model.center_head.body[-1].bias.copy_(torch.tensor([2.0, 0.0, 0.0, 3.0]))  # channel 7 favoured
+    save_weights(tmp_path / "f.pt", weights_payload(model, "tless", ids, TargetConfig.for_dataset("tless")))
+    weights = load_weights(tmp_path / "f.pt", dataset="tless")
+    restricted = NetPredictor(weights).predict(scene).center
+    free = NetPredictor(weights, known_object_ids=False).predict(scene).center
+    assert float(free[:, 2].mean()) > float(free[:, :2].mean(1).mean())  # unrestricted: 7 takes the most
+    assert float(restricted[:, 2].abs().max()) == 0.0
+    assert torch.allclose(restricted.sum(1), free.sum(1), atol=1e-5)  # the centre probability is kept
+
+
+def test_test_flips_average_the_passes_flipped_back() -> None:
+    """flips 2: the center maps are the mean of the image's and its left-right flip's probabilities (flipped back);
+    4 adds the up-down ones; the curvature map is the image's alone. A mirrored image then gives the mirrored
+    center maps exactly (the passes are the same set)."""
+    torch.manual_seed(5)
+    model = UNet(UNetSpec.dimo_lean(width=0.5)).eval()
+    with torch.no_grad():  # random BatchNorm statistics: a network that is far from flip-equivariant
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.uniform_(-0.2, 0.2)
+        for head in (model.center_head, model.curvature_head):
+            head.body[-1].weight.normal_(0.0, 20.0)
+            head.body[-1].bias.zero_()
+    image = torch.rand(3, 3, 32, 40)
+    with torch.no_grad():
+        c0, k0 = (torch.sigmoid(x) for x in model(image))
+        c1, k1 = (torch.sigmoid(x) for x in model(image.flip(-1)))
+    center, curvature = predict_probabilities(model, image, batch_size=2, flips=2)
+    assert torch.allclose(center, (c0 + c1.flip(-1)) / 2, atol=1e-6)
+    assert torch.allclose(curvature, k0, atol=1e-6)
+    assert not torch.allclose(center, c0, atol=1e-3)  # the flip changed something
+    for flips, dims in ((2, (-1,)), (4, (-1,)), (4, (-2,))):
+        c, k = predict_probabilities(model, image, flips=flips)
+        cm, _ = predict_probabilities(model, image.flip(dims), flips=flips)
+        assert torch.allclose(cm, c.flip(dims), atol=1e-5)
+    with pytest.raises(ValueError, match="flips must be one of"):
+        predict_probabilities(model, image, flips=3)
+
+
+def test_the_run_config_validates_its_test_flips() -> None:
+    from bop_cender.method import CenDerNetConfig
+
+    config = CenDerNetConfig.for_dataset("dimo")
+    assert config.test_flips == 1 and config.with_settings(["test_flips=4"]).test_flips == 4
+    with pytest.raises(ConfigError, match="test_flips: expected one of"):
+        config.with_settings(["test_flips=3"])
 
 
 def test_shipped_weights_are_found_or_named_missing() -> None:
