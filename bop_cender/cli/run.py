@@ -74,9 +74,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def default_heatmaps(dataset: str, weights: str | None) -> str:
-    """``net`` where weights are given or shipped for the dataset kind, else ``oracle``."""
+    """``net`` where weights are given or shipped for the dataset (``dimo``, ``tless``), else ``oracle``: the shipped
+    T-LESS weights have one center channel per T-LESS object, so another BOP dataset (``bop``) needs ``--weights``."""
     if weights is not None:
         return "net"
+    if dataset not in ("dimo", "tless"):
+        return "oracle"
     from bop_cender.errors import ConfigError
     from bop_cender.net.weights import shipped_weights_path
 

@@ -45,6 +45,8 @@ class SampleSet:
         curvature: ``(N, H, W)`` uint8, ``round(255 * curvature target)``.
         keys: ``(scene key, im_id)`` of each sample.
         channel_obj_ids: object id of each center channel, None for one shared channel.
+        scene_obj_ids: per sample, the object ids of its scene's GT (what ``run`` knows of an image: a factored
+            network's classes are restricted to them at validation as in ``run``); None: unknown.
     """
 
     images: np.ndarray
@@ -52,6 +54,7 @@ class SampleSet:
     curvature: np.ndarray
     keys: list[tuple[str, int]]
     channel_obj_ids: tuple[int, ...] | None
+    scene_obj_ids: list[frozenset[int]] | None = None
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -83,7 +86,7 @@ def load_samples(
     keys = list(dataset.scene_keys if scene_keys is None else scene_keys)
     if config.per_object_channels and channel_obj_ids is None:
         channel_obj_ids = tuple(sorted(i for i, m in dataset.models.items() if m.is_target))
-    images, centers, curvatures, sample_keys = [], [], [], []
+    images, centers, curvatures, sample_keys, obj_ids = [], [], [], [], []
     size = None
     for key in progress_bar(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
         scene = dataset.loader(key)
@@ -102,9 +105,12 @@ def load_samples(
         for i, view in enumerate(scene.views):
             curvatures.append(curvature[i])
             sample_keys.append((key, view.im_id))
+            obj_ids.append(frozenset(g.obj_id for g in scene.gt))
     if not sample_keys:
         raise DatasetError(f"{dataset.name} split {dataset.split} has no views to train on", file=dataset.root)
-    return SampleSet(np.stack(images), PatchMaps.concat(centers), np.stack(curvatures), sample_keys, channel_obj_ids)
+    return SampleSet(
+        np.stack(images), PatchMaps.concat(centers), np.stack(curvatures), sample_keys, channel_obj_ids, obj_ids
+    )
 
 
 def _scene_targets_cached(

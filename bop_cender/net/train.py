@@ -35,6 +35,7 @@ from bop_cender.errors import ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
+from bop_cender.net.predictor import restrict_classes
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec
@@ -393,7 +394,8 @@ def random_crop(
 
 @torch.no_grad()
 def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, batch_size: int = 8) -> dict[str, float]:
-    """Validation figures of ``model`` on ``samples``: mean losses and :class:`HeatmapMetrics`' figures."""
+    """Validation figures of ``model`` on ``samples``: mean losses and :class:`HeatmapMetrics`' figures (a factored
+    network's classes restricted to each view's scene ids, as ``run`` restricts them; the losses are unrestricted)."""
     model.eval()
     metrics = HeatmapMetrics(HeatmapMetricsConfig())
     losses = np.zeros(2)
@@ -401,16 +403,30 @@ def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, bat
         image, center, curvature = samples.batch(range(i, min(i + batch_size, len(samples))), device)
         c_logits, k_logits = model(image)
         n = image.shape[0]
+        c_prob = torch.sigmoid(c_logits.float())
+        if model.spec.factored_centers and samples.scene_obj_ids is not None and samples.channel_obj_ids is not None:
+            c_prob = _restricted(c_prob, samples, range(i, i + n))
         losses += n * np.array(
             [
                 F.binary_cross_entropy_with_logits(c_logits.float(), center).item(),
                 F.binary_cross_entropy_with_logits(k_logits.float(), curvature).item(),
             ]
         )
-        metrics.update(torch.sigmoid(c_logits.float()), torch.sigmoid(k_logits.float()), center, curvature)
+        metrics.update(c_prob, torch.sigmoid(k_logits.float()), center, curvature)
     out = {"center_loss": float(losses[0] / len(samples)), "curvature_loss": float(losses[1] / len(samples))}
     out.update({k: float(v) for k, v in metrics.result().items()})
     return out
+
+
+def _restricted(center: torch.Tensor, samples: SampleSet, indices) -> torch.Tensor:
+    """A factored network's center probabilities ``(B, C, H, W)`` with each sample's classes restricted to its scene's
+    object ids, as ``run`` restricts them (:func:`bop_cender.net.predictor.restrict_classes`)."""
+    out = []
+    for b, index in enumerate(indices):
+        known = samples.scene_obj_ids[index]
+        present = torch.tensor([i in known for i in samples.channel_obj_ids], device=center.device)
+        out.append(restrict_classes(center[b : b + 1], present) if present.any() else center[b : b + 1])
+    return torch.cat(out)
 
 
 def _write_metrics(path: Path, history: list[EpochRecord]) -> None:
