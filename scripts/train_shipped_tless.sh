@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduce the shipped T-LESS weights (bop_cender/net/weights/tless.pt, card tless.json) from nothing:
-# a synthetic T-LESS-layout train_pbr set of 150 piles, the tless-factored network on 270x360 crops (24 epochs at
+# a synthetic T-LESS-layout train_pbr set of 150 piles, the tless-factored network on 270x360 crops (40 epochs at
 # lr 1e-3, then 2 at 1e-4), the test figures, the card. Resumable: run it again.
 #
 # Why tless-factored (ours, not the paper's 30 independent centre channels): with one channel per object id each
@@ -10,11 +10,11 @@
 # centre map (every object's blobs train it; the focal loss, as for DIMO) times a per-pixel softmax over the 30 ids
 # (cross-entropy on the blobs' cores): still 30 centre channels for stages 2 and 3, and `run` restricts the softmax
 # to the ids that an image's BOP targets name.
-# Measured on the 2-core AMD EPYC: synth about 10 min, training about 110 s per epoch at two torch threads.
+# Measured on the 2-core AMD EPYC: synth about 10 min, training 80-90 s per epoch at two torch threads on an idle machine (40 + 2 epochs: about 60 min).
 set -euo pipefail
 DATA=${DATA:-data}
 RUN=${RUN:-runs/tless-shipped}
-EPOCHS=${EPOCHS:-24}
+EPOCHS=${EPOCHS:-40}
 # Training set: 150 train_pbr piles of 8 images (seed 9102); validation: 2 test scenes of 10 views (seed 9103);
 # test: 3 test scenes of 10 views (seed 4243, the accuracy table's set). One T-LESS catalogue for all three.
 bop-cender synth --layout tless --out "$DATA/tless_train150" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed 9102 --workers 2 --no-contact-sheets
