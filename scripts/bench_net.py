@@ -4,7 +4,7 @@ The paper's variants (``dimo`` 320x256, ``tless`` 720x540) and ours for 2 CPU co
 ``dimo-context``, the lean one with dilated context blocks and the shipped DIMO model, ``tless-lean``, and
 ``tless-factored``, the shipped T-LESS model), on random images of each variant's size (whole images; T-LESS
 training also on the 270x360 crops that we train it on). Inference: batch of one view and the batch of a
-7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up; training: forward, BCE on
+7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up (probabilities out, as the predictor runs it); training: the heads' outputs, BCE on
 both heads, backward and an Adam step on batches of 8 (T-LESS 4). CUDA with bf16 autocast, as
 ``bop-cender train`` trains there. Goal: the shipped DIMO model at most 150 ms per 320x256 view on 2 CPU cores.
 
@@ -63,9 +63,9 @@ def bench_variant(spec: UNetSpec, size, views: int, batch: int, crop, device: to
     one = torch.rand(1, 3, *size, device=device)
     scene = torch.rand(views, 3, *size, device=device)
 
-    def infer(x):
+    def infer(x):  # as the predictor runs it: probabilities out
         with torch.no_grad(), torch.autocast(**amp):
-            model(x)
+            model.probabilities(x)
 
     ms_one = 1000 * _timed(lambda: infer(one), device, repeats)
     ms_scene = 1000 * _timed(lambda: infer(scene), device, repeats) / views
@@ -73,12 +73,12 @@ def bench_variant(spec: UNetSpec, size, views: int, batch: int, crop, device: to
     optimiser = torch.optim.Adam(model.parameters(), lr=3e-4)
     train_size = crop or size
     x = torch.rand(batch, 3, *train_size, device=device)
-    c_t = torch.rand(batch, spec.center_channels, *train_size, device=device)
+    c_t = torch.rand(batch, spec.center_channels + int(spec.factored_centers), *train_size, device=device)
     k_t = torch.rand(batch, *train_size, device=device)
 
     def step():
         with torch.autocast(**amp):
-            c, k = model(x)
+            c, k = model.forward_raw(x)  # the heads' outputs, as training's losses take them
         loss = F.binary_cross_entropy_with_logits(c.float(), c_t) + F.binary_cross_entropy_with_logits(k.float(), k_t)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()

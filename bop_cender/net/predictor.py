@@ -47,12 +47,11 @@ def predict_probabilities(
         batch = image[i : i + batch_size]
         center_sum, curvature = None, None
         for dims in TEST_FLIPS[flips]:
-            c, k = model(batch.flip(dims) if dims else batch)
-            c = torch.sigmoid(c.float())
+            c, k = model.probabilities(batch.flip(dims) if dims else batch)
             if dims:
                 c = c.flip(dims)
             else:
-                curvature = torch.sigmoid(k.float())
+                curvature = k
             center_sum = c if center_sum is None else center_sum + c
         centers.append(center_sum / flips)
         curvatures.append(curvature)

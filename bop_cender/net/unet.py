@@ -253,6 +253,19 @@ class UNet(nn.Module):
             center = factored_center_logits(center)
         return center, curvature
 
+    def probabilities(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``sigmoid`` of :meth:`forward`'s logits, float32: center ``(B, C, H, W)`` and curvature ``(B, H, W)``.
+
+        A factored head's probabilities are computed directly, ``sigmoid(center) * softmax(classes)``, not through
+        the combined logits (the same values to float rounding, in a quarter of the time: the combination's log
+        space costs 150 ms per 720x540 view of 30 channels on 2 CPU cores)."""
+        center, curvature = self.forward_raw(image)
+        if self.spec.factored_centers:
+            center = torch.sigmoid(center[:, :1].float()) * torch.softmax(center[:, 1:].float(), dim=1)
+        else:
+            center = torch.sigmoid(center.float())
+        return center, torch.sigmoid(curvature.float())
+
     def forward_raw(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """What the heads output: center ``(B, C, H, W)``, or ``(B, 1 + C, H, W)`` (class-agnostic center logit, then
         class logits) for factored centers, and curvature logits ``(B, H, W)``; training's losses use these."""

@@ -147,6 +147,13 @@ def test_the_factored_variant_outputs_one_more_raw_channel_and_round_trips() -> 
         center, curvature = model(image)
     assert raw.shape == (1, 7, 36, 48) and center.shape == (1, 6, 36, 48)
     assert torch.allclose(center, factored_center_logits(raw)) and torch.equal(curvature, curvature_raw)
+    with torch.no_grad():
+        p_center, p_curvature = model.probabilities(image)  # direct, not through the combined logits
+    assert torch.allclose(p_center, torch.sigmoid(center), atol=1e-6)
+    assert torch.allclose(p_curvature, torch.sigmoid(curvature), atol=1e-6)
+    lean = UNet(UNetSpec.dimo_lean(width=0.5)).eval()
+    with torch.no_grad():
+        assert torch.allclose(lean.probabilities(image)[0], torch.sigmoid(lean(image)[0]))
     old = UNetSpec.tless_lean(center_channels=6).as_dict()
     del old["factored_centers"]  # a weights file written before the field existed
     assert not UNetSpec.from_dict(old).factored_centers
