@@ -48,7 +48,8 @@ class CenDerNetConfig:
             information about the number of objects in the scene is available": DIMO ``scene_info``,
             BOP's targets). The count comes from the scene's annotations of target objects.
         known_object_ids: with one shared center channel, try only the object ids the scene is known to
-            hold (DIMO's compositions name the part type) instead of every target id of the dataset.
+            hold (DIMO's compositions name the part type) instead of every target id of the dataset; with a
+            factored network (``tless-factored``), restrict its class softmax to them (BOP's targets name them).
         test_flips: the network's passes per view whose center maps are averaged (1: none, the default; 2: and
             its left-right flip; 4: and its up-down flips too; ours,
             :func:`bop_cender.net.predictor.predict_probabilities`). No effect on the oracle. Measured with the
@@ -65,7 +66,11 @@ class CenDerNetConfig:
     test_flips: int = 1
 
     def __post_init__(self) -> None:
-        if self.test_flips not in TEST_FLIPS:
+        if (
+            isinstance(self.test_flips, bool)
+            or not isinstance(self.test_flips, int)
+            or self.test_flips not in TEST_FLIPS
+        ):
             raise ConfigError(f"test_flips: expected one of {sorted(TEST_FLIPS)}, got {self.test_flips}", field="--set")
 
     @staticmethod

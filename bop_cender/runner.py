@@ -216,7 +216,10 @@ def net_predictor(request: RunRequest, dataset: Dataset):
             file=weights.path,
         )
     return NetPredictor(
-        weights, device=request.device, known_object_ids=request.config.known_counts, flips=request.config.test_flips
+        weights,
+        device=request.device,
+        known_object_ids=request.config.known_object_ids,
+        flips=request.config.test_flips,
     )
 
 

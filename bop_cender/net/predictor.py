@@ -25,10 +25,11 @@ TEST_FLIPS: dict[int, tuple[tuple[int, ...], ...]] = {1: ((),), 2: ((), (-1,)), 
 
 @torch.no_grad()
 def predict_probabilities(
-    model: UNet, image: torch.Tensor, batch_size: int = 8, flips: int = 1
+    model: UNet, image: torch.Tensor, batch_size: int = 8, flips: int = 1, class_mask: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Sigmoid of ``model``'s logits for ``image (N, 3, H, W)`` in [0, 1], in batches: ``(N, C, H, W)``, ``(N, H, W)``.
 
+    ``class_mask`` ``(C,)`` bool: a factored network's classes restricted to these (:meth:`UNet.probabilities`).
     ``flips`` (1, 2 or 4, :data:`TEST_FLIPS`): the center maps are the mean of the probabilities of the image and
     of its left-right (2) and up-down flips (4), each flipped back; the curvature map is the image's alone. The
     network is trained with both flips (the appendix's augmentations), so each pass is an equally good estimate
@@ -47,7 +48,7 @@ def predict_probabilities(
         batch = image[i : i + batch_size]
         center_sum, curvature = None, None
         for dims in TEST_FLIPS[flips]:
-            c, k = model.probabilities(batch.flip(dims) if dims else batch)
+            c, k = model.probabilities(batch.flip(dims) if dims else batch, class_mask)
             if dims:
                 c = c.flip(dims)
             else:
@@ -80,25 +81,12 @@ def scene_images(scene: Scene, device: torch.device | str = "cpu") -> torch.Tens
     return x.permute(0, 3, 1, 2).float().div_(255.0).contiguous()
 
 
-def restrict_classes(center: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
-    """A factored network's center probabilities ``(V, C, H, W)`` with the class softmax renormalised over the
-    ``present`` channels ``(C,)`` bool (the others 0).
-
-    With ``p_k = o * s_k`` (centre probability ``o``, class probabilities ``s``), ``sum_k p_k = o``, so the
-    restricted ``o * s_k / sum_{j present} s_j`` is ``p_k * sum_all p / sum_present p``: computed from the
-    probabilities alone. Where nothing present has any mass the map stays 0.
-    """
-    total = center.sum(1, keepdim=True)
-    kept = center * present.view(1, -1, 1, 1).to(center.dtype)
-    return kept * (total / kept.sum(1, keepdim=True).clamp_min(1e-12))
-
-
 class NetPredictor:
     """Heatmaps from trained weights (:func:`bop_cender.net.weights.load_weights`).
 
     ``known_object_ids``: for a network with factored centers (``tless-factored``), the class softmax is
-    restricted to the object ids the scene is known to hold (its GT, as BOP's test targets give them; the same
-    knowledge as ``CenDerNetConfig.known_counts``), so that a part mistaken for a look-alike of another size
+    restricted to the object ids the scene is known to hold (its GT, as BOP's test targets give them; ``run`` sets
+    it from ``CenDerNetConfig.known_object_ids``), so that a part mistaken for a look-alike of another size
     that is not in the image goes to the look-alike that is. No effect on independent channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     """
@@ -130,13 +118,12 @@ class NetPredictor:
     def predict(self, scene: Scene) -> Heatmaps:
         image = scene_images(scene, self.device)
         t0 = time.perf_counter()
-        center, curvature = predict_probabilities(self.model, image, self.batch_size, self.flips)
         ids = self.channel_obj_ids
+        class_mask = None
         if self.known_object_ids and self.model.spec.factored_centers and ids is not None and scene.gt:
             known = {g.obj_id for g in scene.gt}
-            present = torch.tensor([i in known for i in ids], device=center.device)
-            if present.any():
-                center = restrict_classes(center, present)
+            class_mask = torch.tensor([i in known for i in ids], device=self.device)
+        center, curvature = predict_probabilities(self.model, image, self.batch_size, self.flips, class_mask)
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         self.last_seconds_per_view = (time.perf_counter() - t0) / max(1, image.shape[0])

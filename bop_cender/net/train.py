@@ -35,10 +35,9 @@ from bop_cender.errors import ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
-from bop_cender.net.predictor import restrict_classes
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
-from bop_cender.net.unet import UNet, UNetSpec
+from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, factored_center_logits
 from bop_cender.net.weights import load_weights, save_weights, weights_payload
 from bop_cender.progress import progress_bar
 
@@ -401,11 +400,11 @@ def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, bat
     losses = np.zeros(2)
     for i in range(0, len(samples), batch_size):
         image, center, curvature = samples.batch(range(i, min(i + batch_size, len(samples))), device)
-        c_logits, k_logits = model(image)
+        raw, k_logits = model.forward_raw(image)
         n = image.shape[0]
-        c_prob = torch.sigmoid(c_logits.float())
-        if model.spec.factored_centers and samples.scene_obj_ids is not None and samples.channel_obj_ids is not None:
-            c_prob = _restricted(c_prob, samples, range(i, i + n))
+        factored = model.spec.factored_centers
+        c_logits = factored_center_logits(raw) if factored else raw
+        c_prob = center_probabilities(raw, factored, _class_masks(samples, range(i, i + n)) if factored else None)
         losses += n * np.array(
             [
                 F.binary_cross_entropy_with_logits(c_logits.float(), center).item(),
@@ -418,15 +417,12 @@ def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, bat
     return out
 
 
-def _restricted(center: torch.Tensor, samples: SampleSet, indices) -> torch.Tensor:
-    """A factored network's center probabilities ``(B, C, H, W)`` with each sample's classes restricted to its scene's
-    object ids, as ``run`` restricts them (:func:`bop_cender.net.predictor.restrict_classes`)."""
-    out = []
-    for b, index in enumerate(indices):
-        known = samples.scene_obj_ids[index]
-        present = torch.tensor([i in known for i in samples.channel_obj_ids], device=center.device)
-        out.append(restrict_classes(center[b : b + 1], present) if present.any() else center[b : b + 1])
-    return torch.cat(out)
+def _class_masks(samples: SampleSet, indices) -> torch.Tensor | None:
+    """``(B, C)`` bool: per sample, the center channels of its scene's object ids (a factored network's classes are
+    restricted to them at validation, as ``run`` restricts them); None where the samples do not know them."""
+    if samples.scene_obj_ids is None or samples.channel_obj_ids is None:
+        return None
+    return torch.tensor([[i in samples.scene_obj_ids[j] for i in samples.channel_obj_ids] for j in indices])
 
 
 def _write_metrics(path: Path, history: list[EpochRecord]) -> None:

@@ -253,18 +253,17 @@ class UNet(nn.Module):
             center = factored_center_logits(center)
         return center, curvature
 
-    def probabilities(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def probabilities(
+        self, image: torch.Tensor, class_mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``sigmoid`` of :meth:`forward`'s logits, float32: center ``(B, C, H, W)`` and curvature ``(B, H, W)``.
 
-        A factored head's probabilities are computed directly, ``sigmoid(center) * softmax(classes)``, not through
-        the combined logits (the same values to float rounding, in a quarter of the time: the combination's log
-        space costs 150 ms per 720x540 view of 30 channels on 2 CPU cores)."""
+        A factored head's probabilities are computed directly (:func:`center_probabilities`), not through the
+        combined logits (the same values to float rounding, in a quarter of the time: the combination's log space
+        costs 150 ms per 720x540 view of 30 channels on 2 CPU cores). ``class_mask`` ``(C,)`` or ``(B, C)`` bool:
+        a factored head's softmax over the True classes only (the others 0); ignored by independent channels."""
         center, curvature = self.forward_raw(image)
-        if self.spec.factored_centers:
-            center = torch.sigmoid(center[:, :1].float()) * torch.softmax(center[:, 1:].float(), dim=1)
-        else:
-            center = torch.sigmoid(center.float())
-        return center, torch.sigmoid(curvature.float())
+        return center_probabilities(center, self.spec.factored_centers, class_mask), torch.sigmoid(curvature.float())
 
     def forward_raw(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """What the heads output: center ``(B, C, H, W)``, or ``(B, 1 + C, H, W)`` (class-agnostic center logit, then
@@ -304,6 +303,28 @@ def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:
     log_p = F.logsigmoid(raw[:, :1]) + F.log_softmax(raw[:, 1:], dim=1)
     log_p = log_p.clamp(max=-1e-7)  # p < 1: log(1 - p) stays finite
     return log_p - torch.log(-torch.expm1(log_p))
+
+
+def center_probabilities(raw: torch.Tensor, factored: bool, class_mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Center probabilities ``(B, C, H, W)`` from the center head's ``raw`` output (:meth:`UNet.forward_raw`).
+
+    Factored: ``sigmoid(raw[:, 0]) * softmax(raw[:, 1:])``, the softmax over the classes of ``class_mask`` (``(C,)`` or
+    ``(B, C)`` bool; None: all) only: the others' logits are set to -inf before it, so a class that is ruled out
+    gives its share to the others whatever its logit (renormalising the probabilities afterwards loses them once an
+    absent class's logit leads by ~27 and the present ones underflow). A sample whose mask is all False keeps every
+    class. Independent channels: ``sigmoid(raw)``, ``class_mask`` ignored.
+    """
+    if not factored:
+        return torch.sigmoid(raw.float())
+    classes = raw[:, 1:].float()
+    if class_mask is not None:
+        mask = class_mask.to(device=raw.device, dtype=torch.bool)
+        mask = mask.expand(raw.shape[0], -1) if mask.dim() == 1 else mask
+        if mask.shape != (raw.shape[0], classes.shape[1]):
+            raise ValueError(f"class_mask must be ({classes.shape[1]},) or ({raw.shape[0]}, {classes.shape[1]})")
+        mask = mask | ~mask.any(dim=1, keepdim=True)  # nothing known of a sample: all classes
+        classes = classes.masked_fill(~mask[:, :, None, None], float("-inf"))
+    return torch.sigmoid(raw[:, :1].float()) * torch.softmax(classes, dim=1)
 
 
 def _resize(x: torch.Tensor, size) -> torch.Tensor:

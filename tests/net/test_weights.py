@@ -15,9 +15,9 @@ import method_data  # noqa: E402
 
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
-from bop_cender.net.predictor import NetPredictor, predict_probabilities, restrict_classes  # noqa: E402
+from bop_cender.net.predictor import NetPredictor, predict_probabilities  # noqa: E402
 from bop_cender.net.targets import TargetConfig  # noqa: E402
-from bop_cender.net.unet import UNet, UNetSpec  # noqa: E402
+from bop_cender.net.unet import UNet, UNetSpec, center_probabilities  # noqa: E402
 from bop_cender.net.weights import load_weights, save_weights, shipped_weights_path, weights_payload  # noqa: E402
 from bop_cender.runner import RunRequest, net_predictor  # noqa: E402
 
@@ -89,19 +89,24 @@ def test_the_predictor_gives_probabilities_of_every_view(tmp_path) -> None:
         net_predictor(RunRequest(**{**request.__dict__, "weights": str(tmp_path / "t.pt")}), dataset)
 
 
-def test_restricting_a_factored_network_to_the_known_ids_renormalises_its_classes() -> None:
-    """p_k = o * s_k: the restricted maps keep each pixel's centre probability o, give the absent ids nothing and
-    share o among the present ids in the proportions of their class probabilities."""
+def test_restricting_a_factored_networks_classes_drops_the_absent_ones_before_the_softmax() -> None:
+    """The kept classes share sigmoid(center) in the proportions of their own softmax, whatever the absent
+    classes' logits (even 60 ahead: renormalising probabilities would lose the present ones to underflow); a
+    sample whose mask is all False keeps every class; a (B, C) mask restricts each sample on its own."""
     torch.manual_seed(4)
-    o = torch.rand(2, 1, 5, 6)
-    s = torch.softmax(torch.randn(2, 4, 5, 6), dim=1)
+    raw = torch.randn(2, 1 + 4, 5, 6)
+    raw[:, 2] += 60.0  # class 1 (absent) far ahead
     present = torch.tensor([True, False, True, False])
-    out = restrict_classes(o * s, present)
+    out = center_probabilities(raw, True, present)
+    o = torch.sigmoid(raw[:, :1])
+    kept = torch.softmax(raw[:, [1, 3]], dim=1)
+    assert torch.allclose(out[:, [0, 2]], o * kept, atol=1e-6) and float(out[:, [1, 3]].abs().max()) == 0.0
     assert torch.allclose(out.sum(1, keepdim=True), o, atol=1e-6)
-    assert float(out[:, [1, 3]].abs().max()) == 0.0
-    expected = o * s[:, [0, 2]] / s[:, [0, 2]].sum(1, keepdim=True)
-    assert torch.allclose(out[:, [0, 2]], expected, atol=1e-6)
-    assert float(restrict_classes(torch.zeros(1, 4, 2, 2), present).abs().max()) == 0.0  # no mass: stays 0
+    per_sample = center_probabilities(raw, True, torch.stack([present, torch.zeros(4, dtype=torch.bool)]))
+    assert torch.allclose(per_sample[0], out[0]) and torch.allclose(per_sample[1], center_probabilities(raw, True)[1])
+    assert torch.equal(center_probabilities(raw[:, :4], False, present), torch.sigmoid(raw[:, :4]))  # ignored
+    with pytest.raises(ValueError, match="class_mask must be"):
+        center_probabilities(raw, True, torch.ones(3, dtype=torch.bool))
 
 
 def test_the_predictor_restricts_a_factored_network_to_the_scene_ids(tmp_path) -> None:
@@ -156,6 +161,9 @@ def test_the_run_config_validates_its_test_flips() -> None:
     assert config.test_flips == 1 and config.with_settings(["test_flips=4"]).test_flips == 4
     with pytest.raises(ConfigError, match="test_flips: expected one of"):
         config.with_settings(["test_flips=3"])
+    for bad in (True, 2.0):  # equal to 1 and 2 as dict keys, but not counts of passes
+        with pytest.raises(ConfigError, match="test_flips: expected one of"):
+            CenDerNetConfig(test_flips=bad)
 
 
 def test_shipped_weights_are_found_or_named_missing() -> None:
