@@ -12,6 +12,7 @@ never write into, or delete, each other's: each renames a complete folder (befor
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import uuid
@@ -69,15 +70,35 @@ def scene_folder(final_dir: Path, extra: Sequence[Path] = ()) -> Iterator[Path |
     _remove_dead_partials(final_dir)
     tmp = final_dir.with_name(f".{final_dir.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:8]}")
     tmp.mkdir(parents=True)
+    asides: list[Path] = []
     try:
         yield tmp
-        if final_dir.exists():
-            shutil.rmtree(final_dir)
-        os.replace(tmp, final_dir)
+        _rename_onto(tmp, final_dir, asides)
         write_marker(final_dir, extra)
     finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+        for folder in (tmp, *asides):
+            if folder.exists():
+                shutil.rmtree(folder, ignore_errors=True)
+
+
+def _rename_onto(tmp: Path, final_dir: Path, asides: list[Path], attempts: int = 5) -> None:
+    """Rename the complete ``tmp`` onto ``final_dir``, moving a folder already there aside first (into ``asides``,
+    removed by the caller). A rename cannot replace a non-empty folder, and another writer of the same scene may put
+    its folder there between our move and our rename: then it is moved aside too and the rename tried again."""
+    for attempt in range(attempts):
+        if final_dir.exists():
+            aside = tmp.with_name(f"{tmp.name}-old{attempt}")
+            try:
+                os.replace(final_dir, aside)
+                asides.append(aside)
+            except FileNotFoundError:  # another writer moved it first
+                pass
+        try:
+            os.replace(tmp, final_dir)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST) or attempt == attempts - 1:
+                raise
 
 
 def _remove_dead_partials(final_dir: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 from pathlib import Path
 
@@ -158,3 +159,31 @@ def test_a_pool_worker_whose_synth_is_gone_takes_no_further_job(monkeypatch):
     with pytest.raises(Exited):
         generate_module._run_job("root", ("test", 2))
     assert ran == [("test", 1)]
+
+
+def test_a_folder_put_in_place_by_another_writer_during_the_rename_is_moved_aside(tmp_path: Path, monkeypatch):
+    """Two writers finishing together: the other's complete folder lands on the scene between our move-aside and our
+    rename; the rename is tried again and the scene ends complete, with no leftover."""
+    from bop_cender.synth import bop_files
+
+    final = tmp_path / "test_primesense" / "000002"
+    final.mkdir(parents=True)
+    (final / "old.txt").write_text("an older, unmarked folder")
+    real_replace = os.replace
+    calls = []
+
+    def racing_replace(src, dst):
+        calls.append((Path(src).name, Path(dst).name))
+        if len(calls) == 2:  # our rename of tmp: the other writer got there just before
+            Path(dst).mkdir()
+            (Path(dst) / "theirs.txt").write_text("b")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(bop_files.os, "replace", racing_replace)
+    with bop_files.scene_folder(final) as tmp:
+        (tmp / "ours.txt").write_text("a")
+    monkeypatch.setattr(bop_files.os, "replace", real_replace)
+    assert sorted(p.name for p in final.iterdir()) == ["ours.txt"] and scene_done(final)
+    assert not list(final.parent.glob(".*"))
+    assert calls[0][1].endswith("-old0") and calls[2][1].endswith("-old1")  # the old folder, then theirs, aside
+    assert calls[1] == calls[3] and calls[1][1] == "000002" and ".partial-" in calls[1][0]  # our rename, twice
