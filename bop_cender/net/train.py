@@ -135,7 +135,10 @@ class TrainConfig:
         return d
 
     def same_run_as(self, other: TrainConfig) -> bool:
-        """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed)."""
+        """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed; the class loss's
+        weight only matters to a factored variant)."""
+        if not UNetSpec.named(self.variant, center_channels=2).factored_centers:
+            other = replace(other, class_loss_weight=self.class_loss_weight)
         return replace(self, epochs=other.epochs) == other
 
 

@@ -22,7 +22,7 @@ from ship_weights import subset_spec  # noqa: E402  (the card's subset, as the s
 
 
 def _shipped() -> list[str]:
-    """The dataset kinds with weights in the package (DIMO's must be there; T-LESS's once trained)."""
+    """The dataset kinds with weights in the package (both must be there)."""
     names = []
     for dataset in sorted(SHIPPED):
         try:
@@ -33,8 +33,8 @@ def _shipped() -> list[str]:
     return names
 
 
-def test_the_dimo_weights_are_shipped() -> None:
-    assert "dimo" in _shipped()
+def test_the_dimo_and_tless_weights_are_shipped() -> None:
+    assert _shipped() == ["dimo", "tless"]
 
 
 @pytest.mark.parametrize("dataset", _shipped())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -270,3 +271,11 @@ def test_validation_restricts_a_factored_networks_classes_per_sample() -> None:
     masks = _class_masks(samples, [1, 0])
     assert masks.tolist() == [[False, True, True], [True, False, False]]
     assert _class_masks(SimpleNamespace(channel_obj_ids=(5,), scene_obj_ids=None), [0]) is None
+
+
+def test_the_class_loss_weight_binds_a_resume_of_a_factored_run_only(tiny_root) -> None:
+    lean = _config(tiny_root)
+    assert lean.same_run_as(_config(tiny_root, class_loss_weight=0.5))  # no class head: the weight does nothing
+    factored = _config(tiny_root, dataset="tless", variant="tless-factored")
+    assert not factored.same_run_as(replace(factored, class_loss_weight=0.5))
+    assert factored.same_run_as(replace(factored, epochs=9))
