@@ -81,7 +81,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=positive_number("--class-loss-weight"),
         default=0.1,
         metavar="W",
-        help="tless-factored only: weight of the per-pixel object-class cross-entropy (default 0.1)",
+        help="factored center heads only: weight of the per-pixel object-class cross-entropy (default 0.1)",
+    )
+    p.add_argument(
+        "--factored-centers",
+        action="store_true",
+        help="give --variant a factored center head (one center map times a per-pixel object class; tless-factored"
+        " has one): e.g. --variant tless --factored-centers, the paper's T-LESS network for a GPU run",
     )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
@@ -123,6 +129,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, class_loss_weight=args.class_loss_weight,
+        factored_centers=args.factored_centers,
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

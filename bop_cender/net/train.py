@@ -77,6 +77,8 @@ class TrainConfig:
         class_loss_weight: for a network with factored centers (``tless-factored``): the weight of the
             per-pixel object-class cross-entropy (:func:`center_class_loss`); the center loss then applies to
             the class-agnostic center logit against the max over the channels' targets.
+        factored_centers: give ``variant`` a factored center head (``tless-factored`` has one already): the
+            paper's ``tless`` network with it is the recipe for a GPU run (``--variant tless --factored-centers``).
     """
 
     dataset: str
@@ -99,6 +101,7 @@ class TrainConfig:
     center_loss: str = "bce"
     center_loss_weight: float = 1.0
     class_loss_weight: float = 0.1
+    factored_centers: bool = False
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size"):
@@ -137,7 +140,7 @@ class TrainConfig:
     def same_run_as(self, other: TrainConfig) -> bool:
         """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed; the class loss's
         weight only matters to a factored variant)."""
-        if not UNetSpec.named(self.variant, center_channels=2).factored_centers:
+        if not (self.factored_centers or UNetSpec.named(self.variant, center_channels=2).factored_centers):
             other = replace(other, class_loss_weight=self.class_loss_weight)
         return replace(self, epochs=other.epochs) == other
 
@@ -211,6 +214,10 @@ def train(
         )  # fmt: skip
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
     spec = UNetSpec.named(config.variant, center_channels=n_channels, width=config.width)
+    if config.factored_centers and not spec.factored_centers:
+        if n_channels < 2:
+            raise ConfigError("needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers")
+        spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:

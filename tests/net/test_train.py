@@ -250,15 +250,18 @@ def test_a_factored_run_trains_center_and_class(tiny_root, tmp_path) -> None:
     assert main(["synth", "--layout", "tless", "--out", str(root), "--scenes", "1", "--views", "2", "--pbr-scenes",
                  "0", "--seed", "5", "--no-contact-sheets"]) == 0  # fmt: skip
     config = TrainConfig(dataset="tless", data_root=str(root), split="test", epochs=4, batch_size=2, lr=1e-2,
-                         variant="tless-factored", width=0.5, seed=3, augment=False, center_loss="focal",
-                         center_loss_weight=0.1, class_loss_weight=1.0)  # fmt: skip
+                         variant="tless-lean", factored_centers=True, width=0.5, seed=3, augment=False,
+                         center_loss="focal", center_loss_weight=0.1, class_loss_weight=1.0)  # fmt: skip
     summary = train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
     centers = [r.train_center_loss for r in summary.history]
     assert centers[-1] < 0.8 * centers[0], centers
     weights = load_weights(tmp_path / "run" / WEIGHTS, dataset="tless")
     assert weights.model.spec.factored_centers and len(weights.channel_obj_ids) == weights.model.spec.center_channels
+    assert weights.model.spec.name == "tless-lean+factored"  # --factored-centers on a variant without one
     with pytest.raises(ConfigError, match="class-loss-weight"):
         _config(tiny_root, class_loss_weight=0.0)
+    with pytest.raises(ConfigError, match="needs one center channel per object id"):  # DIMO: one shared channel
+        train(_config(tiny_root, factored_centers=True), tmp_path / "dimo_factored", progress=False)
 
 
 def test_validation_restricts_a_factored_networks_classes_per_sample() -> None:
