@@ -4,8 +4,9 @@ The paper's variants (``dimo`` 320x256, ``tless`` 720x540) and ours for 2 CPU co
 ``dimo-context``, the lean one with dilated context blocks and the shipped DIMO model, ``tless-lean``, and
 ``tless-factored``, the shipped T-LESS model), on random images of each variant's size (whole images; T-LESS
 training also on the 270x360 crops that we train it on). Inference: batch of one view and the batch of a
-7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up (probabilities out, as the predictor runs it); training: the heads' outputs, BCE on
-both heads, backward and an Adam step on batches of 8 (T-LESS 4). CUDA with bf16 autocast, as
+7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up, probabilities out as the
+predictor runs it; training: BCE on both heads' outputs, backward and an Adam step on batches of 8 (T-LESS 4),
+as training's losses take them (a factored head's raw channels). CUDA with bf16 autocast, as
 ``bop-cender train`` trains there. Goal: the shipped DIMO model at most 150 ms per 320x256 view on 2 CPU cores.
 
 Prints a table and writes ``results/bench/net_<machine>.md``:

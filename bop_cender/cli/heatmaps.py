@@ -61,6 +61,9 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     from bop_cender.net.metrics import HeatmapMetricsConfig
     from bop_cender.net.targets import TargetConfig
 
+    if args.weights == "oracle" and args.test_flips != 1:
+        raise ConfigError("test flips average a network's passes; the oracle has none (drop it or give --weights)",
+                          field="--test-flips")  # fmt: skip
     out = check_output_dir(args.out)
     device = resolve_device(args.device)
     kind = "dimo" if args.dataset == "dimo" else "tless"

@@ -23,6 +23,20 @@ from bop_cender.net.weights import NetWeights
 TEST_FLIPS: dict[int, tuple[tuple[int, ...], ...]] = {1: ((),), 2: ((), (-1,)), 4: ((), (-1,), (-2,), (-2, -1))}
 
 
+def check_flips(flips: object) -> None:
+    """Raise ValueError unless ``flips`` is a count of :data:`TEST_FLIPS` (an int: True and 2.0 are not)."""
+    if type(flips) is not int or flips not in TEST_FLIPS:
+        raise ValueError(f"expected one of {sorted(TEST_FLIPS)}, got {flips!r}")
+
+
+def known_class_mask(
+    channel_obj_ids: tuple[int, ...], known_ids: set[int] | frozenset[int], device: torch.device | str = "cpu"
+) -> torch.Tensor:
+    """``(C,)`` bool: which center channels hold an object id of ``known_ids`` (a factored network's classes are
+    restricted to them: :func:`bop_cender.net.unet.center_probabilities`)."""
+    return torch.tensor([i in known_ids for i in channel_obj_ids], dtype=torch.bool, device=device)
+
+
 @torch.no_grad()
 def predict_probabilities(
     model: UNet, image: torch.Tensor, batch_size: int = 8, flips: int = 1, class_mask: torch.Tensor | None = None
@@ -40,8 +54,7 @@ def predict_probabilities(
     and the end-to-end AR_MSSD<5% 0.682 -> 0.483). The centres alone averaged: more 3D centres found (43 of 70
     within 5 mm against 38), end to end 0.611, so ``run`` uses 1 pass by default (``CenDerNetConfig.test_flips``).
     """
-    if flips not in TEST_FLIPS:
-        raise ValueError(f"flips must be one of {sorted(TEST_FLIPS)}, got {flips}")
+    check_flips(flips)
     model.eval()
     centers, curvatures = [], []
     for i in range(0, image.shape[0], batch_size):
@@ -101,8 +114,7 @@ class NetPredictor:
         known_object_ids: bool = True,
         flips: int = 1,
     ) -> None:
-        if flips not in TEST_FLIPS:
-            raise ValueError(f"flips must be one of {sorted(TEST_FLIPS)}, got {flips}")
+        check_flips(flips)
         self.weights = weights
         self.device = torch.device(device)
         self.model = weights.model.to(self.device).eval()
@@ -121,8 +133,7 @@ class NetPredictor:
         ids = self.channel_obj_ids
         class_mask = None
         if self.known_object_ids and self.model.spec.factored_centers and ids is not None and scene.gt:
-            known = {g.obj_id for g in scene.gt}
-            class_mask = torch.tensor([i in known for i in ids], device=self.device)
+            class_mask = known_class_mask(ids, {g.obj_id for g in scene.gt}, self.device)
         center, curvature = predict_probabilities(self.model, image, self.batch_size, self.flips, class_mask)
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)

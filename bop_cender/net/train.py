@@ -35,6 +35,7 @@ from bop_cender.errors import ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
+from bop_cender.net.predictor import known_class_mask
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, factored_center_logits
@@ -140,9 +141,24 @@ class TrainConfig:
     def same_run_as(self, other: TrainConfig) -> bool:
         """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed; the class loss's
         weight only matters to a factored variant)."""
-        if not (self.factored_centers or UNetSpec.named(self.variant, center_channels=2).factored_centers):
+        if not self.network_spec(center_channels=2).factored_centers:
             other = replace(other, class_loss_weight=self.class_loss_weight)
         return replace(self, epochs=other.epochs) == other
+
+    def network_spec(self, center_channels: int) -> UNetSpec:
+        """The run's network: ``variant`` at ``width`` with ``center_channels`` outputs, factored where asked.
+
+        Raises:
+            ConfigError: ``factored_centers`` with one shared center channel (DIMO).
+        """
+        spec = UNetSpec.named(self.variant, center_channels=center_channels, width=self.width)
+        if self.factored_centers and not spec.factored_centers:
+            if center_channels < 2:
+                raise ConfigError(
+                    "needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers"
+                )
+            spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
+        return spec
 
 
 @dataclass
@@ -213,11 +229,7 @@ def train(
             channel_obj_ids=train_set.channel_obj_ids,
         )  # fmt: skip
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
-    spec = UNetSpec.named(config.variant, center_channels=n_channels, width=config.width)
-    if config.factored_centers and not spec.factored_centers:
-        if n_channels < 2:
-            raise ConfigError("needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers")
-        spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
+    spec = config.network_spec(n_channels)
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
@@ -408,11 +420,11 @@ def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, bat
     model.eval()
     metrics = HeatmapMetrics(HeatmapMetricsConfig())
     losses = np.zeros(2)
+    factored = model.spec.factored_centers
     for i in range(0, len(samples), batch_size):
         image, center, curvature = samples.batch(range(i, min(i + batch_size, len(samples))), device)
         raw, k_logits = model.forward_raw(image)
         n = image.shape[0]
-        factored = model.spec.factored_centers
         c_logits = factored_center_logits(raw) if factored else raw
         c_prob = center_probabilities(raw, factored, _class_masks(samples, range(i, i + n)) if factored else None)
         losses += n * np.array(
@@ -432,7 +444,7 @@ def _class_masks(samples: SampleSet, indices) -> torch.Tensor | None:
     restricted to them at validation, as ``run`` restricts them); None where the samples do not know them."""
     if samples.scene_obj_ids is None or samples.channel_obj_ids is None:
         return None
-    return torch.tensor([[i in samples.scene_obj_ids[j] for i in samples.channel_obj_ids] for j in indices])
+    return torch.stack([known_class_mask(samples.channel_obj_ids, samples.scene_obj_ids[j]) for j in indices])
 
 
 def _write_metrics(path: Path, history: list[EpochRecord]) -> None:

@@ -238,7 +238,7 @@ class UNet(nn.Module):
         self.context = _Context(c3, spec.context_dilations) if spec.context_dilations else None
         self.d2 = _Block(c3 + c2, c3)
         self.d1 = _Block(c3 + c1, c3)
-        self.center_head = _Head(c3, h, spec.center_channels + (1 if spec.factored_centers else 0))
+        self.center_head = _Head(c3, h, spec.center_channels + int(spec.factored_centers))
         self.curvature_head = _Head(c3, h, 1)
         # Logits start near the targets' mean (mostly background) so early losses are not dominated by it.
         for head in (self.center_head, self.curvature_head):
@@ -259,8 +259,8 @@ class UNet(nn.Module):
         """``sigmoid`` of :meth:`forward`'s logits, float32: center ``(B, C, H, W)`` and curvature ``(B, H, W)``.
 
         A factored head's probabilities are computed directly (:func:`center_probabilities`), not through the
-        combined logits (the same values to float rounding, in a quarter of the time: the combination's log space
-        costs 150 ms per 720x540 view of 30 channels on 2 CPU cores). ``class_mask`` ``(C,)`` or ``(B, C)`` bool:
+        combined logits' log space at full resolution (the same values to float rounding; ``tless-factored`` 94
+        against 209 ms per 720x540 view on 2 CPU cores, ``python scripts/bench_net.py --variants tless-factored``). ``class_mask`` ``(C,)`` or ``(B, C)`` bool:
         a factored head's softmax over the True classes only (the others 0); ignored by independent channels."""
         center, curvature = self.forward_raw(image)
         return center_probabilities(center, self.spec.factored_centers, class_mask), torch.sigmoid(curvature.float())

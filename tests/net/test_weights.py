@@ -109,6 +109,13 @@ def test_restricting_a_factored_networks_classes_drops_the_absent_ones_before_th
         center_probabilities(raw, True, torch.ones(3, dtype=torch.bool))
 
 
+def test_the_known_class_mask_marks_the_channels_of_the_known_ids() -> None:
+    from bop_cender.net.predictor import known_class_mask
+
+    assert known_class_mask((3, 4, 7), {4, 100}).tolist() == [False, True, False]
+    assert known_class_mask((3, 4, 7), frozenset()).dtype == torch.bool
+
+
 def test_the_predictor_restricts_a_factored_network_to_the_scene_ids(tmp_path) -> None:
     root = method_data.build(tmp_path / "dimo")
     scene = open_dimo(root, "real").loader(open_dimo(root, "real").scene_keys[0])
@@ -150,7 +157,7 @@ def test_test_flips_average_the_passes_flipped_back() -> None:
         c, k = predict_probabilities(model, image, flips=flips)
         cm, _ = predict_probabilities(model, image.flip(dims), flips=flips)
         assert torch.allclose(cm, c.flip(dims), atol=1e-5)
-    with pytest.raises(ValueError, match="flips must be one of"):
+    with pytest.raises(ValueError, match="expected one of"):
         predict_probabilities(model, image, flips=3)
 
 
