@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import time
+import typing
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
@@ -101,7 +102,7 @@ class CenDerNetConfig:
             target = config if not section else getattr(config, section, None)
             if not is_dataclass(target) or name not in {f.name for f in fields(target)}:
                 raise ConfigError(f"unknown setting {key!r}; known: {', '.join(_setting_names(self))}", field="--set")
-            value = _parse_setting(text.strip(), type(getattr(target, name)), key)
+            value = _parse_setting(text.strip(), *_field_kind(target, name), key)
             updated = replace(target, **{name: value})
             config = updated if not section else replace(config, **{section: updated})
         return config
@@ -170,6 +171,7 @@ class CenDerNet:
                 self.config.poses,
                 cost_threads=self.cost_threads,
                 curvature_scale=self.config.targets.curvature_scale,
+                target_threshold=heatmaps.curvature_threshold,
             )
             if targets and candidate_ids
             else []
@@ -214,7 +216,19 @@ def _setting_names(config: CenDerNetConfig) -> list[str]:
     return names
 
 
-def _parse_setting(text: str, kind: type, key: str) -> object:
+def _field_kind(target: object, name: str) -> tuple[type, bool]:
+    """The value type of dataclass field ``name`` of ``target`` and whether it may be None (``float | None``)."""
+    hint = typing.get_type_hints(type(target))[name]
+    args = typing.get_args(hint)
+    if type(None) in args:
+        (kind,) = [a for a in args if a is not type(None)]
+        return kind, True
+    return hint if isinstance(hint, type) else type(getattr(target, name)), False
+
+
+def _parse_setting(text: str, kind: type, optional: bool, key: str) -> object:
+    if optional and text.lower() == "none":
+        return None
     try:
         if kind is bool:
             if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
@@ -222,7 +236,8 @@ def _parse_setting(text: str, kind: type, key: str) -> object:
             return text.lower() in ("true", "1", "yes")
         value = kind(text)
     except ValueError:
-        raise ConfigError(f"{key}: expected a {kind.__name__}, got {text!r}", field="--set") from None
+        expected = f"a {kind.__name__}" + (" or none" if optional else "")
+        raise ConfigError(f"{key}: expected {expected}, got {text!r}", field="--set") from None
     if isinstance(value, float) and not math.isfinite(value):
         raise ConfigError(f"{key}: expected a finite number, got {text!r}", field="--set")
     return value

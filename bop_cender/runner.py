@@ -139,6 +139,8 @@ class RunSummary:
     empty: list[str]
     stage_seconds: dict[str, float]
     wall_seconds: float
+    curvature_threshold: float = 0.75  # where stage 3 binarised the curvature
+    curvature_threshold_source: str = "poses.t_b"  # which setting gave it
 
 
 def open_run_dataset(request: RunRequest) -> Dataset:
@@ -220,7 +222,15 @@ def net_predictor(request: RunRequest, dataset: Dataset):
         device=request.device,
         known_object_ids=request.config.known_object_ids,
         flips=request.config.test_flips,
+        curvature_threshold=network_curvature_threshold(request.config, weights),
     )
+
+
+def network_curvature_threshold(config: CenDerNetConfig, weights) -> float | None:
+    """Where stage 3 binarises the curvature of ``weights`` (a :class:`~bop_cender.net.weights.NetWeights`):
+    ``poses.t_b_network`` when set, else the weights' calibrated threshold; None (``t_b``) when neither is."""
+    given = config.poses.t_b_network
+    return given if given is not None else weights.curvature_threshold
 
 
 def run(
@@ -243,8 +253,7 @@ def run(
     _check_request(request)
     request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
-    if uses_network(request.heatmaps):
-        net_predictor(request, dataset)  # bad weights fail here, once, before any scene
+    threshold = _curvature_threshold(request, dataset)  # bad weights fail here, once, before any scene
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
@@ -259,7 +268,7 @@ def run(
         if not any(work.iterdir()):
             work.rmdir()  # nothing done: leave nothing behind
         raise
-    return _merge(request, dataset, keys, outcomes, resumed, work, start)
+    return _merge(request, dataset, keys, outcomes, resumed, work, start, threshold)
 
 
 def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[dict[str, SceneOutcome], int]:
@@ -283,7 +292,23 @@ def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[di
     return outcomes, resumed
 
 
-def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary:
+def _curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, str]:
+    """Where stage 3 binarises the curvature of ``request``'s heatmaps, and which setting says so (for the sidecar
+    and the summary): a network's curvature at ``poses.t_b_network`` or the weights' calibration, else ``t_b``.
+    Loads the network's weights (when one is used): a bad file fails here, before any scene."""
+    if not uses_network(request.heatmaps):
+        return request.config.poses.t_b, "poses.t_b"
+    net = net_predictor(request, dataset)
+    if request.heatmaps == "oracle-curvature":
+        return request.config.poses.t_b, "poses.t_b"
+    if request.config.poses.t_b_network is not None:
+        return request.config.poses.t_b_network, "poses.t_b_network"
+    if net.curvature_threshold is not None:
+        return net.curvature_threshold, "the weights' calibration"
+    return request.config.poses.t_b, "poses.t_b: the weights carry no calibrated threshold"
+
+
+def _merge(request, dataset, keys, outcomes, resumed, work, start, threshold: tuple[float, str]) -> RunSummary:
     """All shards into one BOP CSV and its sidecar (atomic writes), then the work folder goes."""
     rows = []
     stage_seconds: dict[str, float] = {}
@@ -324,6 +349,7 @@ def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary
             "weights": request.weights,
             "model_type": request.model_type,
             "config": request.config.as_dict(),
+            "curvature_threshold": {"value": threshold[0], "from": threshold[1]},
             "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
         },
     )
@@ -339,6 +365,8 @@ def _merge(request, dataset, keys, outcomes, resumed, work, start) -> RunSummary
         empty=empty,
         stage_seconds=stage_seconds,
         wall_seconds=time.perf_counter() - start,
+        curvature_threshold=threshold[0],
+        curvature_threshold_source=threshold[1],
     )
 
 

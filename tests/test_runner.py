@@ -50,6 +50,7 @@ def test_run_writes_csv_and_sidecar_and_no_work_folder(reference_csv):
     sidecar = json.loads(reference_csv.with_suffix(".json").read_text())
     assert sidecar["dataset"] == "dimo" and sidecar["split"] == "real"
     assert sidecar["extra"]["config"]["poses"]["n_candidates"] == 48
+    assert sidecar["extra"]["curvature_threshold"] == {"value": 0.75, "from": "poses.t_b"}  # the oracle's: t_b
     assert not work_dir(reference_csv).exists()
 
 
@@ -169,9 +170,15 @@ def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, caps
 def test_settings_override_the_config():
     c = CenDerNetConfig.for_dataset("dimo").with_settings(["centers.d_c=30", "poses.occlusion=false", "known_counts=0"])
     assert c.centers.d_c == 30.0 and c.poses.occlusion is False and c.known_counts is False
-    for bad in ("poses.bogus=1", "poses.t_b=abc", "poses.t_b=nan", "nosep", "poses.occlusion=maybe"):
+    for bad in ("poses.bogus=1", "poses.t_b=abc", "poses.t_b=nan", "nosep", "poses.occlusion=maybe",
+                "poses.t_b_network=abc", "poses.t_b_network=1.2", "poses.t_b=none"):  # fmt: skip
         with pytest.raises(ConfigError):
             c.with_settings([bad])
+    # an optional number (None: the weights' calibration) takes a number or "none"
+    assert c.with_settings(["poses.t_b_network=0.5"]).poses.t_b_network == 0.5
+    assert c.with_settings(["poses.t_b_network=0.5", "poses.t_b_network=none"]).poses.t_b_network is None
+    with pytest.raises(ConfigError, match="expected a float or none"):
+        c.with_settings(["poses.t_b_network=x"])
 
 
 def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsys, monkeypatch):
@@ -213,13 +220,26 @@ def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
     torch.manual_seed(0)
     weights = tmp_path / "w.pt"
     save_weights(
-        weights, weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None, TargetConfig.for_dataset("dimo"))
+        weights,
+        weights_payload(
+            UNet(UNetSpec.dimo_lean(width=0.5)),
+            "dimo",
+            None,
+            TargetConfig.for_dataset("dimo"),
+            curvature_threshold=0.55,
+        ),
     )
     out = tmp_path / "cendernet-mixed_dimo-real.csv"
     summary = run(request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1))
     assert summary.scenes == 1 and not summary.failed and summary.estimates == 2
     sidecar = json.loads(out.with_suffix(".json").read_text())
     assert sidecar["extra"]["heatmaps"] == "oracle-centers" and sidecar["extra"]["weights"] == str(weights)
+    # the network's curvature is binarised at the weights' calibrated threshold, and the sidecar says so
+    assert sidecar["extra"]["curvature_threshold"] == {"value": 0.55, "from": "the weights' calibration"}
+    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.55, "the weights' calibration")
+    out = tmp_path / "cendernet-mixed2_dimo-real.csv"
+    summary = run(request(mini_root, out, heatmaps="oracle-curvature", weights=str(weights), limit_scenes=1))
+    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.75, "poses.t_b")
 
 
 def test_a_request_without_a_config_gets_its_datasets_settings(tmp_path):

@@ -141,5 +141,9 @@ def format_report(report: HeatmapReport) -> str:
     lines.append("  figure              value")
     for name in ("center_precision", "center_recall", "center_f1", "curvature_ap", "curvature_f1"):
         lines.append(f"  {name:<18}  {m[name]:.3f}")
+    if "curvature_best_threshold" in m:
+        lines.append(
+            f"  curvature F1 is best ({m['curvature_best_f1']:.3f}) binarised at {m['curvature_best_threshold']:.3f}"
+        )
     lines.append(f"  center peaks: {int(m['center_tp'])} TP, {int(m['center_fp'])} FP, {int(m['center_fn'])} FN")
     return "\n".join(lines)

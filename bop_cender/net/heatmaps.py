@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -18,12 +18,16 @@ class Heatmaps:
             surfaces (see :mod:`bop_cender.net.targets`).
         channel_obj_ids: object id of each center channel, or None for one channel shared by all objects.
         im_ids: the image id of each view, in order.
+        curvature_threshold: where stage 3 should binarise this curvature, when its maker knows better than
+            ``PoseConfig.t_b`` (a network: its calibrated threshold, ``PoseConfig.t_b_network``); None: ``t_b``
+            (the oracle's rendered curvature).
     """
 
     center: torch.Tensor
     curvature: torch.Tensor
     channel_obj_ids: tuple[int, ...] | None
     im_ids: tuple[int, ...]
+    curvature_threshold: float | None = None
 
     def __post_init__(self) -> None:
         if self.center.dim() != 4 or self.curvature.dim() != 3:
@@ -59,4 +63,4 @@ class Heatmaps:
         return self.channel_obj_ids.index(obj_id)
 
     def to(self, device: torch.device | str) -> Heatmaps:
-        return Heatmaps(self.center.to(device), self.curvature.to(device), self.channel_obj_ids, self.im_ids)
+        return replace(self, center=self.center.to(device), curvature=self.curvature.to(device))

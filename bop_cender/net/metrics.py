@@ -17,6 +17,9 @@ the later stages see of a prediction, with the same detector and the same thresh
   ``curv > t_b``). The average precision of the predicted curvature as a score over all pixels seen,
   from a fixed histogram of ``curvature_bins`` score bins (memory does not grow with the pixels seen),
   and precision, recall and F1 of the prediction binarised as stage 3 does (exact counts, not binned).
+  Also the binarisation threshold of the prediction with the best F1 against the same GT pixels (from the
+  histogram): a network's curvature is softer than the renderer's, so the ``t_b`` that suits the GT maps
+  need not suit its predictions (``PoseConfig.t_b_network``).
 
 Ratios with an empty denominator (``0 / 0``) are 1: precision is 1 when nothing was predicted (no false
 claim), recall is 1 when there was nothing to find (nothing missed), and F1 is 1 only when there was
@@ -264,6 +267,22 @@ class HeatmapMetrics:
         _, precision, recall = self.curvature_pr_curve()
         return float(np.sum(np.diff(recall, prepend=0.0) * precision))
 
+    def curvature_best_threshold(self) -> tuple[float, float]:
+        """The binarisation threshold of the predicted curvature with the best F1 against the GT pixels (the GT
+        binarised at ``curvature_threshold``), and that F1: ``(threshold, f1)``.
+
+        A pixel counts as predicted where its score exceeds the threshold, as stage 3 binarises; thresholds are
+        the bin edges ``k / curvature_bins``. Ties keep the highest threshold. With no GT-positive pixel:
+        ``(curvature_threshold, binarised F1)``.
+        """
+        if int(self.curvature_histogram[1].sum()) == 0:
+            return self.config.curvature_threshold, _f1(self.curvature_tp, self.curvature_fp, self.curvature_fn)
+        thresholds, precision, recall = self.curvature_pr_curve()
+        denom = precision + recall
+        f1 = np.divide(2.0 * precision * recall, denom, out=np.zeros_like(denom), where=denom > 0)
+        best = int(np.argmax(f1))  # thresholds descend: the first maximum is the highest threshold
+        return float(thresholds[best]), float(f1[best])
+
     def result(self) -> dict[str, float]:
         """The figures of every view seen.
 
@@ -271,11 +290,13 @@ class HeatmapMetrics:
             ``center_precision``, ``center_recall``, ``center_f1`` (from the summed counts),
             ``center_tp``, ``center_fp``, ``center_fn`` (peak counts), ``curvature_ap``,
             ``curvature_precision``, ``curvature_recall``, ``curvature_f1`` (pixels, binarised at
-            ``curvature_threshold``) and ``n_views``; counts as floats. Empty denominators give 1 (see
+            ``curvature_threshold``), ``curvature_best_threshold`` and ``curvature_best_f1``
+            (:meth:`curvature_best_threshold`) and ``n_views``; counts as floats. Empty denominators give 1 (see
             the module's docstring), so every value is defined, before any update too.
         """
         tp, fp, fn = self.center_tp, self.center_fp, self.center_fn
         ktp, kfp, kfn = self.curvature_tp, self.curvature_fp, self.curvature_fn
+        best_threshold, best_f1 = self.curvature_best_threshold()
         return {
             "center_precision": _ratio(tp, tp + fp),
             "center_recall": _ratio(tp, tp + fn),
@@ -287,5 +308,7 @@ class HeatmapMetrics:
             "curvature_f1": _f1(ktp, kfp, kfn),
             "curvature_precision": _ratio(ktp, ktp + kfp),
             "curvature_recall": _ratio(ktp, ktp + kfn),
+            "curvature_best_threshold": best_threshold,
+            "curvature_best_f1": best_f1,
             "n_views": float(self.n_views),
         }

@@ -54,5 +54,9 @@ class MixedPredictor:
                 f" curvature source {curvature.im_ids} at {curvature.size}"
             )
         return Heatmaps(
-            centers.center, curvature.curvature.to(centers.center.device), centers.channel_obj_ids, centers.im_ids
+            centers.center,
+            curvature.curvature.to(centers.center.device),
+            centers.channel_obj_ids,
+            centers.im_ids,
+            curvature.curvature_threshold,  # the curvature's binarisation goes with it
         )

@@ -102,6 +102,8 @@ class NetPredictor:
     it from ``CenDerNetConfig.known_object_ids``), so that a part mistaken for a look-alike of another size
     that is not in the image goes to the look-alike that is. No effect on independent channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
+    ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
+    ``PoseConfig.t_b_network`` or, when that is None, the weights' calibrated one; None: stage 3's ``t_b``).
     """
 
     name = "net"
@@ -113,8 +115,10 @@ class NetPredictor:
         batch_size: int = 8,
         known_object_ids: bool = True,
         flips: int = 1,
+        curvature_threshold: float | None = None,
     ) -> None:
         check_flips(flips)
+        self.curvature_threshold = curvature_threshold
         self.weights = weights
         self.device = torch.device(device)
         self.model = weights.model.to(self.device).eval()
@@ -138,4 +142,4 @@ class NetPredictor:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         self.last_seconds_per_view = (time.perf_counter() - t0) / max(1, image.shape[0])
-        return Heatmaps(center, curvature, self.channel_obj_ids, tuple(scene.im_ids))
+        return Heatmaps(center, curvature, self.channel_obj_ids, tuple(scene.im_ids), self.curvature_threshold)

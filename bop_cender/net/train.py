@@ -4,7 +4,9 @@
 - Adam, learning rate 3e-4 (paper appendix), batch size and epochs from the config.
 - Every epoch: the appendix's augmentations (:mod:`bop_cender.net.augment`), optionally random crops
   (the net is fully convolutional: crops cut the cost of large T-LESS images), then validation on
-  ``val_split`` (losses, center-peak precision / recall / F1, curvature AP and F1 at t_b).
+  ``val_split`` (losses, center-peak precision / recall / F1, curvature AP and F1 at t_b, and the curvature
+  threshold with the best F1, stored in the weights as their calibrated ``curvature_threshold``: stage 3
+  binarises this network's curvature there, ``PoseConfig.t_b_network``).
 - Deterministic per seed on the CPU: the model's initial weights come from ``seed``, the order of the
   samples, the augmentations and the crops of epoch ``e`` from ``(seed, e)`` alone, so that a run
   resumed from its checkpoint after epoch ``e`` continues bit for bit as if it had never stopped.
@@ -39,7 +41,7 @@ from bop_cender.net.predictor import known_class_mask
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, factored_center_logits
-from bop_cender.net.weights import load_weights, save_weights, weights_payload
+from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights, weights_payload
 from bop_cender.progress import progress_bar
 
 CENTER_LOSSES = ("bce", "focal")
@@ -263,6 +265,9 @@ def train(
             record.val = evaluate(model, val_set, device, targets)
         history.append(record)
         extra = {"epoch": epoch + 1, "config": config.as_dict(), "history": [asdict(h) for h in history]}
+        threshold = record.val.get("curvature_best_threshold")
+        if threshold is not None and 0.0 < threshold < 1.0:  # this epoch's calibration (NetWeights.curvature_threshold)
+            extra[CURVATURE_THRESHOLD] = float(threshold)
         payload = weights_payload(model, kind, train_set.channel_obj_ids, targets, **extra)
         save_weights(run_dir / WEIGHTS, payload)
         payload["optimiser"] = optimiser.state_dict()

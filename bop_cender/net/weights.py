@@ -24,6 +24,8 @@ from bop_cender.net.unet import UNet, UNetSpec
 
 FORMAT = "bop-cender-unet"
 FORMAT_VERSION = 1
+#: Key of the calibrated curvature binarisation threshold in a weights file (optional; see :class:`NetWeights`).
+CURVATURE_THRESHOLD = "curvature_threshold"
 #: Shipped weights, by dataset: files in ``bop_cender/net/weights/`` (with a ``.json`` card beside each).
 SHIPPED = {"dimo": "dimo.pt", "tless": "tless.pt"}
 
@@ -38,6 +40,9 @@ class NetWeights:
         channel_obj_ids: object id of each center channel, None for one shared channel.
         targets: the target config it was trained on.
         path: where it was read from.
+        curvature_threshold: the binarisation threshold calibrated for its curvature heatmaps (the best-F1
+            threshold on its validation views, :meth:`~bop_cender.net.metrics.HeatmapMetrics.curvature_best_threshold`,
+            written by ``train`` and ``scripts/calibrate_curvature.py``), in (0, 1); None in files without one.
         extra: everything else in the file (epoch, optimiser state of a checkpoint, ...).
     """
 
@@ -47,6 +52,7 @@ class NetWeights:
     targets: TargetConfig
     path: Path
     extra: dict[str, Any]
+    curvature_threshold: float | None = None
 
 
 def weights_payload(
@@ -148,10 +154,15 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     except (RuntimeError, TypeError) as exc:
         raise ConfigError(f"the weights do not fit their network spec: {_first_line(exc, 2)}", file=path) from None
     model.eval()
-    extra = {
-        k: v for k, v in payload.items() if k not in ("spec", "dataset", "channel_obj_ids", "targets", "state_dict")
-    }
-    return NetWeights(model, kind, channel_obj_ids, targets, path, extra)
+    threshold = payload.get(CURVATURE_THRESHOLD)
+    if threshold is not None and not (isinstance(threshold, float | int) and 0.0 < float(threshold) < 1.0):
+        raise ConfigError(f"malformed weights file ({CURVATURE_THRESHOLD}: expected a number in (0, 1), got {threshold!r})",
+                          file=path)  # fmt: skip
+    reserved = ("spec", "dataset", "channel_obj_ids", "targets", "state_dict", CURVATURE_THRESHOLD)
+    extra = {k: v for k, v in payload.items() if k not in reserved}
+    return NetWeights(
+        model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold)
+    )
 
 
 def _first_line(exc: BaseException, lines: int = 1, limit: int = 200) -> str:

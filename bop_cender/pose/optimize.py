@@ -87,6 +87,13 @@ class PoseConfig:
         t_b: binarisation threshold of the predicted curvature (in [0, 1]); ours: 0.75, with the
             targets' scale c = 4 a raw curvature of 3: silhouettes and sharp creases (3 to 4.2) pass,
             the curved surfaces of thin parts (1.3 to 2.9) do not (see ``TargetConfig.curvature_scale``).
+        t_b_network: binarisation threshold of a network's predicted curvature (the target side only: a rendered
+            pose's edges stay those above ``t_b``, the edges the network was trained to predict). None (ours): the
+            threshold calibrated for the weights (:attr:`~bop_cender.net.weights.NetWeights.curvature_threshold`:
+            the best-F1 threshold on their validation views), or ``t_b`` for weights without one. Why: a network's
+            curvature is softer than the renderer's; at ``t_b`` its edges break up (shipped DIMO network, seed
+            9002 ``sim``: curvature F1 0.444 at 0.75, 0.622 at 0.62), and the pose stage then fits fragments.
+            Measured end to end (``results/accuracy/README.md``, fifth session).
         n_candidates: random pose candidates per object (paper: 2,000).
         translation_sigma_mm: standard deviation of the candidates' centre around the 3D centre (ours:
             5 mm, the triangulation error of stage 2 is a few mm on oracle heatmaps).
@@ -217,6 +224,7 @@ class PoseConfig:
     """
 
     t_b: float = 0.75
+    t_b_network: float | None = None
     n_candidates: int = 2000
     translation_sigma_mm: float = 5.0
     top_k: int = 3
@@ -260,6 +268,10 @@ class PoseConfig:
                      "center_weight", "screen_starts", "screen_maxfev"):  # fmt: skip
             if not getattr(self, name) >= 0:  # NaN too
                 raise ConfigError(f"poses.{name}: expected 0 or more, got {getattr(self, name)}", field="--set")
+        for name in ("t_b", "t_b_network"):
+            value = getattr(self, name)
+            if value is not None and not 0.0 <= value < 1.0:  # NaN too
+                raise ConfigError(f"poses.{name}: expected a number in [0, 1), got {value}", field="--set")
         if self.passes < 1:
             raise ConfigError(f"poses.passes: expected at least 1, got {self.passes}", field="--set")
         if self.acceptance not in ACCEPTANCES:
@@ -329,6 +341,7 @@ def optimise_scene(
     cost_threads: int = 1,
     edges: Callable[[int], EdgeModel] | None = None,
     curvature_scale: float = DEFAULT_CURVATURE_SCALE,
+    target_threshold: float | None = None,
 ) -> list[PlacedObject]:
     """Poses of all ``targets``, most visible first, each occluded by those placed before it.
 
@@ -345,7 +358,9 @@ def optimise_scene(
             torch thread and free cores: 258 against 169 calls/s on 2 cores, ``results/bench/run_*``).
         edges: the edge model of an object id (default: built from ``meshes`` on first use).
         curvature_scale: the targets' curvature scale ``c`` (``curvature`` is ``clip(raw / c, 0, 1)``):
-            the two-sided judge binarises a pose's raw curvature at ``t_b * c``, as the target was.
+            the two-sided judge binarises a pose's raw curvature at ``t_b * c``, as a GT target is.
+        target_threshold: binarise ``curvature`` here instead of at ``config.t_b`` (a network's curvature:
+            :attr:`~bop_cender.net.heatmaps.Heatmaps.curvature_threshold`); None: ``t_b``.
 
     Returns:
         One :class:`PlacedObject` per target, in the order they were placed.
@@ -353,7 +368,7 @@ def optimise_scene(
     if edges is None:
         edges = _EdgeModels(meshes, config.edge_segment_mm)
     curv = torch.as_tensor(curvature).detach().to("cpu", torch.float32)
-    binary = curv > config.t_b
+    binary = curv > (config.t_b if target_threshold is None else target_threshold)
     fine = CostMaps(cameras, torch.as_tensor(distance_maps(binary.numpy())), binary)
     f = max(1, int(config.candidate_downscale))
     coarse = fine

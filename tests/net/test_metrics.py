@@ -278,3 +278,29 @@ def test_results_follow_the_device(device):
     on_device = HeatmapMetrics()
     on_device.update(center_pred.to(device), curv_pred.to(device), center_gt.to(device), curv_gt.to(device))
     assert on_device.result() == cpu.result()
+
+
+def test_the_best_curvature_threshold_separates_a_soft_prediction_and_is_the_highest_of_ties():
+    """A network's edges at 0.6 and its background at 0.3: at t_b (0.75) it finds nothing; the best threshold is
+    the highest bin edge under 0.6, where every edge pixel and no other is above it (F1 1)."""
+    gt = flat_curvature(0.0)
+    gt[0, :3] = 1.0
+    pred = torch.where(gt > 0.5, 0.6, 0.3)
+    m = HeatmapMetrics()
+    m.update(maps([]), pred, maps([]), gt)
+    threshold, f1 = m.curvature_best_threshold()
+    assert threshold == pytest.approx(0.599) and f1 == pytest.approx(1.0)
+    r = m.result()
+    assert r["curvature_f1"] == 0.0 and (r["curvature_best_threshold"], r["curvature_best_f1"]) == (threshold, f1)
+    # one wrong pixel above the edges' value: the best threshold stays where F1 is best, not at the top
+    pred[0, 5, 5] = 0.9
+    m = HeatmapMetrics()
+    m.update(maps([]), pred, maps([]), gt)
+    threshold, f1 = m.curvature_best_threshold()
+    assert threshold == pytest.approx(0.599) and f1 == pytest.approx(2 * 3 * W / (2 * 3 * W + 1))
+
+
+def test_without_curvature_gt_the_best_threshold_is_t_b():
+    m = HeatmapMetrics()
+    m.update(maps([]), flat_curvature(0.2), maps([]), flat_curvature(0.0))
+    assert m.curvature_best_threshold() == (0.75, 1.0)

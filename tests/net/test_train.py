@@ -68,6 +68,10 @@ def test_a_short_run_lowers_the_loss_and_writes_its_files(tiny_root, tmp_path) -
     weights = load_weights(tmp_path / "run" / WEIGHTS, dataset="dimo")
     assert weights.extra["epoch"] == 5 and weights.channel_obj_ids is None
     assert {"center_f1", "curvature_ap", "center_loss"} <= set(summary.history[-1].val)
+    # the weights carry the last validation's calibrated curvature threshold (where stage 3 binarises their maps)
+    best = summary.history[-1].val["curvature_best_threshold"]
+    assert 0.0 < best < 1.0 and weights.curvature_threshold == pytest.approx(best)
+    assert summary.history[-1].val["curvature_best_f1"] >= summary.history[-1].val["curvature_f1"]
 
 
 def test_a_resumed_run_equals_an_uninterrupted_one(tiny_root, tmp_path) -> None:

@@ -211,3 +211,37 @@ def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
         from bop_cender.runner import run
 
         run(replace(request, heatmaps="half"), dataset)
+
+
+def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heatmaps(tmp_path) -> None:
+    """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.t_b_network`` overrides it,
+    and a value outside (0, 1) is one error naming the file."""
+    from bop_cender.method import CenDerNetConfig
+    from bop_cender.runner import network_curvature_threshold
+
+    root = method_data.build(tmp_path / "dimo")
+    dataset = open_dimo(root, "real")
+    scene = dataset.loader(dataset.scene_keys[0])
+    _save(tmp_path / "plain.pt", UNetSpec.dimo_lean(width=0.5))
+    _save(tmp_path / "cal.pt", UNetSpec.dimo_lean(width=0.5), curvature_threshold=0.55)
+    assert load_weights(tmp_path / "plain.pt").curvature_threshold is None
+    calibrated = load_weights(tmp_path / "cal.pt")
+    assert calibrated.curvature_threshold == 0.55 and "curvature_threshold" not in calibrated.extra
+    request = RunRequest(dataset="dimo", data_root=str(root), split="real", out=tmp_path / "x_dimo-real.csv",
+                         heatmaps="net", weights=str(tmp_path / "cal.pt"))  # fmt: skip
+    assert net_predictor(request, dataset).predict(scene).curvature_threshold == 0.55
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
+    assert net_predictor(replace(request, config=given), dataset).predict(scene).curvature_threshold == 0.4
+    assert network_curvature_threshold(CenDerNetConfig(), load_weights(tmp_path / "plain.pt")) is None
+    from bop_cender.runner import build_method
+
+    # the threshold goes with the curvature: the network's in oracle-centers, the oracle's (None: t_b) in the reverse
+    for source, expected in (("oracle-centers", 0.55), ("oracle-curvature", None), ("oracle", None)):
+        maps = build_method(replace(request, heatmaps=source), dataset).predictor.predict(scene)
+        assert maps.curvature_threshold == expected, source
+        assert maps.to("cpu").curvature_threshold == expected
+    for bad in (1.5, 0.0, float("nan"), "0.5"):
+        _save(tmp_path / "bad.pt", UNetSpec.dimo_lean(width=0.5), curvature_threshold=bad)
+        with pytest.raises(ConfigError, match="curvature_threshold: expected a number in") as info:
+            load_weights(tmp_path / "bad.pt")
+        assert str(tmp_path / "bad.pt") in info.value.format()

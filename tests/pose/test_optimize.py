@@ -19,6 +19,7 @@ from bop_cender.pose.optimize import (  # noqa: E402
     PoseConfig,
     PoseTarget,
     Refinement,
+    SceneCameras,
     _refine_lockstep,
     _refine_scipy,
     optimise_scene,
@@ -344,3 +345,36 @@ def test_the_screened_starts_that_go_on_are_kept_apart_in_rotation(mini, monkeyp
     optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
                     edge_threshold=BOX_T_B)  # fmt: skip
     assert [(n, k, sep) for n, k, sep, _ in chosen] == [(16, 6, 0.3), (6, 2, 0.3)]
+
+
+def test_a_networks_curvature_is_binarised_at_its_own_threshold(monkeypatch):
+    """``target_threshold`` (a network's calibrated threshold, carried by its heatmaps) binarises the target
+    curvature instead of ``t_b``; without one, ``t_b`` does. Edges at 0.6: lost at t_b = 0.75, kept at 0.5."""
+    import bop_cender.pose.optimize as optimize
+
+    class Seen(Exception):
+        pass
+
+    seen = []
+
+    def capture(binary):
+        seen.append(np.asarray(binary).copy())
+        raise Seen
+
+    monkeypatch.setattr(optimize, "distance_maps", capture)
+    curvature = torch.zeros(2, 8, 10)
+    curvature[:, 3, 2:7] = 0.6
+    cameras = SceneCameras(np.stack([np.eye(3)] * 2), np.stack([np.eye(4)] * 2), 8, 10)
+    for threshold, expected in ((None, 0), (0.5, 10), (0.59, 10), (0.6, 0)):
+        with pytest.raises(Seen):
+            optimise_scene([], curvature, cameras, None, None, PoseConfig(), target_threshold=threshold)
+        assert int(seen[-1].sum()) == expected, threshold
+
+
+def test_the_curvature_thresholds_are_checked():
+    from bop_cender.errors import ConfigError
+
+    for bad in ({"t_b": 1.0}, {"t_b_network": -0.1}, {"t_b_network": float("nan")}):
+        with pytest.raises(ConfigError, match="expected a number in"):
+            PoseConfig(**bad)
+    assert PoseConfig(t_b_network=0.5).t_b_network == 0.5 and PoseConfig().t_b_network is None

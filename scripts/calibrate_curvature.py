@@ -1,0 +1,78 @@
+"""Calibrate a weights file's curvature threshold: the binarisation with the best F1 on validation views.
+
+``bop-cender train`` stores this threshold in every weights file it writes (``curvature_threshold``, from the
+epoch's validation); this script adds or refreshes it in a file written before that existed, or calibrates
+on other views. Stage 3 binarises the network's curvature there (``PoseConfig.t_b_network`` None, the
+default) instead of at ``t_b``, which suits the renderer's sharp curvature but breaks a network's softer
+edges into fragments. Only the threshold changes: the network's parameters are copied bit for bit.
+
+    python scripts/calibrate_curvature.py bop_cender/net/weights/dimo.pt --dataset dimo \\
+        --data-root data/dimo_val --split sim [--out OTHER.pt]
+
+Prints the F1 at ``t_b`` and at the calibrated threshold. Calibrate on validation views, never on the test
+split whose figures you report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+
+from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.errors import BopCenderError, ConfigError
+from bop_cender.meshes import MeshCache
+from bop_cender.net.heatmap_eval import evaluate_heatmaps
+from bop_cender.net.predictor import NetPredictor
+from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights
+
+
+def calibrate(weights_path: Path, dataset: str, data_root: Path, split: str, out: Path) -> dict[str, float]:
+    """Measure the best-F1 threshold of ``weights_path`` on ``data_root``/``split`` and write the weights with it
+    to ``out`` (atomically). Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``).
+
+    Raises:
+        ConfigError: the split has no ground truth, or the best threshold is not inside (0, 1) (a network
+            whose curvature ranks nothing: binarising it anywhere is as good as at 0).
+    """
+    weights = load_weights(weights_path, dataset=dataset)
+    data = open_dataset(DatasetRequest(dataset, data_root, split))
+    report = evaluate_heatmaps(
+        data, NetPredictor(weights), weights.targets, MeshCache(data.models), str(weights_path), progress=True
+    )
+    if not report.metrics:
+        raise ConfigError(f"split {split!r} has no ground truth to calibrate on", file=data_root, field="--split")
+    threshold = report.metrics["curvature_best_threshold"]
+    if not 0.0 < threshold < 1.0:
+        raise ConfigError(f"no usable threshold: the best F1 is at {threshold:g}", file=weights_path)
+    payload = torch.load(weights_path, map_location="cpu", weights_only=True)
+    payload[CURVATURE_THRESHOLD] = float(threshold)
+    save_weights(out, payload)
+    return {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("weights", type=Path)
+    ap.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True)
+    ap.add_argument("--data-root", type=Path, required=True, help="a dataset with GT (validation views)")
+    ap.add_argument("--split", required=True)
+    ap.add_argument("--out", type=Path, default=None, help="where to write (default: the weights file itself)")
+    args = ap.parse_args(argv)
+    try:
+        figures = calibrate(args.weights, args.dataset, args.data_root, args.split, args.out or args.weights)
+    except BopCenderError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"{int(figures['views'])} views: curvature F1 {figures['curvature_f1']:.3f} at t_b,"
+        f" {figures['curvature_best_f1']:.3f} at {figures['curvature_best_threshold']:.3f};"
+        f" wrote {args.out or args.weights} ({CURVATURE_THRESHOLD} {figures['curvature_best_threshold']:.3f})"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

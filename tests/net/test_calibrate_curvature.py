@@ -1,0 +1,64 @@
+"""``scripts/calibrate_curvature.py``: the best-F1 threshold of validation views goes into the weights file, and
+nothing else changes; a split without GT or a useless threshold is one error."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+sys.path.insert(0, str(Path(__file__).parents[2] / "scripts"))
+import calibrate_curvature  # noqa: E402
+import method_data  # noqa: E402
+
+from bop_cender.errors import ConfigError  # noqa: E402
+from bop_cender.net.heatmap_eval import HeatmapReport  # noqa: E402
+from bop_cender.net.targets import TargetConfig  # noqa: E402
+from bop_cender.net.unet import UNet, UNetSpec  # noqa: E402
+from bop_cender.net.weights import load_weights, save_weights, weights_payload  # noqa: E402
+
+
+@pytest.fixture()
+def setup(tmp_path, monkeypatch):
+    root = method_data.build(tmp_path / "dimo")
+    torch.manual_seed(0)
+    weights = tmp_path / "w.pt"
+    save_weights(weights, weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None,
+                                          TargetConfig.for_dataset("dimo"), epoch=3))  # fmt: skip
+    figures: dict = {}
+
+    def fake_evaluate(data, predictor, targets, meshes, source, **kw):
+        report = HeatmapReport("dimo", data.split, source, scenes=1, views=4)
+        report.metrics = dict(figures)
+        return report
+
+    monkeypatch.setattr(calibrate_curvature, "evaluate_heatmaps", fake_evaluate)
+    return root, weights, figures
+
+
+def test_the_threshold_is_written_and_the_network_kept(setup, tmp_path, capsys) -> None:
+    root, weights, figures = setup
+    figures.update(curvature_f1=0.4, curvature_best_f1=0.6, curvature_best_threshold=0.62, curvature_ap=0.5)
+    out = tmp_path / "cal.pt"
+    code = calibrate_curvature.main([str(weights), "--dataset", "dimo", "--data-root", str(root), "--split", "real",
+                                     "--out", str(out)])  # fmt: skip
+    assert code == 0 and "0.400 at t_b, 0.600 at 0.620" in capsys.readouterr().out
+    before, after = load_weights(weights), load_weights(out)
+    assert before.curvature_threshold is None and after.curvature_threshold == 0.62
+    assert after.extra["epoch"] == 3 and after.model.spec == before.model.spec
+    for name, tensor in before.model.state_dict().items():
+        assert torch.equal(tensor, after.model.state_dict()[name]), name
+
+
+def test_no_gt_or_no_usable_threshold_is_one_error(setup, capsys) -> None:
+    root, weights, figures = setup
+    argv = [str(weights), "--dataset", "dimo", "--data-root", str(root), "--split", "real"]
+    assert calibrate_curvature.main(argv) == 2  # no figures: the split has no GT
+    assert "has no ground truth" in capsys.readouterr().err
+    figures.update(curvature_f1=0.1, curvature_best_f1=0.2, curvature_best_threshold=0.0)
+    with pytest.raises(ConfigError, match="no usable threshold"):
+        calibrate_curvature.calibrate(weights, "dimo", root, "real", weights)
+    assert load_weights(weights).curvature_threshold is None  # nothing written
