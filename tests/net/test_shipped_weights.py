@@ -49,6 +49,9 @@ def test_shipped_weights_give_the_figures_of_their_card(tmp_path, dataset) -> No
     weights = load_weights(path, dataset=dataset)
     # (from_dict: a card written before a spec field existed has that field's default)
     assert weights.model.spec == UNetSpec.from_dict(card["network"]) and path.stat().st_size <= 20e6
+    # stage 3 binarises their curvature at the calibrated threshold that the card states
+    assert 0.0 < weights.curvature_threshold < 1.0
+    assert weights.curvature_threshold == pytest.approx(card["curvature_threshold"]["value"], abs=5e-4)
     report = evaluate_heatmaps(
         data, NetPredictor(weights), weights.targets, MeshCache(data.models), str(path), progress=False
     )
