@@ -171,7 +171,7 @@ class CenDerNet:
                 self.config.poses,
                 cost_threads=self.cost_threads,
                 curvature_scale=self.config.targets.curvature_scale,
-                target_threshold=heatmaps.curvature_threshold,
+                target_threshold=self._curvature_threshold(heatmaps),
             )
             if targets and candidate_ids
             else []
@@ -184,6 +184,14 @@ class CenDerNet:
         timings = {"heatmaps": t1 - t0, "centers": t2 - t1, "poses": t3 - t2}
         estimate = SceneEstimate(scene.key, scene.scene_id, objects, time_s=t3 - t0, timings=timings)
         return SceneOutput(estimate, heatmaps, centers, placed)
+
+    def _curvature_threshold(self, heatmaps: Heatmaps) -> float | None:
+        """Where stage 3 binarises ``heatmaps``' curvature: a network's (heatmaps that carry a threshold) at
+        ``poses.t_b_network`` when set, else at the threshold they carry; None (``t_b``) for the oracle's."""
+        if heatmaps.curvature_threshold is None:
+            return None
+        given = self.config.poses.t_b_network
+        return given if given is not None else heatmaps.curvature_threshold
 
     def _image_scores(self, placed: PlacedObject, heatmaps: Heatmaps, Ks: np.ndarray, T_cw: np.ndarray) -> dict:
         """Per image, the center heatmap at the projection of the placed object's centre (in [0, 1]): how

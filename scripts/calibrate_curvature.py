@@ -44,7 +44,11 @@ def calibrate(weights_path: Path, dataset: str, data_root: Path, split: str, out
     )
     if not report.metrics:
         raise ConfigError(f"split {split!r} has no ground truth to calibrate on", file=data_root, field="--split")
-    threshold = report.metrics["curvature_best_threshold"]
+    threshold = report.metrics.get("curvature_best_threshold")
+    if threshold is None:
+        raise ConfigError(
+            f"split {split!r} shows no curvature edge in its ground truth", file=data_root, field="--split"
+        )
     if not 0.0 < threshold < 1.0:
         raise ConfigError(f"no usable threshold: the best F1 is at {threshold:g}", file=weights_path)
     payload = torch.load(weights_path, map_location="cpu", weights_only=True)

@@ -119,7 +119,10 @@ def main(argv=None) -> int:
         "machine": f"{bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores, torch {torch.__version__}",
         "validation_last_epoch": history[-1].get("val", {}) if history else {},
         # where stage 3 binarises this network's curvature (train's last validation; see calibrate_curvature.py)
-        "curvature_threshold": {"value": weights.curvature_threshold, "calibrated_on": "the last epoch's validation"}
+        "curvature_threshold": {
+            "value": weights.curvature_threshold,
+            "calibrated_on": "as stored in the weights: train's last validation, or calibrate_curvature.py",
+        }
         if weights.curvature_threshold is not None
         else None,
         "history": [{k: v for k, v in h.items() if k != "val"} | {"val": h.get("val", {})} for h in history],

@@ -240,6 +240,12 @@ def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
     out = tmp_path / "cendernet-mixed2_dimo-real.csv"
     summary = run(request(mini_root, out, heatmaps="oracle-curvature", weights=str(weights), limit_scenes=1))
     assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.75, "poses.t_b")
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4", "poses.n_candidates=48"])
+    out = tmp_path / "cendernet-mixed3_dimo-real.csv"
+    summary = run(
+        request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1, config=given)
+    )
+    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.4, "poses.t_b_network")
 
 
 def test_a_request_without_a_config_gets_its_datasets_settings(tmp_path):

@@ -66,7 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--set",
         action="append",
         metavar="SECTION.FIELD=VALUE",
-        help="override a method setting (repeatable): poses.t_b=0.5, centers.d_c=30, targets.curvature_scale=1",
+        help="override a method setting (repeatable): centers.d_c=30, poses.t_b_network=0.5 (a network's curvature; default: the weights' calibration), poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
     )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -40,6 +40,9 @@ class Heatmaps:
             raise ValueError(
                 f"curvature {tuple(self.curvature.shape)} does not match center {tuple(self.center.shape)}"
             )
+        t = self.curvature_threshold
+        if t is not None and not 0.0 <= t < 1.0:  # NaN too: it would leave no edge at all
+            raise ValueError(f"curvature_threshold must be in [0, 1), got {t}")
         if len(self.im_ids) != V:
             raise ValueError(f"{len(self.im_ids)} image ids for {V} views")
         if self.channel_obj_ids is not None and len(self.channel_obj_ids) != C:

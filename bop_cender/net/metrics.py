@@ -267,16 +267,16 @@ class HeatmapMetrics:
         _, precision, recall = self.curvature_pr_curve()
         return float(np.sum(np.diff(recall, prepend=0.0) * precision))
 
-    def curvature_best_threshold(self) -> tuple[float, float]:
+    def curvature_best_threshold(self) -> tuple[float, float] | None:
         """The binarisation threshold of the predicted curvature with the best F1 against the GT pixels (the GT
         binarised at ``curvature_threshold``), and that F1: ``(threshold, f1)``.
 
         A pixel counts as predicted where its score exceeds the threshold, as stage 3 binarises; thresholds are
         the bin edges ``k / curvature_bins``. Ties keep the highest threshold. With no GT-positive pixel:
-        ``(curvature_threshold, binarised F1)``.
+        None: nothing to calibrate on (no GT-positive pixel).
         """
         if int(self.curvature_histogram[1].sum()) == 0:
-            return self.config.curvature_threshold, _f1(self.curvature_tp, self.curvature_fp, self.curvature_fn)
+            return None
         thresholds, precision, recall = self.curvature_pr_curve()
         denom = precision + recall
         f1 = np.divide(2.0 * precision * recall, denom, out=np.zeros_like(denom), where=denom > 0)
@@ -291,12 +291,13 @@ class HeatmapMetrics:
             ``center_tp``, ``center_fp``, ``center_fn`` (peak counts), ``curvature_ap``,
             ``curvature_precision``, ``curvature_recall``, ``curvature_f1`` (pixels, binarised at
             ``curvature_threshold``), ``curvature_best_threshold`` and ``curvature_best_f1``
-            (:meth:`curvature_best_threshold`) and ``n_views``; counts as floats. Empty denominators give 1 (see
+            (:meth:`curvature_best_threshold`; absent without GT-positive pixels) and ``n_views``; counts as floats. Empty denominators give 1 (see
             the module's docstring), so every value is defined, before any update too.
         """
         tp, fp, fn = self.center_tp, self.center_fp, self.center_fn
         ktp, kfp, kfn = self.curvature_tp, self.curvature_fp, self.curvature_fn
-        best_threshold, best_f1 = self.curvature_best_threshold()
+        best = self.curvature_best_threshold()
+        calibration = {} if best is None else {"curvature_best_threshold": best[0], "curvature_best_f1": best[1]}
         return {
             "center_precision": _ratio(tp, tp + fp),
             "center_recall": _ratio(tp, tp + fn),
@@ -308,7 +309,6 @@ class HeatmapMetrics:
             "curvature_f1": _f1(ktp, kfp, kfn),
             "curvature_precision": _ratio(ktp, ktp + kfp),
             "curvature_recall": _ratio(ktp, ktp + kfn),
-            "curvature_best_threshold": best_threshold,
-            "curvature_best_f1": best_f1,
+            **calibration,
             "n_views": float(self.n_views),
         }

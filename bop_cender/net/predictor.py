@@ -103,7 +103,7 @@ class NetPredictor:
     that is not in the image goes to the look-alike that is. No effect on independent channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
-    ``PoseConfig.t_b_network`` or, when that is None, the weights' calibrated one; None: stage 3's ``t_b``).
+    ``PoseConfig.t_b_network`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
     """
 
     name = "net"
@@ -118,7 +118,9 @@ class NetPredictor:
         curvature_threshold: float | None = None,
     ) -> None:
         check_flips(flips)
-        self.curvature_threshold = curvature_threshold
+        self.curvature_threshold = (
+            curvature_threshold if curvature_threshold is not None else weights.curvature_threshold
+        )
         self.weights = weights
         self.device = torch.device(device)
         self.model = weights.model.to(self.device).eval()

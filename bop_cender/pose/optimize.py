@@ -1,6 +1,7 @@
 """Stage 3 of CenDerNet (paper, Section 2.3): poses by render-and-compare of curvature, object by object.
 
-For a scene: the predicted curvature heatmaps are binarised at ``t_b`` and turned into distance maps
+For a scene: the predicted curvature heatmaps are binarised (at ``t_b``, or a network's calibrated threshold:
+``PoseConfig.t_b_network``) and turned into distance maps
 once (:func:`bop_cender.pose.cost.distance_maps`). Objects are then optimised one by one in order of
 decreasing visibility (the aggregated center score of their 3D centre), each view weighted by the
 object's center score in that view; the objects already placed are rendered into every view as a

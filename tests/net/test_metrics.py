@@ -300,7 +300,8 @@ def test_the_best_curvature_threshold_separates_a_soft_prediction_and_is_the_hig
     assert threshold == pytest.approx(0.599) and f1 == pytest.approx(2 * 3 * W / (2 * 3 * W + 1))
 
 
-def test_without_curvature_gt_the_best_threshold_is_t_b():
+def test_without_curvature_gt_there_is_no_best_threshold():
+    """Nothing to calibrate on: no threshold (train then stores none), and the figures leave it out."""
     m = HeatmapMetrics()
     m.update(maps([]), flat_curvature(0.2), maps([]), flat_curvature(0.0))
-    assert m.curvature_best_threshold() == (0.75, 1.0)
+    assert m.curvature_best_threshold() is None and "curvature_best_threshold" not in m.result()

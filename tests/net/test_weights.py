@@ -230,6 +230,9 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
     request = RunRequest(dataset="dimo", data_root=str(root), split="real", out=tmp_path / "x_dimo-real.csv",
                          heatmaps="net", weights=str(tmp_path / "cal.pt"))  # fmt: skip
     assert net_predictor(request, dataset).predict(scene).curvature_threshold == 0.55
+    assert NetPredictor(calibrated).predict(scene).curvature_threshold == 0.55  # the API's default too
+    with pytest.raises(ValueError, match="curvature_threshold must be in"):
+        replace(NetPredictor(calibrated).predict(scene), curvature_threshold=float("nan"))
     given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
     assert net_predictor(replace(request, config=given), dataset).predict(scene).curvature_threshold == 0.4
     assert network_curvature_threshold(CenDerNetConfig(), load_weights(tmp_path / "plain.pt")) is None
