@@ -229,8 +229,17 @@ def net_predictor(request: RunRequest, dataset: Dataset):
 def network_curvature_threshold(config: CenDerNetConfig, weights) -> float | None:
     """Where stage 3 binarises the curvature of ``weights`` (a :class:`~bop_cender.net.weights.NetWeights`):
     ``poses.t_b_network`` when set, else the weights' calibrated threshold; None (``t_b``) when neither is."""
-    given = config.poses.t_b_network
-    return given if given is not None else weights.curvature_threshold
+    return network_curvature_choice(config, weights.curvature_threshold)[0]
+
+
+def network_curvature_choice(config: CenDerNetConfig, calibrated: float | None) -> tuple[float | None, str]:
+    """The precedence, once: ``poses.t_b_network``, else the weights' calibration ``calibrated``, else None (stage 3's
+    ``t_b``); with the name of the setting that decided (for the sidecar and the summary)."""
+    if config.poses.t_b_network is not None:
+        return config.poses.t_b_network, "poses.t_b_network"
+    if calibrated is not None:
+        return calibrated, "the weights' calibration"
+    return None, "poses.t_b: the weights carry no calibrated threshold"
 
 
 def run(
@@ -301,11 +310,8 @@ def _curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, 
     net = net_predictor(request, dataset)
     if request.heatmaps == "oracle-curvature":
         return request.config.poses.t_b, "poses.t_b"
-    if request.config.poses.t_b_network is not None:
-        return request.config.poses.t_b_network, "poses.t_b_network"
-    if net.curvature_threshold is not None:
-        return net.curvature_threshold, "the weights' calibration"
-    return request.config.poses.t_b, "poses.t_b: the weights carry no calibrated threshold"
+    value, source = network_curvature_choice(request.config, net.weights.curvature_threshold)
+    return (request.config.poses.t_b if value is None else value), source
 
 
 def _merge(request, dataset, keys, outcomes, resumed, work, start, threshold: tuple[float, str]) -> RunSummary:

@@ -269,3 +269,14 @@ def test_the_default_heatmaps_use_shipped_weights_only_for_their_own_dataset():
 
     assert default_heatmaps("dimo", None) == "net" and default_heatmaps("tless", None) == "net"
     assert default_heatmaps("bop", None) == "oracle" and default_heatmaps("bop", "w.pt") == "net"
+
+
+def test_the_network_curvature_threshold_precedence():
+    """``poses.t_b_network``, then the weights' calibration, then ``t_b`` (None), each named for the sidecar."""
+    from bop_cender.runner import network_curvature_choice
+
+    plain = CenDerNetConfig.for_dataset("dimo")
+    given = plain.with_settings(["poses.t_b_network=0.3"])
+    assert network_curvature_choice(given, 0.6) == (0.3, "poses.t_b_network")
+    assert network_curvature_choice(plain, 0.6) == (0.6, "the weights' calibration")
+    assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")
