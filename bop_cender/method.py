@@ -192,8 +192,7 @@ class CenDerNet:
         ``poses.t_b_network`` when set, else at the threshold they carry; None (``t_b``) for the oracle's."""
         if heatmaps.curvature_threshold is None:
             return None
-        given = self.config.poses.t_b_network
-        return given if given is not None else heatmaps.curvature_threshold
+        return network_curvature_choice(self.config, heatmaps.curvature_threshold)[0]
 
     def _image_scores(self, placed: PlacedObject, heatmaps: Heatmaps, Ks: np.ndarray, T_cw: np.ndarray) -> dict:
         """Per image, the center heatmap at the projection of the placed object's centre (in [0, 1]): how
@@ -216,6 +215,17 @@ class CenDerNet:
             if known:
                 return tuple(known)
         return tuple(targets)
+
+
+def network_curvature_choice(config: CenDerNetConfig, calibrated: float | None) -> tuple[float | None, str]:
+    """Where stage 3 binarises a network's curvature, the precedence in one place: ``poses.t_b_network``, else the
+    weights' calibration ``calibrated``, else None (stage 3's ``t_b``); with the name of the setting that decided
+    (for the run's sidecar and summary)."""
+    if config.poses.t_b_network is not None:
+        return config.poses.t_b_network, "poses.t_b_network"
+    if calibrated is not None:
+        return calibrated, "the weights' calibration"
+    return None, "poses.t_b: the weights carry no calibrated threshold"
 
 
 def _setting_names(config: CenDerNetConfig) -> list[str]:

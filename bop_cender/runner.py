@@ -33,7 +33,7 @@ from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.meshes import MeshCache
-from bop_cender.method import CenDerNet, CenDerNetConfig
+from bop_cender.method import CenDerNet, CenDerNetConfig, network_curvature_choice
 from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
 from bop_cender.results.files import write_run_sidecar
 
@@ -139,8 +139,8 @@ class RunSummary:
     empty: list[str]
     stage_seconds: dict[str, float]
     wall_seconds: float
-    curvature_threshold: float = 0.75  # where stage 3 binarised the curvature
-    curvature_threshold_source: str = "poses.t_b"  # which setting gave it
+    curvature_threshold: float  # where stage 3 binarised the curvature
+    curvature_threshold_source: str  # which setting gave it
 
 
 def open_run_dataset(request: RunRequest) -> Dataset:
@@ -222,24 +222,8 @@ def net_predictor(request: RunRequest, dataset: Dataset):
         device=request.device,
         known_object_ids=request.config.known_object_ids,
         flips=request.config.test_flips,
-        curvature_threshold=network_curvature_threshold(request.config, weights),
+        curvature_threshold=network_curvature_choice(request.config, weights.curvature_threshold)[0],
     )
-
-
-def network_curvature_threshold(config: CenDerNetConfig, weights) -> float | None:
-    """Where stage 3 binarises the curvature of ``weights`` (a :class:`~bop_cender.net.weights.NetWeights`):
-    ``poses.t_b_network`` when set, else the weights' calibrated threshold; None (``t_b``) when neither is."""
-    return network_curvature_choice(config, weights.curvature_threshold)[0]
-
-
-def network_curvature_choice(config: CenDerNetConfig, calibrated: float | None) -> tuple[float | None, str]:
-    """The precedence, once: ``poses.t_b_network``, else the weights' calibration ``calibrated``, else None (stage 3's
-    ``t_b``); with the name of the setting that decided (for the sidecar and the summary)."""
-    if config.poses.t_b_network is not None:
-        return config.poses.t_b_network, "poses.t_b_network"
-    if calibrated is not None:
-        return calibrated, "the weights' calibration"
-    return None, "poses.t_b: the weights carry no calibrated threshold"
 
 
 def run(

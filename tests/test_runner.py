@@ -273,7 +273,7 @@ def test_the_default_heatmaps_use_shipped_weights_only_for_their_own_dataset():
 
 def test_the_network_curvature_threshold_precedence():
     """``poses.t_b_network``, then the weights' calibration, then ``t_b`` (None), each named for the sidecar."""
-    from bop_cender.runner import network_curvature_choice
+    from bop_cender.method import network_curvature_choice
 
     plain = CenDerNetConfig.for_dataset("dimo")
     given = plain.with_settings(["poses.t_b_network=0.3"])

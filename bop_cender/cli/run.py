@@ -97,7 +97,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bop_cender.errors import ConfigError
     from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
-    from bop_cender.runner import RunRequest, run, uses_network
+    from bop_cender.runner import RunRequest, run
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
     if args.heatmaps is None:
@@ -151,7 +151,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     stages = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
     print(f"{summary.scenes} scenes ({summary.resumed} resumed), {summary.estimates} objects, {summary.rows} rows;"
           f" {summary.wall_seconds:.1f} s ({stages})")  # fmt: skip
-    if uses_network(args.heatmaps) and args.heatmaps != "oracle-curvature":
+    if summary.curvature_threshold_source != "poses.t_b":  # a network's curvature, binarised its own way
         print(f"the network's curvature binarised at {summary.curvature_threshold:.3g}"
               f" ({summary.curvature_threshold_source})")  # fmt: skip
     print(f"wrote {summary.out} and {summary.sidecar}")

@@ -216,8 +216,7 @@ def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
 def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heatmaps(tmp_path) -> None:
     """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.t_b_network`` overrides it,
     and a value outside (0, 1) is one error naming the file."""
-    from bop_cender.method import CenDerNetConfig
-    from bop_cender.runner import network_curvature_threshold
+    from bop_cender.method import CenDerNetConfig, network_curvature_choice
 
     root = method_data.build(tmp_path / "dimo")
     dataset = open_dimo(root, "real")
@@ -235,7 +234,9 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
         replace(NetPredictor(calibrated).predict(scene), curvature_threshold=float("nan"))
     given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
     assert net_predictor(replace(request, config=given), dataset).predict(scene).curvature_threshold == 0.4
-    assert network_curvature_threshold(CenDerNetConfig(), load_weights(tmp_path / "plain.pt")) is None
+    assert (
+        network_curvature_choice(CenDerNetConfig(), load_weights(tmp_path / "plain.pt").curvature_threshold)[0] is None
+    )
     from bop_cender.runner import build_method
 
     # the threshold goes with the curvature: the network's in oracle-centers, the oracle's (None: t_b) in the reverse
