@@ -36,11 +36,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
-        choices=("dimo", "dimo-lean", "dimo-context", "tless", "tless-lean", "tless-factored"),
+        choices=("dimo", "dimo-lean", "dimo-context", "dimo-refine", "tless", "tless-lean", "tless-factored",
+                 "tless-refine"),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
-        " dimo-lean with dilated context convolutions, a 3x wider receptive field; tless-factored: one"
-        " class-agnostic center map times a per-pixel object class, for T-LESS's 30 ids)",
+        " dimo-lean with dilated context convolutions, a 3x wider receptive field; dimo-refine: dimo-context with a"
+        " full-resolution curvature refinement; tless-factored: one"
+        " class-agnostic center map times a per-pixel object class, for T-LESS's 30 ids; tless-refine: that one with"
+        " the full-resolution curvature refinement)",
     )
     p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")

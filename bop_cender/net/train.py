@@ -62,8 +62,8 @@ class TrainConfig:
         limit_scenes, val_limit_scenes: the first K scenes only (smoke runs).
         init_weights: start from these weights (same network spec) instead of a random init: fine-tuning,
             e.g. a few epochs at a lower learning rate after a run (the optimiser starts afresh). Weights of a
-            network without context convolutions may start a run of the same network with them
-            (``dimo-lean`` -> ``dimo-context``): the new convolutions start as the identity.
+            network without context convolutions or a refinement may start a run of the same network with them
+            (``dimo-lean`` -> ``dimo-context`` -> ``dimo-refine``): the new convolutions start as the identity.
         center_pos_weight: ``w`` of the center loss's per-pixel weight ``1 + w * target`` (0: the paper's plain
             BCE). Not in the paper: with one channel per object id (T-LESS: 30) nearly every center pixel is
             background, and plain BCE keeps every center map near 0 for many epochs on our CPU budget
@@ -244,7 +244,7 @@ def train(
                 field="--init-weights",
             )
         missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
-        assert not unexpected and all(k.startswith("context.") for k in missing), (missing, unexpected)
+        assert not unexpected and all(k.startswith(("context.", "refine.")) for k in missing), (missing, unexpected)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr)
     history: list[EpochRecord] = []
     start_epoch = 0
@@ -279,8 +279,16 @@ def train(
 
 def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
     """Whether weights of network ``init`` can start a run of ``spec``: the same network, or ``spec`` adds context
-    convolutions to it (they start as the identity, so the run starts from exactly what ``init`` computed)."""
-    return init == spec or (not init.context_dilations and replace(spec, context_dilations=(), name=init.name) == init)
+    convolutions and/or a full-resolution refinement to it (both start as the identity, so the run starts from
+    exactly what ``init`` computed)."""
+    if init == spec:
+        return True
+    base = replace(spec, name=init.name)
+    if not init.context_dilations:
+        base = replace(base, context_dilations=())
+    if not init.refine_channels:
+        base = replace(base, refine_channels=0)
+    return base == init
 
 
 def _open_samples(dataset, root, split, limit, targets, cache_dir, progress, channel_obj_ids=None) -> SampleSet:

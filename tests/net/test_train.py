@@ -166,6 +166,14 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
     with pytest.raises(ConfigError, match="not this run's"):
         train(_config(tiny_root, epochs=1, val_split=None, init_weights=str(context_weights)), tmp_path / "y",
               progress=False)  # fmt: skip
+    # a context network starts a refine one (full-resolution curvature refinement, also the identity at first)
+    refined = train(
+        _config(tiny_root, epochs=1, val_split=None, variant="dimo-refine", init_weights=str(context_weights)),
+        tmp_path / "refine",
+        progress=False,
+    )
+    assert refined.epochs_done == 1
+    assert load_weights(tmp_path / "refine" / WEIGHTS).model.spec.refine_channels == 8
 
 
 def test_the_center_pos_weight_weights_blob_pixels_only() -> None:

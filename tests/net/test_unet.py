@@ -15,10 +15,12 @@ from bop_cender.net.unet import UNet, UNetSpec, count_parameters, factored_cente
         (UNetSpec.dimo(width=0.25), (31, 45)),  # odd: padded to the stride and cropped back
         (UNetSpec.dimo_lean(), (37, 50)),
         (UNetSpec.dimo_context(), (37, 50)),
+        (UNetSpec.dimo_refine(), (37, 50)),
         (UNetSpec.tless(center_channels=5, width=0.125), (54, 72)),
         (UNetSpec.tless(center_channels=5, width=0.125), (50, 61)),
         (UNetSpec.tless_lean(center_channels=3), (40, 41)),
         (UNetSpec.tless_factored(center_channels=4), (40, 41)),
+        (UNetSpec.tless_refine(center_channels=4), (40, 41)),
     ],
 )
 def test_outputs_have_the_input_size_and_the_spec_channels(spec, size, device) -> None:
@@ -119,6 +121,67 @@ def test_a_context_network_started_from_lean_weights_computes_what_they_did() ->
     center, curvature = context(image)
     (center.sum() + curvature.sum()).backward()
     assert context.context.layers[0][1].weight.grad.abs().sum() > 0  # the residuals can leave zero
+
+
+def test_a_refine_network_started_from_context_weights_computes_what_they_did_and_learns() -> None:
+    torch.manual_seed(3)
+    context, refine = UNet(UNetSpec.dimo_context()).eval(), UNet(UNetSpec.dimo_refine()).eval()
+    missing, unexpected = refine.load_state_dict(context.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("refine.") for k in missing)
+    image = torch.rand(2, 3, 48, 64)
+    with torch.no_grad():
+        for a, b in zip(context(image), refine(image), strict=True):
+            assert torch.equal(a, b)
+    refine.train()
+    _, curvature = refine(image)
+    curvature.sum().backward()
+    assert refine.refine.out_weight.grad.abs().sum() > 0  # the correction can leave zero
+    assert UNet(UNetSpec.dimo_context()).refine is None
+
+
+def test_the_refinement_draws_a_one_pixel_line_that_an_upsampled_logit_cannot() -> None:
+    """A vertical 1-pixel line in the image is the target; the logit from half resolution (the GT averaged over
+    2x2 pixels, upsampled) smears it over 2-3 columns. Trained alone for a few steps, the refinement puts it back
+    on its column: the BCE falls well below the coarse logit's, and the line's column wins in every row."""
+    torch.manual_seed(4)
+    from bop_cender.net.unet import _Refine, _resize
+
+    H, W = 16, 20
+    image = torch.zeros(4, 3, H, W)
+    target = torch.zeros(4, 1, H, W)
+    for b, col in enumerate((3, 8, 11, 16)):  # odd and even columns: half a coarse pixel either side
+        image[b, :, :, col] = 1.0
+        target[b, 0, :, col] = 1.0
+    coarse = torch.logit(_resize(torch.nn.functional.avg_pool2d(target, 2), (H, W)).clamp(1e-3, 1 - 1e-3))
+    features = torch.nn.functional.avg_pool2d(image, 2)[:, :1].repeat(1, 4, 1, 1)  # (B, 4, H/2, W/2)
+    module = _Refine(4, 8)
+    bce = torch.nn.functional.binary_cross_entropy_with_logits
+    before = bce(module(image, features, coarse), target).item()
+    assert before == pytest.approx(bce(coarse, target).item())  # starts as the identity
+    optimiser = torch.optim.Adam(module.parameters(), lr=3e-2)
+    for _ in range(150):
+        optimiser.zero_grad()
+        loss = bce(module(image, features, coarse), target)
+        loss.backward()
+        optimiser.step()
+    module.eval()
+    with torch.no_grad():
+        refined = module(image, features, coarse)
+    assert bce(refined, target).item() < 0.5 * before
+    assert torch.equal(refined[:, 0].argmax(dim=-1), target[:, 0].argmax(dim=-1))
+
+
+def test_the_refine_spec_round_trips_and_needs_a_first_stride_above_one() -> None:
+    spec = UNetSpec.named("dimo-refine")
+    assert spec.refine_channels == 8 and spec.context_dilations == (2, 4, 8)
+    assert UNetSpec.from_dict(spec.as_dict()) == spec
+    old = UNetSpec.dimo_context().as_dict()
+    del old["refine_channels"]  # a weights file written before the field existed
+    assert UNetSpec.from_dict(old) == UNetSpec.dimo_context()
+    with pytest.raises(ValueError, match="first stride above 1"):
+        UNetSpec(refine_channels=8)  # the paper's DIMO network: heads at full resolution already
+    with pytest.raises(ValueError, match="refine channels"):
+        UNetSpec(strides=(2, 2, 2), refine_channels=-1)
 
 
 def test_factored_centers_are_a_center_probability_times_a_class_probability() -> None:
