@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Protocol
 
 import numpy as np
+import torch
 
 from bop_cender.centers import Center3D, CenterConfig, detect_centers, sample_scores
 from bop_cender.data.types import ObjectModel, Scene
@@ -130,9 +131,17 @@ class CenDerNet:
         predictor: HeatmapPredictor,
         meshes: MeshCache | None = None,
         cost_threads: int = 1,
+        pose_device: str | torch.device | None = "cpu",
     ) -> None:
-        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`)."""
+        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`).
+
+        ``pose_device``: where stage 3 renders and costs (None: the device of the heatmaps). The CPU by default,
+        whatever device the heatmaps come from: on an H200 machine the pose stage of three DIMO scenes took 14.0,
+        13.1 and 34.0 s on CUDA (``results/bench/run_*nvidia-h200.md``), against 8.7, 9.0 and 17.9 s on 2 CPU
+        cores (``results/bench/run_amd-epyc-2cores.md``): its batches are small (a Nelder-Mead step costs 1 to 8 poses), so a cost call is bound by its ~730 kernel
+        launches and ~77 host synchronisations (1.3 ms of GPU work in a 24 ms call), not by the GPU."""
         self.cost_threads = cost_threads
+        self.pose_device = pose_device
         self.models = models
         self.config = config
         self.predictor = predictor
@@ -174,6 +183,7 @@ class CenDerNet:
                 cost_threads=self.cost_threads,
                 curvature_scale=self.config.targets.curvature_scale,
                 target_threshold=self._curvature_threshold(heatmaps),
+                device=self.pose_device,
             )
             if targets and candidate_ids
             else []

@@ -62,6 +62,8 @@ class RunRequest:
         resume: keep the shards of an earlier, interrupted run with the same settings.
         deterministic_time: write ``-1`` as every row's time (reproducible files, for tests).
         device: torch device of the heatmaps.
+        pose_device: torch device of stage 3 (renders and costs); the CPU by default (see
+            :class:`~bop_cender.method.CenDerNet`: on CUDA its small batches are launch-bound).
         vis_dir: write a figure per scene there (:mod:`bop_cender.report.scene_figure`); None: no figures.
         max_views: estimate from the first K views of each scene only (an ablation); the rows are
             still written for every view, so the scores compare with a run on all views.
@@ -82,6 +84,7 @@ class RunRequest:
     resume: bool = False
     deterministic_time: bool = False
     device: str = "cpu"
+    pose_device: str = "cpu"
     vis_dir: Path | None = None
     max_views: int | None = None
 
@@ -170,7 +173,9 @@ def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -
             )
             oracle_centers = request.heatmaps == "oracle-centers"
             predictor = MixedPredictor(oracle, net) if oracle_centers else MixedPredictor(net, oracle)
-    return CenDerNet(dataset.models, request.config, predictor, meshes, cost_threads=cost_threads)
+    return CenDerNet(
+        dataset.models, request.config, predictor, meshes, cost_threads=cost_threads, pose_device=request.pose_device
+    )
 
 
 def uses_network(heatmaps: str) -> bool:
@@ -339,6 +344,7 @@ def _merge(request, dataset, keys, outcomes, resumed, work, start, threshold: tu
             "weights": request.weights,
             "model_type": request.model_type,
             "config": request.config.as_dict(),
+            "devices": {"heatmaps": request.device, "poses": request.pose_device},
             "curvature_threshold": {"value": threshold[0], "from": threshold[1]},
             "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
         },

@@ -10,11 +10,12 @@
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
-   candidate chunks on 2 threads; ``--torch-threads`` and ``--chunk-threads`` to compare).
+   candidate chunks on 2 threads; ``--torch-threads`` and ``--chunk-threads`` to compare), on the last of
+   ``--devices`` (stage 3 too: ``run`` itself keeps stage 3 on the CPU unless ``--pose-device`` says otherwise).
 
 Prints a table and writes ``results/bench/run_<machine>.md``:
 
-    python scripts/bench_run.py --data-root DATA --split sim --scenes 2
+    python scripts/bench_run.py --data-root DATA --split sim --scenes 2 [--devices cpu|cuda|cpu,cuda]
 """
 
 from __future__ import annotations
@@ -108,7 +109,8 @@ def scene_timings(
     oracle = OraclePredictor(ds.models, meshes, config.targets, device=device)
     # as a one-process `bop-cender run` does: one torch thread, the render search's chunks on the cores
     # (``--torch-threads`` to compare)
-    method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads)
+    # stage 3 on the timed device too (``run`` keeps it on the CPU unless --pose-device says otherwise)
+    method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads, pose_device=device)
     torch.set_num_threads(torch_threads)
     out = []
     for key in ds.scene_keys[:n_scenes]:
@@ -123,11 +125,14 @@ def scene_timings(
     return out
 
 
-def scene_polish_costs(data_root: str | None, split: str, seconds: float) -> list[tuple[str, int, float, float]]:
+def scene_polish_costs(
+    data_root: str | None, split: str, seconds: float, device: torch.device | None = None
+) -> list[tuple[str, int, float, float]]:
     """The scene polish's cost against the full scene cost it stands for, on the first scene of the split (GT
-    poses, oracle maps, CPU, one torch thread): ms per pose of the full scene cost (all parts rendered in
-    every full frame) and of the windowed cost of the first part (:mod:`bop_cender.pose.scene_polish`) for
-    batches of 1 (a Nelder-Mead step) and 7 (its first simplex). Returns ``(what, batch, poses/s, ms per call)``."""
+    poses, oracle maps; on the CPU with one torch thread, or on ``device``): ms per pose of the full scene cost
+    (all parts rendered in every full frame) and of the windowed cost of the first part
+    (:mod:`bop_cender.pose.scene_polish`) for batches of 1 (a Nelder-Mead step) and 7 (its first simplex).
+    Returns ``(what, batch, poses/s, ms per call)``."""
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
     from bop_cender.meshes import MeshCache
@@ -137,36 +142,40 @@ def scene_polish_costs(data_root: str | None, split: str, seconds: float) -> lis
     from bop_cender.pose.coverage import scene_cost
     from bop_cender.pose.scene_polish import scene_window
 
+    device = torch.device("cpu") if device is None else device
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))
     config = CenDerNetConfig.for_dataset("dimo")
     meshes = MeshCache(ds.models)
     scene = ds.scene(ds.scene_keys[0])
     maps = OraclePredictor(ds.models, meshes, config.targets).predict(scene)
-    edges = maps.curvature > config.poses.t_b
-    dist = torch.as_tensor(distance_maps(edges.numpy()))
+    edges = (maps.curvature > config.poses.t_b).to(device)
+    dist = torch.as_tensor(distance_maps(edges.cpu().numpy())).to(device)
     threshold = config.poses.t_b * config.targets.curvature_scale
     parts = [g for g in scene.gt if ds.models[g.obj_id].is_target]
     Ks = np.stack([v.K for v in scene.views])
     T_cw = np.stack([v.T_cam_world for v in scene.views])
     T_cm = torch.as_tensor(
-        np.einsum("vij,mjk->vmik", T_cw, np.stack([g.T_world_model for g in parts])), dtype=torch.float32
-    )
-    part_meshes = [meshes(g.obj_id) for g in parts]
-    window = scene_window(part_meshes[0], parts[0].T_world_model, [(meshes(g.obj_id), g.T_world_model) for g in parts[1:]],
-                          Ks, T_cw, edges, dist, threshold, config.poses.scene_polish_margin_px)  # fmt: skip
+        np.einsum("vij,mjk->vmik", T_cw, np.stack([g.T_world_model for g in parts])), dtype=torch.float32,
+        device=device,
+    )  # fmt: skip
+    part_meshes = [meshes(g.obj_id).to(device) for g in parts]
+    others = [(mesh, g.T_world_model) for mesh, g in zip(part_meshes[1:], parts[1:], strict=True)]
+    window = scene_window(part_meshes[0], parts[0].T_world_model, others, Ks, T_cw, edges, dist, threshold,
+                          config.poses.scene_polish_margin_px)  # fmt: skip
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    cpu = torch.device("cpu")
-    K = torch.as_tensor(Ks, dtype=torch.float32)
+    if device.type == "cpu":
+        torch.set_num_threads(1)
+    K = torch.as_tensor(Ks, dtype=torch.float32, device=device)
     rows = [(f"full scene cost ({len(parts)} parts, {len(Ks)} views)", 1,
-             *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold), cpu, 1, seconds))]  # fmt: skip
+             *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold), device, 1, seconds))]  # fmt: skip
     for batch in (1, 7):
         T = np.repeat(parts[0].T_world_model[None], batch, 0)
         rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}", batch,
-                     *_calls_per_second(lambda T=T: window.costs(T), cpu, batch, seconds)))  # fmt: skip
+                     *_calls_per_second(lambda T=T: window.costs(T), device, batch, seconds)))  # fmt: skip
     torch.set_num_threads(threads)
     for what, batch, calls, ms in rows:
-        print(f"scene polish: {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)", flush=True)
+        print(f"scene polish ({device.type}): {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)",
+              flush=True)  # fmt: skip
     return rows
 
 
@@ -181,11 +190,21 @@ def main() -> None:
         "--chunk-threads", type=int, default=2, help="the render search's chunk threads in the scene timing"
     )
     ap.add_argument("--torch-threads", type=int, default=1, help="torch threads in the scene timing (run: 1)")
+    ap.add_argument("--devices", default=None,
+                    help="comma-separated devices to time (default: cpu, and cuda where present); the scene timing "
+                         "and the scene polish run on the last one")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
     args = ap.parse_args()
     load_before = os.getloadavg()
-    devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    if args.devices is None:
+        devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
+    else:
+        devices = [torch.device(d.strip()) for d in args.devices.split(",") if d.strip()]
+        if not devices or any(d.type not in ("cpu", "cuda") for d in devices):
+            ap.error(f"--devices {args.devices!r}: expected cpu and/or cuda")
+        if any(d.type == "cuda" for d in devices) and not torch.cuda.is_available():
+            ap.error("--devices names cuda but no CUDA device is present")
     cost_rows = []
     threads = torch.get_num_threads()
     cores = bench_machine.usable_cores()
@@ -212,12 +231,12 @@ def main() -> None:
                 flush=True,
             )
     torch.set_num_threads(threads)
-    polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds)
+    polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
     scenes = scene_timings(
         args.data_root,
         args.split,
         args.scenes,
-        "cuda" if torch.cuda.is_available() else "cpu",
+        devices[-1].type,
         args.chunk_threads,
         args.torch_threads,
         tuple(args.set),
@@ -235,10 +254,11 @@ def main() -> None:
     lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
               "| device | batch | model | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
     lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in edge_rows]
-    lines += ["", "## Scene polish: the windowed scene cost against the full one (first scene, GT poses, CPU, 1 thread)",
+    lines += ["", f"## Scene polish: the windowed scene cost against the full one (first scene, GT poses, {devices[-1].type}"
+              + (", 1 thread)" if devices[-1].type == "cpu" else ")"),
               "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
     lines += [f"| {w} | {b} | {c:,.0f} | {m:.2f} |" for w, b, c, m in polish_rows]
-    lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config)", "",
+    lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config, {devices[-1].type})", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     lines += [f"| {s['scene']} | {s['views']} | {s['parts']} | {s['objects']} | {s['wall']:.1f} | {s['heatmaps']:.2f}"

@@ -80,3 +80,15 @@ def test_a_directory_given_as_a_results_file_is_named_as_such(workdir: Path, cap
     assert main([command, "x_dimo-real.csv"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: x_dimo-real.csv: is a directory, expected a ") and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("flag", ["--device", "--pose-device"])
+def test_cuda_asked_for_without_a_cuda_device_is_one_clear_error(workdir: Path, capsys, flag: str) -> None:
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present")
+    assert main(["run", "--dataset", "dimo", "--heatmaps", "oracle", flag, "cuda"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == f"error: {flag}: CUDA was asked for but torch sees no CUDA device", err
+    assert sorted(p.name for p in workdir.iterdir()) == ["a_file", "gt_dimo-real.csv"]

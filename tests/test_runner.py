@@ -51,6 +51,7 @@ def test_run_writes_csv_and_sidecar_and_no_work_folder(reference_csv):
     assert sidecar["dataset"] == "dimo" and sidecar["split"] == "real"
     assert sidecar["extra"]["config"]["poses"]["n_candidates"] == 48
     assert sidecar["extra"]["curvature_threshold"] == {"value": 0.75, "from": "poses.t_b"}  # the oracle's: t_b
+    assert sidecar["extra"]["devices"] == {"heatmaps": "cpu", "poses": "cpu"}
     assert not work_dir(reference_csv).exists()
 
 

@@ -141,8 +141,9 @@ def announce(line: str) -> None:
     print(f"[bop-cender] {line}", file=sys.stderr)
 
 
-def resolve_device(name: str):
-    """The torch device of ``--device auto|cpu|cuda`` (auto: CUDA where torch sees one).
+def resolve_device(name: str, flag: str = "--device"):
+    """The torch device of ``--device auto|cpu|cuda`` (auto: CUDA where torch sees one); ``flag``: the option's
+    name in the error.
 
     Raises:
         ConfigError: ``cuda`` without a CUDA device.
@@ -154,5 +155,5 @@ def resolve_device(name: str):
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field="--device")
+        raise ConfigError("CUDA was asked for but torch sees no CUDA device", field=flag)
     return torch.device(name)

@@ -35,7 +35,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         " Ablations: oracle-centers (oracle centres, the network's curvature), oracle-curvature (the reverse)",
     )
     p.add_argument("--weights", default=None, help="network weights (every --heatmaps source but oracle)")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device (default: auto)")
+    p.add_argument(
+        "--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device of the heatmaps (default: auto)"
+    )
+    p.add_argument(
+        "--pose-device",
+        choices=("cpu", "cuda", "same"),
+        default="cpu",
+        help="torch device of stage 3's renders and costs (default: cpu; same: --device's). On an H200 the pose"
+        " search ran slower on CUDA than on 2 CPU cores (its small Nelder-Mead batches are bound by kernel launches;"
+        " results/bench/run_*nvidia-h200.md)",
+    )
     p.add_argument("--out", default=None, help="results CSV (default: cendernet-<heatmaps>_<dataset>-<split>.csv here)")
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")
     p.add_argument(
@@ -105,6 +115,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.heatmaps == "oracle":
             announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
     device = str(resolve_device(args.device))
+    pose_device = device if args.pose_device == "same" else str(resolve_device(args.pose_device, "--pose-device"))
     overrides = {}
     for name, flag, value in (("n_candidates", "--candidates", args.candidates), ("top_k", "--top-k", args.top_k)):
         if value is not None:
@@ -122,7 +133,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         dataset=args.dataset, data_root=args.data_root, split=split, out=out, n_views=args.n_views,
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
-        deterministic_time=args.deterministic_time, device=device, vis_dir=Path(args.vis) if args.vis else None,
+        deterministic_time=args.deterministic_time, device=device, pose_device=pose_device, vis_dir=Path(args.vis) if args.vis else None,
         max_views=args.max_views,
     )  # fmt: skip
     bar = None

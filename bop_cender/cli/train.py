@@ -36,8 +36,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=positive_number("--lr"), default=3e-4, help="Adam learning rate (paper: 3e-4)")
     p.add_argument(
         "--variant",
-        choices=("dimo", "dimo-lean", "dimo-context", "dimo-refine", "tless", "tless-lean", "tless-factored",
-                 "tless-refine"),
+        choices=(
+            "dimo",
+            "dimo-lean",
+            "dimo-context",
+            "dimo-refine",
+            "tless",
+            "tless-lean",
+            "tless-factored",
+            "tless-refine",
+        ),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
         " dimo-lean with dilated context convolutions, a 3x wider receptive field; dimo-refine: dimo-context with a"

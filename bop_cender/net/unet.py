@@ -91,7 +91,9 @@ class UNetSpec:
         if self.refine_channels < 0:
             raise ValueError(f"refine channels must be >= 0, got {self.refine_channels}")
         if self.refine_channels and self.strides[0] == 1:
-            raise ValueError("a full-resolution refinement needs a first stride above 1 (the heads are at full resolution)")
+            raise ValueError(
+                "a full-resolution refinement needs a first stride above 1 (the heads are at full resolution)"
+            )
 
     @staticmethod
     def dimo(width: float = 1.0) -> UNetSpec:
@@ -245,7 +247,9 @@ class _Refine(nn.Module):
         super().__init__()
         self.stem = nn.Sequential(nn.Conv2d(3, c, 3, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU(inplace=True))
         self.reduce = nn.Conv2d(c_feat, c - 1, 1)
-        self.fuse = nn.Sequential(nn.Conv2d(2 * c, c, 3, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU(inplace=True))
+        self.fuse = nn.Sequential(
+            nn.Conv2d(2 * c, c, 3, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU(inplace=True)
+        )
         self.out_weight = nn.Parameter(torch.zeros(c))
         self.out_bias = nn.Parameter(torch.zeros(()))
 

@@ -152,8 +152,8 @@ def candidate_costs(
         view_weights: ``(V,)`` per-view weights.
         near: near plane (mm).
         chunk_pixels: window pixels per chunk (default: small on CPU for its caches, large on CUDA).
-        workers: threads that render chunks side by side (CPU). Chunks are independent, so the result
-            is the same bits; worth it only with ``torch.set_num_threads(1)`` and free cores (on a
+        workers: threads that render chunks side by side (CPU; ignored on CUDA, where the chunks queue on one
+            stream anyway). Chunks are independent, so the result is the same bits; worth it only with ``torch.set_num_threads(1)`` and free cores (on a
             shared machine, one intra-op thread per process is the safe default: OpenMP threads that
             wait for a busy core make every parallel op cost a scheduler time slice).
         occluder_depth: ``(V, H, W)`` depth (mm) of objects already placed, 0 where none: candidate
@@ -189,7 +189,7 @@ def candidate_costs(
         atlas = chunk_curvature(batch, chunk)
         return atlas.canvases, _atlas_costs(atlas, dist)
 
-    if workers > 1 and len(batch.chunks) > 1:
+    if workers > 1 and len(batch.chunks) > 1 and device.type == "cpu":  # one stream on CUDA: threads gain nothing
         with ThreadPoolExecutor(workers) as pool:
             results = list(pool.map(run, batch.chunks))
     else:

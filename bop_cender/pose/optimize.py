@@ -347,6 +347,7 @@ def optimise_scene(
     edges: Callable[[int], EdgeModel] | None = None,
     curvature_scale: float = DEFAULT_CURVATURE_SCALE,
     target_threshold: float | None = None,
+    device: torch.device | str | None = None,
 ) -> list[PlacedObject]:
     """Poses of all ``targets``, most visible first, each occluded by those placed before it.
 
@@ -366,20 +367,30 @@ def optimise_scene(
             the two-sided judge binarises a pose's raw curvature at ``t_b * c``, as a GT target is.
         target_threshold: binarise ``curvature`` here instead of at ``config.t_b`` (a network's curvature:
             :attr:`~bop_cender.net.heatmaps.Heatmaps.curvature_threshold`); None: ``t_b``.
+        device: where every render and cost runs (None: the device of ``curvature``, CPU for an array).
+            The distance transform runs on the CPU (SciPy), once per scene; its maps, the meshes and the
+            edge models then live on ``device``. On CUDA the candidates are costed in one stream
+            (``cost_threads`` is ignored).
 
     Returns:
         One :class:`PlacedObject` per target, in the order they were placed.
     """
+    if device is None:
+        device = curvature.device if isinstance(curvature, torch.Tensor) else torch.device("cpu")
+    device = torch.device(device)
+    if device.type != "cpu":
+        cost_threads = 1
+    meshes = _MeshesOn(meshes, device)
     if edges is None:
         edges = _EdgeModels(meshes, config.edge_segment_mm)
     curv = torch.as_tensor(curvature).detach().to("cpu", torch.float32)
     binary = curv > (config.t_b if target_threshold is None else target_threshold)
-    fine = CostMaps(cameras, torch.as_tensor(distance_maps(binary.numpy())), binary)
+    fine = CostMaps(cameras, torch.as_tensor(distance_maps(binary.numpy())).to(device), binary.to(device))
     f = max(1, int(config.candidate_downscale))
     coarse = fine
     if f > 1 and config.search_cost == "render":  # the edge search costs everything on the fine maps
         pooled = torch.nn.functional.max_pool2d(binary[:, None].float(), f, ceil_mode=True)[:, 0] > 0
-        coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())))
+        coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())).to(device))
     order = sorted(range(len(targets)), key=lambda i: -float(np.sum(targets[i].view_scores)))
     total = len(targets) * config.passes
     edge_threshold = config.t_b * curvature_scale
@@ -696,7 +707,9 @@ def _refinement(
     edge_threshold: float | None,
 ) -> Refinement:
     """What object ``obj_id`` at ``target`` is refined against: ``maps`` (full resolution) under the occluders."""
-    weights = torch.as_tensor(view_weights(target.view_scores, config.view_weights), dtype=torch.float32)
+    weights = torch.as_tensor(
+        view_weights(target.view_scores, config.view_weights), dtype=torch.float32, device=maps.dist.device
+    )
     return Refinement(
         target.center, model_centers(obj_id), meshes(obj_id), maps.cameras, maps.dist, weights, occluder_depth,
         config, maps.edges, edge_threshold, np.asarray(target.view_scores, dtype=np.float64), target.center_map,
@@ -719,6 +732,19 @@ def _diverse(T: np.ndarray, k: int, separation_rad: float) -> np.ndarray:
             taken.append(i)
     rest = [i for i in range(len(T)) if i not in taken][: k - len(taken)]
     return np.array(taken + rest)
+
+
+class _MeshesOn:
+    """The render meshes of object ids on the pose stage's ``device``, each moved there once."""
+
+    def __init__(self, meshes: Callable[[int], RenderMesh], device: torch.device) -> None:
+        self.meshes, self.device, self.cache = meshes, device, {}
+
+    def __call__(self, obj_id: int) -> RenderMesh:
+        if obj_id not in self.cache:
+            mesh = self.meshes(obj_id)
+            self.cache[obj_id] = mesh if mesh.device == self.device else mesh.to(self.device)
+        return self.cache[obj_id]
 
 
 class _EdgeModels:
@@ -756,8 +782,8 @@ def _cost(
     T_cm = np.einsum("vij,njk->nvik", cameras.T_cam_world, T_world_model)
     out = candidate_costs(
         mesh,
-        torch.as_tensor(T_cm, dtype=torch.float32),
-        torch.as_tensor(cameras.Ks, dtype=torch.float32),
+        torch.as_tensor(T_cm, dtype=torch.float32, device=dist.device),
+        torch.as_tensor(cameras.Ks, dtype=torch.float32, device=dist.device),
         cameras.height,
         cameras.width,
         dist,
@@ -812,8 +838,8 @@ class Refinement:
         T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
         return two_sided_costs(
             self.mesh,
-            torch.as_tensor(T_cm, dtype=torch.float32),
-            torch.as_tensor(self.cameras.Ks, dtype=torch.float32),
+            torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device),
+            torch.as_tensor(self.cameras.Ks, dtype=torch.float32, device=self.dist.device),
             self.target_edges,
             self.dist,
             self.weights,
@@ -835,8 +861,8 @@ class Refinement:
         T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
         out = edge_costs(
             model,
-            torch.as_tensor(T_cm, dtype=torch.float32),
-            torch.as_tensor(self.cameras.Ks, dtype=torch.float32),
+            torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device),
+            torch.as_tensor(self.cameras.Ks, dtype=torch.float32, device=self.dist.device),
             self.dist,
             self.weights,
             self.edge_occluder,
@@ -937,10 +963,11 @@ def _hidden_pixels_differ(
     if before is None and after is None:
         return False
     T_cm = np.einsum("vij,jk->vik", cameras.T_cam_world, obj.T_world_model)[:, None]
+    mesh = meshes(obj.obj_id)
     depth = render_scene(
-        [meshes(obj.obj_id)],
-        torch.as_tensor(T_cm, dtype=torch.float32),
-        torch.as_tensor(cameras.Ks, dtype=torch.float32),
+        [mesh],
+        torch.as_tensor(T_cm, dtype=torch.float32, device=mesh.device),
+        torch.as_tensor(cameras.Ks, dtype=torch.float32, device=mesh.device),
         cameras.height,
         cameras.width,
     ).depth
@@ -959,8 +986,8 @@ def _scene_cost(
     T_cm = np.einsum("vij,mjk->vmik", maps.cameras.T_cam_world, T_wm)
     return scene_cost(
         [meshes(p.obj_id) for p in placed],
-        torch.as_tensor(T_cm, dtype=torch.float32),
-        torch.as_tensor(maps.cameras.Ks, dtype=torch.float32),
+        torch.as_tensor(T_cm, dtype=torch.float32, device=maps.dist.device),
+        torch.as_tensor(maps.cameras.Ks, dtype=torch.float32, device=maps.dist.device),
         maps.edges,
         maps.dist,
         edge_threshold,
@@ -1024,10 +1051,12 @@ def _occluder_depth(
     """``(V, H, W)`` depth of the placed objects rendered together in every view (0: nothing)."""
     T_wm = np.stack([p.T_world_model for p in placed])
     T_cm = np.einsum("vij,mjk->vmik", cameras.T_cam_world, T_wm)
+    placed_meshes = [meshes(p.obj_id) for p in placed]
+    device = placed_meshes[0].device
     render = render_scene(
-        [meshes(p.obj_id) for p in placed],
-        torch.as_tensor(T_cm, dtype=torch.float32),
-        torch.as_tensor(cameras.Ks, dtype=torch.float32),
+        placed_meshes,
+        torch.as_tensor(T_cm, dtype=torch.float32, device=device),
+        torch.as_tensor(cameras.Ks, dtype=torch.float32, device=device),
         cameras.height,
         cameras.width,
     )

@@ -99,7 +99,11 @@ def test_candidate_costs_equal_the_window_and_full_frame_costs(device) -> None:
         one = candidate_costs(mesh, T[b : b + 1], Ks, H, W, dist, weights, chunk_pixels=4096)
         assert torch.allclose(one, costs[b : b + 1], rtol=1e-5)
     small_chunks = candidate_costs(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192)
-    assert torch.equal(small_chunks, candidate_costs(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192, workers=2))
+    threaded = candidate_costs(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192, workers=2)
+    if device.type == "cpu":  # the chunks' threads give the same bits
+        assert torch.equal(small_chunks, threaded)
+    else:  # one stream (workers ignored); CUDA's atomic sums may order differently from call to call
+        torch.testing.assert_close(small_chunks, threaded, rtol=1e-6, atol=1e-5)
     worst = weights.sum() * math.hypot(H, W)  # every view costs the image diagonal
     assert torch.isclose(costs[4], worst) and costs[3] < 0.5 * worst
 

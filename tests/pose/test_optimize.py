@@ -112,6 +112,45 @@ def test_scene_optimisation_places_every_object(mini):
     assert sorted(p.obj_id for p in placed) == [3, 4]
 
 
+def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkeypatch):
+    """Curvature on ``device``: every render and cost of the search runs there (checked on the renders' inputs)
+    and every part is placed within 1 mm; on the CPU an explicit ``device="cpu"`` gives the same bits."""
+    from bop_cender.pose import optimize, scene_polish
+
+    ds, scene, meshes, maps, cams, dist = mini
+    targets = _targets(ds, scene, cams, [1.0, -0.5, 0.5])
+    config = PoseConfig(n_candidates=300, nm_maxfev=150, t_b=BOX_T_B, passes=2, scene_polish_maxfev=20)
+    seen: set[str] = set()
+
+    def spy(module, name):
+        real = getattr(module, name)
+
+        def wrapped(*args, **kwargs):
+            seen.update(a.device.type for a in args if isinstance(a, torch.Tensor))
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapped)
+
+    spy(optimize, "candidate_costs")
+    spy(optimize, "edge_costs")
+    spy(optimize, "render_scene")
+    spy(optimize, "two_sided_costs")
+    spy(optimize, "scene_cost")
+    spy(scene_polish, "render_scene")
+    curvature = maps.curvature.to(device)
+    placed = optimise_scene(targets, curvature, cams, meshes, lambda i: ds.models[i].center, config,
+                            curvature_scale=1.0)  # fmt: skip
+    assert seen == {device.type}
+    for p in placed:
+        g = gt_of(scene, p.obj_id)
+        assert np.linalg.norm(p.T_world_model[:3, 3] - g.T_world_model[:3, 3]) < 1.0
+    if device.type == "cpu":
+        explicit = optimise_scene(targets, maps.curvature.numpy(), cams, meshes, lambda i: ds.models[i].center,
+                                  config, curvature_scale=1.0, device="cpu")  # fmt: skip
+        for a, b in zip(placed, explicit, strict=True):
+            assert a.obj_id == b.obj_id and np.array_equal(a.T_world_model, b.T_world_model) and a.cost == b.cost
+
+
 def test_scene_acceptance_keeps_a_move_only_where_the_whole_placement_gains(mini, monkeypatch):
     """The second sweep's search is replaced by a known answer: a move off the true place is refused (the
     first sweep's pose is kept, its evaluations counted), a move onto it is taken; with ``acceptance="object"``

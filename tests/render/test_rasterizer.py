@@ -230,8 +230,13 @@ def test_windows_equal_the_full_frame(device) -> None:
             cols = slice(max(u0, 0), min(u0 + S, W))
             win = (slice(rows.start - v0, rows.stop - v0), slice(cols.start - u0, cols.stop - u0))
             assert torch.equal(cand.mask[b, v][win], full.mask[0][rows, cols])
-            assert torch.equal(cand.normals[b, v][win], full.normals[0][rows, cols])
-            assert torch.equal(cand.depth[b, v][win], full.depth[0][rows, cols])
+            if device.type == "cpu":  # the same arithmetic: the same bits
+                assert torch.equal(cand.normals[b, v][win], full.normals[0][rows, cols])
+                assert torch.equal(cand.depth[b, v][win], full.depth[0][rows, cols])
+            else:  # CUDA contracts the window's and the frame's interpolation into FMAs differently (H200: the
+                # masks equal, the normals not to the bit)
+                torch.testing.assert_close(cand.normals[b, v][win], full.normals[0][rows, cols], rtol=1e-5, atol=1e-5)
+                torch.testing.assert_close(cand.depth[b, v][win], full.depth[0][rows, cols], rtol=1e-5, atol=1e-4)
             # Everything of the object that is in the image is inside the window.
             assert cand.mask[b, v][win].sum() == full.mask[0].sum()
 
