@@ -108,35 +108,32 @@ def test_the_context_variant_widens_the_receptive_field_and_old_specs_have_none(
         UNetSpec(context_dilations=(0,))
 
 
-def test_a_context_network_started_from_lean_weights_computes_what_they_did() -> None:
+@pytest.mark.parametrize(
+    ("base", "grown", "prefix", "new_weight"),
+    [
+        (UNetSpec.dimo_lean, UNetSpec.dimo_context, "context.", lambda net: net.context.layers[0][1].weight),
+        (UNetSpec.dimo_context, UNetSpec.dimo_refine, "refine.", lambda net: net.refine.out_weight),
+    ],
+    ids=["context-from-lean", "refine-from-context"],
+)
+def test_a_grown_network_started_from_the_smaller_ones_weights_computes_what_they_did_and_learns(
+    base, grown, prefix, new_weight
+) -> None:
+    """The context blocks and the curvature refinement start as the identity: the smaller network's weights give
+    the same outputs, and the new part still gets gradients (it can leave zero)."""
     torch.manual_seed(1)
-    lean, context = UNet(UNetSpec.dimo_lean()).eval(), UNet(UNetSpec.dimo_context()).eval()
-    missing, unexpected = context.load_state_dict(lean.state_dict(), strict=False)
-    assert not unexpected and missing and all(k.startswith("context.") for k in missing)
+    small, big = UNet(base()).eval(), UNet(grown()).eval()
+    missing, unexpected = big.load_state_dict(small.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith(prefix) for k in missing)
     image = torch.rand(2, 3, 48, 64)
     with torch.no_grad():
-        for a, b in zip(lean(image), context(image), strict=True):
+        for a, b in zip(small(image), big(image), strict=True):
             assert torch.equal(a, b)
-    context.train()
-    center, curvature = context(image)
+    big.train()
+    center, curvature = big(image)
     (center.sum() + curvature.sum()).backward()
-    assert context.context.layers[0][1].weight.grad.abs().sum() > 0  # the residuals can leave zero
-
-
-def test_a_refine_network_started_from_context_weights_computes_what_they_did_and_learns() -> None:
-    torch.manual_seed(3)
-    context, refine = UNet(UNetSpec.dimo_context()).eval(), UNet(UNetSpec.dimo_refine()).eval()
-    missing, unexpected = refine.load_state_dict(context.state_dict(), strict=False)
-    assert not unexpected and missing and all(k.startswith("refine.") for k in missing)
-    image = torch.rand(2, 3, 48, 64)
-    with torch.no_grad():
-        for a, b in zip(context(image), refine(image), strict=True):
-            assert torch.equal(a, b)
-    refine.train()
-    _, curvature = refine(image)
-    curvature.sum().backward()
-    assert refine.refine.out_weight.grad.abs().sum() > 0  # the correction can leave zero
-    assert UNet(UNetSpec.dimo_context()).refine is None
+    assert new_weight(big).grad.abs().sum() > 0
+    assert UNet(UNetSpec.dimo_context()).refine is None and UNet(UNetSpec.dimo_lean()).context is None
 
 
 def test_the_refinement_draws_a_one_pixel_line_that_an_upsampled_logit_cannot() -> None:
