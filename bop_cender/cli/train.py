@@ -100,6 +100,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="give --variant a factored center head (one center map times a per-pixel object class; tless-factored"
         " has one): e.g. --variant tless --factored-centers, the paper's T-LESS network for a GPU run",
     )
+    p.add_argument(
+        "--train-only",
+        default=None,
+        metavar="MODULE[,MODULE]",
+        help="train only these top-level modules of the network, the rest frozen (batch-norm statistics too): e.g."
+        " --variant dimo-refine --init-weights CONTEXT.pt --train-only refine,curvature_head leaves the centres as"
+        " they were (modules: e1 e2 e3 bottleneck context d2 d1 center_head curvature_head refine; default: all)",
+    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -141,6 +149,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, class_loss_weight=args.class_loss_weight,
         factored_centers=args.factored_centers,
+        train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

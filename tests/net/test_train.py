@@ -174,6 +174,26 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
     )
     assert refined.epochs_done == 1
     assert load_weights(tmp_path / "refine" / WEIGHTS).model.spec.refine_channels == 8
+    # the refinement and the curvature head alone: every other weight and statistic stays, so do the centres
+    only = ("refine", "curvature_head")
+    alone = _config(tiny_root, epochs=1, val_split=None, variant="dimo-refine", init_weights=str(context_weights),
+                    train_only=only)  # fmt: skip
+    train(alone, tmp_path / "alone", progress=False)
+    before = load_weights(context_weights).model
+    after = load_weights(tmp_path / "alone" / WEIGHTS).model
+    b, a = before.state_dict(), after.state_dict()
+    assert all(torch.equal(b[k], a[k]) for k in b if not k.startswith(only)), [
+        k for k in b if not torch.equal(b[k], a[k])
+    ]
+    assert any(not torch.equal(b[k], a[k]) for k in b if k.startswith("curvature_head"))
+    assert any(not torch.equal(v, torch.zeros_like(v)) for k, v in a.items() if k.startswith("refine.out_weight"))
+    image = torch.rand(1, 3, 128, 160)
+    with torch.no_grad():
+        assert torch.equal(before.eval()(image)[0], after.eval()(image)[0])
+    with pytest.raises(ConfigError, match="--train-only.*bogus: not a module of the dimo-refine network"):
+        train(replace(alone, train_only=("refine", "bogus")), tmp_path / "bogus", progress=False)
+    with pytest.raises(ConfigError, match="--train-only"):
+        replace(alone, train_only=("refine", "refine"))
 
 
 def test_the_center_pos_weight_weights_blob_pixels_only() -> None:
