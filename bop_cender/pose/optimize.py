@@ -362,7 +362,7 @@ def optimise_scene(
         cost_threads: threads that render the chunks of the candidate batch side by side
             (:func:`~bop_cender.pose.cost.candidate_costs` ``workers``: the same bits; worth it with one
             torch thread and free cores: 258 against 169 calls/s on 2 cores, ``results/bench/run_*``).
-        edges: the edge model of an object id (default: built from ``meshes`` on first use).
+        edges: the edge model of an object id, on ``device`` (default: built from ``meshes`` on first use).
         curvature_scale: the targets' curvature scale ``c`` (``curvature`` is ``clip(raw / c, 0, 1)``):
             the two-sided judge binarises a pose's raw curvature at ``t_b * c``, as a GT target is.
         target_threshold: binarise ``curvature`` here instead of at ``config.t_b`` (a network's curvature:
