@@ -228,14 +228,17 @@ class CenDerNet:
         return tuple(targets)
 
 
-def network_curvature_choice(config: CenDerNetConfig, calibrated: float | None) -> tuple[float | None, str]:
+def network_curvature_choice(
+    config: CenDerNetConfig, calibrated: float | None, calibrated_for: str | None = None
+) -> tuple[float | None, str]:
     """Where stage 3 binarises a network's curvature, the precedence in one place: ``poses.t_b_network``, else the
-    weights' calibration ``calibrated``, else None (stage 3's ``t_b``); with the name of the setting that decided
-    (for the run's sidecar and summary)."""
+    weights' calibration ``calibrated`` (made on views of split ``calibrated_for``, None: the general one; see
+    :meth:`~bop_cender.net.weights.NetWeights.curvature_threshold_for`), else None (stage 3's ``t_b``); with the
+    name of the setting that decided (for the run's sidecar and summary)."""
     if config.poses.t_b_network is not None:
         return config.poses.t_b_network, "poses.t_b_network"
     if calibrated is not None:
-        return calibrated, "the weights' calibration"
+        return calibrated, "the weights' calibration" + (f" on {calibrated_for} views" if calibrated_for else "")
     return None, "poses.t_b: the weights carry no calibrated threshold"
 
 

@@ -227,7 +227,9 @@ def net_predictor(request: RunRequest, dataset: Dataset):
         device=request.device,
         known_object_ids=request.config.known_object_ids,
         flips=request.config.test_flips,
-        curvature_threshold=network_curvature_choice(request.config, weights.curvature_threshold)[0],
+        curvature_threshold=network_curvature_choice(request.config, *weights.curvature_threshold_for(request.split))[
+            0
+        ],
     )
 
 
@@ -299,7 +301,7 @@ def _curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, 
     net = net_predictor(request, dataset)
     if request.heatmaps == "oracle-curvature":
         return request.config.poses.t_b, "poses.t_b"
-    value, source = network_curvature_choice(request.config, net.weights.curvature_threshold)
+    value, source = network_curvature_choice(request.config, *net.weights.curvature_threshold_for(request.split))
     return (request.config.poses.t_b if value is None else value), source
 
 

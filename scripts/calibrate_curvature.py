@@ -11,6 +11,13 @@ edges into fragments. Only the threshold changes: the network's parameters are c
 
 Prints the F1 at ``t_b`` and at the calibrated threshold. Calibrate on validation views, never on the test
 split whose figures you report.
+
+``--for-split NAME`` stores the threshold for runs on split ``NAME`` only (the weights' general threshold stays):
+a network's best binarisation moves with the camera and its domain (DIMO's ``real`` camera against ``sim``), and
+``run`` on split ``NAME`` then binarises there:
+
+    python scripts/calibrate_curvature.py bop_cender/net/weights/dimo.pt --dataset dimo \
+        --data-root data/dimo_val --split real --for-split real
 """
 
 from __future__ import annotations
@@ -26,12 +33,15 @@ from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.heatmap_eval import evaluate_heatmaps
 from bop_cender.net.predictor import NetPredictor
-from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights
+from bop_cender.net.weights import CURVATURE_THRESHOLD, CURVATURE_THRESHOLD_BY_SPLIT, load_weights, save_weights
 
 
-def calibrate(weights_path: Path, dataset: str, data_root: Path, split: str, out: Path) -> dict[str, float]:
+def calibrate(
+    weights_path: Path, dataset: str, data_root: Path, split: str, out: Path, for_split: str | None = None
+) -> dict[str, float]:
     """Measure the best-F1 threshold of ``weights_path`` on ``data_root``/``split`` and write the weights with it
-    to ``out`` (atomically). Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``).
+    to ``out`` (atomically): as their general threshold, or (``for_split``) as that for runs on split ``for_split``.
+    Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``).
 
     Raises:
         ConfigError: the split has no ground truth, or the best threshold is not inside (0, 1) (a network
@@ -52,7 +62,11 @@ def calibrate(weights_path: Path, dataset: str, data_root: Path, split: str, out
     if not 0.0 < threshold < 1.0:
         raise ConfigError(f"no usable threshold: the best F1 is at {threshold:g}", file=weights_path)
     payload = torch.load(weights_path, map_location="cpu", weights_only=True)
-    payload[CURVATURE_THRESHOLD] = float(threshold)
+    if for_split is None:
+        payload[CURVATURE_THRESHOLD] = float(threshold)
+    else:
+        payload[CURVATURE_THRESHOLD_BY_SPLIT] = {**(payload.get(CURVATURE_THRESHOLD_BY_SPLIT) or {}),
+                                                 for_split: float(threshold)}  # fmt: skip
     save_weights(out, payload)
     return {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
 
@@ -64,16 +78,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data-root", type=Path, required=True, help="a dataset with GT (validation views)")
     ap.add_argument("--split", required=True)
     ap.add_argument("--out", type=Path, default=None, help="where to write (default: the weights file itself)")
+    ap.add_argument("--for-split", default=None, metavar="NAME",
+                    help="store the threshold for runs on split NAME only (default: as the general threshold)")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.for_split is not None and not args.for_split.strip():
+        print("error: --for-split: expected a split name", file=sys.stderr)
+        return 2
     try:
-        figures = calibrate(args.weights, args.dataset, args.data_root, args.split, args.out or args.weights)
+        figures = calibrate(
+            args.weights, args.dataset, args.data_root, args.split, args.out or args.weights, args.for_split
+        )
     except BopCenderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(
         f"{int(figures['views'])} views: curvature F1 {figures['curvature_f1']:.3f} at t_b,"
         f" {figures['curvature_best_f1']:.3f} at {figures['curvature_best_threshold']:.3f};"
-        f" wrote {args.out or args.weights} ({CURVATURE_THRESHOLD} {figures['curvature_best_threshold']:.3f})"
+        f" wrote {args.out or args.weights} ({CURVATURE_THRESHOLD}"
+        + (f" for split {args.for_split}" if args.for_split else "")
+        + f" {figures['curvature_best_threshold']:.3f})"
     )
     return 0
 

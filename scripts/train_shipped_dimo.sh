@@ -59,3 +59,6 @@ python scripts/ship_weights.py "$RUN-all6-ft" --dataset dimo --pretrained-run "$
   --test "$RUN-all6-ft/test_sim/heatmaps_dimo-sim.json" --test "$RUN-all6-ft/test_real/heatmaps_dimo-real.json"
 # Where stage 3 binarises the network's curvature: the best-F1 threshold on the validation views.
 python scripts/calibrate_curvature.py bop_cender/net/weights/dimo.pt --dataset dimo --data-root "$DATA/dimo_val" --split sim
+# ... and on the real camera's validation views, for runs on the real split (its best binarisation is lower).
+python scripts/calibrate_curvature.py bop_cender/net/weights/dimo.pt --dataset dimo --data-root "$DATA/dimo_val" --split real \
+  --for-split real

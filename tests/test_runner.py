@@ -247,6 +247,18 @@ def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
         request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1, config=given)
     )
     assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.4, "poses.t_b_network")
+    # a threshold calibrated on this split's views wins over the general one
+    payload = weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None, TargetConfig.for_dataset("dimo"),
+                              curvature_threshold=0.55, curvature_threshold_by_split={"real": 0.45, "sim": 0.65})  # fmt: skip
+    save_weights(weights, payload)
+    out = tmp_path / "cendernet-mixed4_dimo-real.csv"
+    summary = run(request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1))
+    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (
+        0.45,
+        "the weights' calibration on real views",
+    )
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["extra"]["curvature_threshold"] == {"value": 0.45, "from": "the weights' calibration on real views"}
 
 
 def test_a_request_without_a_config_gets_its_datasets_settings(tmp_path):
@@ -280,4 +292,6 @@ def test_the_network_curvature_threshold_precedence():
     given = plain.with_settings(["poses.t_b_network=0.3"])
     assert network_curvature_choice(given, 0.6) == (0.3, "poses.t_b_network")
     assert network_curvature_choice(plain, 0.6) == (0.6, "the weights' calibration")
+    assert network_curvature_choice(plain, 0.6, "real") == (0.6, "the weights' calibration on real views")
+    assert network_curvature_choice(given, 0.6, "real") == (0.3, "poses.t_b_network")
     assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")

@@ -10,7 +10,8 @@ Beside shipped weights lies a JSON card (data, seed, command, epochs, wall time,
 from __future__ import annotations
 
 import io
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,8 @@ FORMAT = "bop-cender-unet"
 FORMAT_VERSION = 1
 #: Key of the calibrated curvature binarisation threshold in a weights file (optional; see :class:`NetWeights`).
 CURVATURE_THRESHOLD = "curvature_threshold"
+#: Key of the thresholds calibrated on the views of one split (camera / domain), by split name (optional).
+CURVATURE_THRESHOLD_BY_SPLIT = "curvature_threshold_by_split"
 #: Shipped weights, by dataset: files in ``bop_cender/net/weights/`` (with a ``.json`` card beside each).
 SHIPPED = {"dimo": "dimo.pt", "tless": "tless.pt"}
 
@@ -44,6 +47,10 @@ class NetWeights:
             threshold on its validation views, :meth:`~bop_cender.net.metrics.HeatmapMetrics.curvature_best_threshold`,
             written by ``train`` and ``scripts/calibrate_curvature.py``), in (0, 1); None in files without one.
         extra: everything else in the file (epoch, optimiser state of a checkpoint, ...).
+        curvature_threshold_by_split: thresholds calibrated on the validation views of one split, by split name
+            (``scripts/calibrate_curvature.py --for-split``): a network's best binarisation moves with the camera
+            (the shipped DIMO network: 0.616 on `sim` views, 0.555 on `real` ones; end to end on `real` 0.693 ->
+            0.742 AR_MSSD<5%, ``results/accuracy/README.md``). :meth:`curvature_threshold_for` picks.
     """
 
     model: UNet
@@ -53,6 +60,14 @@ class NetWeights:
     path: Path
     extra: dict[str, Any]
     curvature_threshold: float | None = None
+    curvature_threshold_by_split: Mapping[str, float] = field(default_factory=dict)
+
+    def curvature_threshold_for(self, split: str | None) -> tuple[float | None, str | None]:
+        """The calibrated threshold for views of ``split`` and the split it was calibrated for: that split's own
+        where the weights carry one, else the general one (``curvature_threshold``, split None)."""
+        if split is not None and split in self.curvature_threshold_by_split:
+            return self.curvature_threshold_by_split[split], split
+        return self.curvature_threshold, None
 
 
 def weights_payload(
@@ -158,11 +173,20 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     if threshold is not None and not (isinstance(threshold, float | int) and 0.0 < float(threshold) < 1.0):
         raise ConfigError(f"malformed weights file ({CURVATURE_THRESHOLD}: expected a number in (0, 1), got {threshold!r})",
                           file=path)  # fmt: skip
-    reserved = ("spec", "dataset", "channel_obj_ids", "targets", "state_dict", CURVATURE_THRESHOLD)
+    by_split = payload.get(CURVATURE_THRESHOLD_BY_SPLIT) or {}
+    if not isinstance(by_split, dict) or not all(
+        isinstance(k, str) and k and isinstance(v, float | int) and 0.0 < float(v) < 1.0 for k, v in by_split.items()
+    ):
+        raise ConfigError(f"malformed weights file ({CURVATURE_THRESHOLD_BY_SPLIT}: expected split names with numbers"
+                          f" in (0, 1), got {by_split!r})", file=path)  # fmt: skip
+    reserved = (
+        "spec", "dataset", "channel_obj_ids", "targets", "state_dict", CURVATURE_THRESHOLD, CURVATURE_THRESHOLD_BY_SPLIT
+    )  # fmt: skip
     extra = {k: v for k, v in payload.items() if k not in reserved}
     return NetWeights(
-        model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold)
-    )
+        model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold),
+        {str(k): float(v) for k, v in by_split.items()},
+    )  # fmt: skip
 
 
 def _first_line(exc: BaseException, lines: int = 1, limit: int = 200) -> str:

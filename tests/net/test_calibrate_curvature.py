@@ -62,3 +62,25 @@ def test_no_gt_or_no_usable_threshold_is_one_error(setup, capsys) -> None:
     with pytest.raises(ConfigError, match="no usable threshold"):
         calibrate_curvature.calibrate(weights, "dimo", root, "real", weights)
     assert load_weights(weights).curvature_threshold is None  # nothing written
+
+
+def test_a_threshold_for_one_split_leaves_the_general_one(setup, tmp_path, capsys) -> None:
+    """``--for-split``: the threshold goes to the split's entry (others kept), the general one stays, and ``run`` on
+    that split gets it (:meth:`NetWeights.curvature_threshold_for`)."""
+    root, weights, figures = setup
+    figures.update(curvature_f1=0.4, curvature_best_f1=0.6, curvature_best_threshold=0.62, curvature_ap=0.5)
+    first = tmp_path / "general.pt"
+    argv = [str(weights), "--dataset", "dimo", "--data-root", str(root), "--split", "real"]
+    assert calibrate_curvature.main([*argv, "--out", str(first)]) == 0
+    figures.update(curvature_best_threshold=0.51)
+    out = tmp_path / "real.pt"
+    assert calibrate_curvature.main([str(first), *argv[1:], "--out", str(out), "--for-split", "real"]) == 0
+    assert "curvature_threshold for split real 0.510" in capsys.readouterr().out
+    figures.update(curvature_best_threshold=0.7)
+    assert calibrate_curvature.main([str(out), *argv[1:], "--for-split", "sim"]) == 0  # in place, another split
+    after = load_weights(out)
+    assert after.curvature_threshold == 0.62 and after.curvature_threshold_by_split == {"real": 0.51, "sim": 0.7}
+    assert after.curvature_threshold_for("real") == (0.51, "real")
+    assert after.curvature_threshold_for("test") == (0.62, None) and after.curvature_threshold_for(None) == (0.62, None)
+    assert calibrate_curvature.main([*argv, "--for-split", " "]) == 2
+    assert "--for-split: expected a split name" in capsys.readouterr().err

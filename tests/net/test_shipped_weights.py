@@ -52,6 +52,8 @@ def test_shipped_weights_give_the_figures_of_their_card(tmp_path, dataset) -> No
     # stage 3 binarises their curvature at the calibrated threshold that the card states
     assert 0.0 < weights.curvature_threshold < 1.0
     assert weights.curvature_threshold == pytest.approx(card["curvature_threshold"]["value"], abs=5e-4)
+    by_split = {k: v["value"] for k, v in card.get("curvature_threshold_by_split", {}).items()}
+    assert weights.curvature_threshold_by_split == pytest.approx(by_split, abs=5e-4)
     report = evaluate_heatmaps(
         data, NetPredictor(weights), weights.targets, MeshCache(data.models), str(path), progress=False
     )

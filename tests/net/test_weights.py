@@ -249,3 +249,15 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
         with pytest.raises(ConfigError, match="curvature_threshold: expected a number in") as info:
             load_weights(tmp_path / "bad.pt")
         assert str(tmp_path / "bad.pt") in info.value.format()
+    for bad in ({"real": 1.5}, {"": 0.5}, {"real": "0.5"}, [0.5], {3: 0.5}):
+        _save(tmp_path / "bad.pt", UNetSpec.dimo_lean(width=0.5), curvature_threshold_by_split=bad)
+        with pytest.raises(ConfigError, match="curvature_threshold_by_split: expected split names") as info:
+            load_weights(tmp_path / "bad.pt")
+        assert str(tmp_path / "bad.pt") in info.value.format()
+    # a threshold calibrated on the run's split wins over the general one, for that split alone
+    _save(tmp_path / "split.pt", UNetSpec.dimo_lean(width=0.5), curvature_threshold=0.55,
+          curvature_threshold_by_split={"real": 0.45})  # fmt: skip
+    split = replace(request, weights=str(tmp_path / "split.pt"))
+    assert net_predictor(split, dataset).predict(scene).curvature_threshold == 0.45
+    assert "curvature_threshold_by_split" not in load_weights(tmp_path / "split.pt").extra
+    assert net_predictor(replace(split, split="sim"), dataset).predict(scene).curvature_threshold == 0.55
