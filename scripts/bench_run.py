@@ -7,6 +7,9 @@
    The same for the edge-point proxy that ranks the candidates and drives most of Nelder-Mead
    (``search_cost=edges``, :mod:`bop_cender.pose.edge_cost`), and the scene polish's windowed scene cost
    against the full scene cost (:mod:`bop_cender.pose.scene_polish`).
+   With ``--profile``: where one cost call's time goes (torch.profiler, batches of 1 and 8): wall time, the
+   operators it runs, the CUDA kernels it launches and the calls that wait for the device (``nonzero``,
+   ``item``, copies, synchronisations): why a small batch on a GPU is bound by the host.
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
@@ -15,7 +18,7 @@
 
 Prints a table and writes ``results/bench/run_<machine>.md``:
 
-    python scripts/bench_run.py --data-root DATA --split sim --scenes 2 [--devices cpu|cuda|cpu,cuda]
+    python scripts/bench_run.py --data-root DATA --split sim --scenes 2 [--devices cpu|cuda|cpu,cuda] [--profile]
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import argparse
 import os
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import bench_machine
@@ -86,6 +90,46 @@ def edge_calls_per_second(
     if max_segments is not None:
         model = model.sparse(max_segments)
     return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w), device, batch, seconds)
+
+
+#: Profiler events that make the host wait for the device (sizes read back, copies, explicit synchronisation).
+_SYNC_EVENTS = ("aten::nonzero", "aten::item", "aten::_local_scalar_dense", "cudaStreamSynchronize",
+                "cudaDeviceSynchronize", "cudaMemcpyAsync")  # fmt: skip
+
+
+def cost_call_profile(
+    device: torch.device, batches: tuple[int, ...] = (1, 8)
+) -> list[tuple[int, float, int, int, int]]:
+    """One cost call of each batch size profiled (after 3 warm-ups): ``(batch, wall ms of an unprofiled call,
+    aten operators, CUDA kernel launches, synchronising calls)`` (launches and syncs 0 on the CPU but ``nonzero`` and
+    ``item``, which only synchronise on a GPU)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    rows = []
+    for batch in batches:
+        mesh, T, Ks, dist, w = _workload(device, batch)
+        call = partial(candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w)
+
+        for _ in range(3):
+            call()
+        sync()
+        with profile(activities=activities) as prof:
+            call()
+            sync()
+        events = prof.key_averages()
+        ops = sum(e.count for e in events if e.key.startswith("aten::"))
+        launches = sum(e.count for e in events if e.key == "cudaLaunchKernel")
+        syncs = sum(e.count for e in events if e.key in _SYNC_EVENTS)
+        t = time.perf_counter()
+        call()
+        sync()
+        ms = (time.perf_counter() - t) * 1000
+        rows.append((batch, ms, ops, launches, syncs))
+        print(f"profile {device.type} batch {batch}: {ms:.2f} ms, {ops} aten ops, {launches} kernel launches,"
+              f" {syncs} synchronising calls", flush=True)  # fmt: skip
+    return rows
 
 
 def scene_timings(
@@ -193,6 +237,8 @@ def main() -> None:
     ap.add_argument("--devices", default=None,
                     help="comma-separated devices to time (default: cpu, and cuda where present); the scene timing "
                          "and the scene polish run on the last one")  # fmt: skip
+    ap.add_argument("--profile", action="store_true",
+                    help="also profile one cost call of 1 and of 8 poses on each device (torch.profiler)")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
     args = ap.parse_args()
@@ -231,6 +277,7 @@ def main() -> None:
                 flush=True,
             )
     torch.set_num_threads(threads)
+    profile_rows = [(d.type, *row) for d in devices for row in cost_call_profile(d)] if args.profile else []
     polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
     scenes = scene_timings(
         args.data_root,
@@ -254,6 +301,11 @@ def main() -> None:
     lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
               "| device | batch | model | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
     lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in edge_rows]
+    if profile_rows:
+        lines += ["", "## One cost call profiled (`--profile`: torch.profiler, one call after 3 warm-ups)", "",
+                  "| device | batch | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
+                  "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+        lines += [f"| {d} | {b} | {ms:.2f} | {o} | {k} | {s} |" for d, b, ms, o, k, s in profile_rows]
     lines += ["", f"## Scene polish: the windowed scene cost against the full one (first scene, GT poses, {devices[-1].type}"
               + (", 1 thread)" if devices[-1].type == "cpu" else ")"),
               "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip

@@ -133,8 +133,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         dataset=args.dataset, data_root=args.data_root, split=split, out=out, n_views=args.n_views,
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
-        deterministic_time=args.deterministic_time, device=device, pose_device=pose_device, vis_dir=Path(args.vis) if args.vis else None,
-        max_views=args.max_views,
+        deterministic_time=args.deterministic_time, device=device, pose_device=pose_device,
+        vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views,
     )  # fmt: skip
     bar = None
 

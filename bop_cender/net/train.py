@@ -259,7 +259,7 @@ def train(
             )
         missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
         assert not unexpected and all(k.startswith(("context.", "refine.")) for k in missing), (missing, unexpected)
-    trainable = _trainable_parameters(model, config.train_only)
+    trainable = _freeze_all_but(model, config.train_only)
     optimiser = torch.optim.Adam(trainable, lr=config.lr)
     history: list[EpochRecord] = []
     start_epoch = 0
@@ -297,9 +297,9 @@ def train(
     return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
 
 
-def _trainable_parameters(model: UNet, train_only: tuple[str, ...]) -> list[torch.nn.Parameter]:
-    """The parameters that train: all, or those of the top-level modules named in ``train_only`` (the others get
-    ``requires_grad`` False; :func:`_train_mode` keeps them in eval mode).
+def _freeze_all_but(model: UNet, train_only: tuple[str, ...]) -> list[torch.nn.Parameter]:
+    """Freezes (``requires_grad`` False) every top-level module not named in ``train_only`` (empty: none) and returns
+    the parameters that train; :func:`_train_mode` keeps the frozen modules in eval mode.
 
     Raises:
         ConfigError: a name that is not a top-level module of the network, or one without parameters.

@@ -121,7 +121,7 @@ class UNetSpec:
     def dimo_refine(width: float = 1.0) -> UNetSpec:
         """:meth:`dimo_context` with a full-resolution curvature refinement of 8 features (:class:`_Refine`; 1.20
         against 1.07 GMAC per 320x256 view); it starts as the identity, so ``dimo-context`` weights start it."""
-        return UNetSpec((16, 24, 32), (2, 2, 2), 16, 1, width, "dimo-refine", (2, 4, 8), refine_channels=8)
+        return replace(UNetSpec.dimo_context(width), name="dimo-refine", refine_channels=8)
 
     @staticmethod
     def tless_lean(center_channels: int = 30, width: float = 1.0) -> UNetSpec:

@@ -153,9 +153,10 @@ def candidate_costs(
         near: near plane (mm).
         chunk_pixels: window pixels per chunk (default: small on CPU for its caches, large on CUDA).
         workers: threads that render chunks side by side (CPU; ignored on CUDA, where the chunks queue on one
-            stream anyway). Chunks are independent, so the result is the same bits; worth it only with ``torch.set_num_threads(1)`` and free cores (on a
-            shared machine, one intra-op thread per process is the safe default: OpenMP threads that
-            wait for a busy core make every parallel op cost a scheduler time slice).
+            stream anyway). Chunks are independent, so the result is the same bits; worth it only with
+            ``torch.set_num_threads(1)`` and free cores (on a shared machine, one intra-op thread per process is
+            the safe default: OpenMP threads that wait for a busy core make every parallel op cost a scheduler
+            time slice).
         occluder_depth: ``(V, H, W)`` depth (mm) of objects already placed, 0 where none: candidate
             pixels behind it draw no curvature (the paper's sequential occlusion). None: no occluders.
         settings: near plane and chunk sizes (:class:`~bop_cender.render.settings.RenderSettings`); when

@@ -369,8 +369,7 @@ def optimise_scene(
             :attr:`~bop_cender.net.heatmaps.Heatmaps.curvature_threshold`); None: ``t_b``.
         device: where every render and cost runs (None: the device of ``curvature``, CPU for an array).
             The distance transform runs on the CPU (SciPy), once per scene; its maps, the meshes and the
-            edge models then live on ``device``. On CUDA the candidates are costed in one stream
-            (``cost_threads`` is ignored).
+            edge models then live on ``device`` (``cost_threads`` only counts on the CPU).
 
     Returns:
         One :class:`PlacedObject` per target, in the order they were placed.
@@ -378,8 +377,6 @@ def optimise_scene(
     if device is None:
         device = curvature.device if isinstance(curvature, torch.Tensor) else torch.device("cpu")
     device = torch.device(device)
-    if device.type != "cpu":
-        cost_threads = 1
     meshes = _MeshesOn(meshes, device)
     if edges is None:
         edges = _EdgeModels(meshes, config.edge_segment_mm)
