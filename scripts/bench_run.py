@@ -9,7 +9,8 @@
    against the full scene cost (:mod:`bop_cender.pose.scene_polish`).
    With ``--profile``: where one cost call's time goes (torch.profiler, batches of 1 and 8): wall time, the
    operators it runs, the CUDA kernels it launches and the calls that wait for the device (``nonzero``,
-   ``item``, copies, synchronisations): why a small batch on a GPU is bound by the host.
+   ``item``, copies, synchronisations): why a small batch on a GPU is bound by the host; and one edge-proxy call
+   of 3 poses in its two layouts (compacted, the CPU's; dense, CUDA's: no synchronising call).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
@@ -24,6 +25,7 @@ Prints a table and writes ``results/bench/run_<machine>.md``:
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 import time
@@ -36,6 +38,7 @@ import numpy as np
 import torch
 
 from bop_cender.pose.cost import candidate_costs
+from bop_cender.pose.edge_cost import edge_costs, edge_model_of
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.synth.reference_meshes import reference_bracket
 
@@ -79,17 +82,19 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
 
 
 def edge_calls_per_second(
-    device: torch.device, batch: int, seconds: float, max_segments: int | None
+    device: torch.device, batch: int, seconds: float, max_segments: int | None, dense: bool | None = None
 ) -> tuple[float, float]:
     """Median calls/s and ms per call of the edge-point proxy (:mod:`bop_cender.pose.edge_cost`) on the same
-    workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking."""
-    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
-
+    workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking;
+    ``dense``: its layout (None: the device's default, dense on CUDA)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
+    model = _edge_model(mesh, max_segments)
+    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, dense=dense), device, batch, seconds)
+
+
+def _edge_model(mesh, max_segments: int | None):
     model = edge_model_of(mesh)
-    if max_segments is not None:
-        model = model.sparse(max_segments)
-    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w), device, batch, seconds)
+    return model if max_segments is None else model.sparse(max_segments)
 
 
 #: Profiler events that make the host wait for the device (sizes read back, copies, explicit synchronisation).
@@ -103,33 +108,57 @@ def cost_call_profile(
     """One cost call of each batch size profiled (after 3 warm-ups): ``(batch, wall ms of an unprofiled call,
     aten operators, CUDA kernel launches, synchronising calls)`` (launches and syncs 0 on the CPU but ``nonzero`` and
     ``item``, which only synchronise on a GPU)."""
-    from torch.profiler import ProfilerActivity, profile
-
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
     rows = []
     for batch in batches:
         mesh, T, Ks, dist, w = _workload(device, batch)
         call = partial(candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w)
+        rows.append((batch, *_profile(call, device)))
+        print(f"profile {device.type} batch {batch}: " + _profile_line(rows[-1][1:]), flush=True)
+    return rows
 
-        for _ in range(3):
-            call()
-        sync()
-        with profile(activities=activities) as prof:
-            call()
-            sync()
-        events = prof.key_averages()
-        ops = sum(e.count for e in events if e.key.startswith("aten::"))
-        launches = sum(e.count for e in events if e.key == "cudaLaunchKernel")
-        syncs = sum(e.count for e in events if e.key in _SYNC_EVENTS)
-        t = time.perf_counter()
+
+def edge_call_profile(
+    device: torch.device, batch: int = 3, layouts: tuple[bool, ...] = (False, True)
+) -> list[tuple[str, float, int, int, int]]:
+    """:func:`cost_call_profile` of one edge-proxy call (full model; ``batch`` poses: a Nelder-Mead step) in each
+    layout: ``(layout, ms, operators, launches, synchronising calls)``. The dense layout (CUDA's default) makes no
+    ``nonzero`` and reads no size from a tensor, so on a GPU nothing waits before the result is read."""
+    mesh, T, Ks, dist, w = _workload(device, batch)
+    model = _edge_model(mesh, None)
+    rows = []
+    for dense in layouts:
+        layout = "dense" if dense else "compacted"
+        rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, dense=dense), device)))
+        print(f"profile edge proxy {device.type} batch {batch} {layout}: " + _profile_line(rows[-1][1:]), flush=True)
+    return rows
+
+
+def _profile(call, device: torch.device) -> tuple[float, int, int, int]:
+    """``(wall ms of an unprofiled call, aten operators, CUDA kernel launches, synchronising calls)`` of ``call()``
+    after 3 warm-ups."""
+    from torch.profiler import ProfilerActivity, profile
+
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    for _ in range(3):
+        call()
+    sync()
+    with profile(activities=activities) as prof:
         call()
         sync()
-        ms = (time.perf_counter() - t) * 1000
-        rows.append((batch, ms, ops, launches, syncs))
-        print(f"profile {device.type} batch {batch}: {ms:.2f} ms, {ops} aten ops, {launches} kernel launches,"
-              f" {syncs} synchronising calls", flush=True)  # fmt: skip
-    return rows
+    events = prof.key_averages()
+    ops = sum(e.count for e in events if e.key.startswith("aten::"))
+    launches = sum(e.count for e in events if e.key == "cudaLaunchKernel")
+    syncs = sum(e.count for e in events if e.key in _SYNC_EVENTS)
+    t = time.perf_counter()
+    call()
+    sync()
+    return (time.perf_counter() - t) * 1000, ops, launches, syncs
+
+
+def _profile_line(row: tuple[float, int, int, int]) -> str:
+    ms, ops, launches, syncs = row
+    return f"{ms:.2f} ms, {ops} aten ops, {launches} kernel launches, {syncs} synchronising calls"
 
 
 def scene_timings(
@@ -268,9 +297,12 @@ def main() -> None:
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
     edge_rows = []
     for device in devices:
-        for batch, segments, label in ((2000, 600, "candidates (sparse, 600 segments)"), (2000, None, "full model"),
-                                       (3, None, "full model (a Nelder-Mead step of 3 starts)")):  # fmt: skip
-            calls, ms = edge_calls_per_second(device, batch, args.seconds, segments)
+        layouts = ((None, ""), (False, ", compacted layout")) if device.type == "cuda" else ((None, ""),)
+        for (batch, segments, label), (dense, named) in itertools.product(
+            ((2000, 600, "candidates (sparse, 600 segments)"), (2000, None, "full model"),
+             (3, None, "full model (a Nelder-Mead step of 3 starts)")), layouts):  # fmt: skip
+            label = label + named
+            calls, ms = edge_calls_per_second(device, batch, args.seconds, segments, dense)
             edge_rows.append((device.type, batch, label, calls, ms))
             print(
                 f"edge proxy {device.type} batch {batch} {label}: {calls:,.0f} calls/s ({ms:.2f} ms per call)",
@@ -278,6 +310,7 @@ def main() -> None:
             )
     torch.set_num_threads(threads)
     profile_rows = [(d.type, *row) for d in devices for row in cost_call_profile(d)] if args.profile else []
+    edge_profile_rows = [(d.type, *row) for d in devices for row in edge_call_profile(d)] if args.profile else []
     polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
     scenes = scene_timings(
         args.data_root,
@@ -306,6 +339,10 @@ def main() -> None:
                   "| device | batch | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
                   "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
         lines += [f"| {d} | {b} | {ms:.2f} | {o} | {k} | {s} |" for d, b, ms, o, k, s in profile_rows]
+        lines += ["", "One edge-proxy call profiled (full model, 3 poses: a Nelder-Mead step), in each layout:", "",
+                  "| device | layout | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
+                  "|---|---|---:|---:|---:|---:|"]  # fmt: skip
+        lines += [f"| {d} | {lay} | {ms:.2f} | {o} | {k} | {s} |" for d, lay, ms, o, k, s in edge_profile_rows]
     lines += ["", f"## Scene polish: the windowed scene cost against the full one (first scene, GT poses, {devices[-1].type}"
               + (", 1 thread)" if devices[-1].type == "cpu" else ")"),
               "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip

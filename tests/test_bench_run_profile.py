@@ -14,3 +14,11 @@ def test_a_cost_call_is_profiled_into_time_operators_launches_and_syncs(device) 
     batch, ms, ops, launches, syncs = row
     assert batch == 1 and ms > 0 and ops > 100  # the candidate path runs many small operators per call
     assert (launches > 0) == (device.type == "cuda") and syncs > 0  # nonzero compactions at least
+
+
+def test_an_edge_call_is_profiled_in_both_layouts_and_the_dense_one_never_synchronises(device) -> None:
+    rows = bench_run.edge_call_profile(device, batch=2)
+    assert [r[0] for r in rows] == ["compacted", "dense"]
+    (_, _, ops_c, _, syncs_c), (_, ms, ops_d, launches, syncs_d) = rows
+    assert ms > 0 and ops_d > 10 and (launches > 0) == (device.type == "cuda")
+    assert syncs_c > 0 and syncs_d == 0

@@ -11,7 +11,9 @@ the pose only through which faces face the camera, so they can be found without 
    each edge's two face planes and whether it is a crease;
 2. per candidate and view, a face faces the camera when the camera centre (in the model frame) lies
    above its plane; an edge is drawn when it is a contour, or a crease with a face towards the camera;
-3. a drawn segment's ends are projected and points sampled between them; a point behind an already
+3. a drawn segment's ends are projected (from its edge's projected ends: homogeneous coordinates are
+   linear along the edge, so only the mesh's vertices are projected, not every cut point) and points
+   sampled between them; a point behind an already
    placed object (``occluder_depth``: the render cost's rule,
    :data:`~bop_cender.render.candidate_curvature.OCCLUSION_MARGIN_MM`, with the wider
    :data:`EDGE_COINCIDENCE_MM`) or outside the image is left out, as the render cost leaves those
@@ -26,6 +28,14 @@ method ranks many candidates and runs the Nelder-Mead refinement on it, then jud
 the render cost (a render-cost polish is optional, ``PoseConfig.polish_maxfev``, and off: it pulled poses
 back onto the pixel grid). Being continuous in the pose (bilinear lookups, no pixel
 snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
+
+Two layouts of the same arithmetic (:func:`edge_costs`' ``dense``): on the CPU the drawn segments are
+compacted first (``nonzero``: of a part's segments only the contour and the creases facing the camera are
+drawn, often under a tenth, so compaction saves most of the work); on CUDA every segment of every canvas
+is costed with a 0/1 weight instead. That costs several times the arithmetic but has fixed shapes: no
+``nonzero`` or data-dependent ``repeat_interleave``, so a call never waits for the device until its result
+is read, which is what bounds the small calls of Nelder-Mead on a GPU (``results/bench/``). The two agree
+to float rounding (``tests/pose/test_edge_cost.py``).
 
 Measured (``scripts/bench_run.py``): see ``results/bench/``.
 """
@@ -55,8 +65,12 @@ SAMPLES_PER_SEGMENT = 2
 #: 1 mm deeper than the point on the same surface).
 EDGE_COINCIDENCE_MM = 1.0
 
-#: Canvases (candidate x view) costed together: bounds the memory of the per-segment arrays.
+#: Canvases (candidate x view) costed together in the compacted layout: bounds the memory of the per-segment arrays.
 CANVAS_CHUNK = 512
+
+#: (canvas, segment) pairs costed together in the dense layout: about 250 bytes each at the peak (measured on the
+#: CPU), so 2^22 pairs take about 1 GB; a call of 3 poses in 7 views of a 10,000-segment part is 2^18.
+DENSE_CHUNK_SEGMENTS = 1 << 22
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,11 +99,9 @@ class EdgeModel:
         return self.vertices.device
 
     @cached_property
-    def homogeneous_vertices(self) -> torch.Tensor:
-        """``(4, N)`` the vertices as contiguous homogeneous columns (the right factor of the projection in
-        :func:`edge_costs`; contiguous it is 2x faster), built once per model instead of per cost call."""
-        ones = torch.ones((self.vertices.shape[0], 1), device=self.vertices.device, dtype=self.vertices.dtype)
-        return torch.cat([self.vertices, ones], 1).T.contiguous()
+    def projection(self) -> SegmentProjection:
+        """Tables that place every segment on its edge (built once per model; see :class:`SegmentProjection`)."""
+        return SegmentProjection.of(self)
 
     @property
     def num_segments(self) -> int:
@@ -120,6 +132,54 @@ class EdgeModel:
             self.planes.index_select(0, edges),
             self.crease.index_select(0, edges),
             torch.stack([torch.cumsum(count, 0) - count, count], 1),
+        )
+
+
+@dataclass(frozen=True)
+class SegmentProjection:
+    """Every segment as a stretch ``[frac_a, frac_b]`` of its edge, whose ends are mesh vertices.
+
+    Why: projecting every segment end (a part's cut points outnumber its vertices 10-40 times) was a quarter
+    of a cost call. Homogeneous pixel coordinates ``K (R X + t)`` are linear in ``X``, so a segment end's are
+    the lerp of its edge ends' at the segment's fraction along the edge (to float rounding; the perspective
+    division comes after), and only the edge ends need a matrix product.
+
+    Attributes:
+        ends: ``(4, M)`` float32 the edges' end vertices as contiguous homogeneous columns.
+        seg_from, seg_to: ``(S,)`` int64 column in ``ends`` of the start and end of each segment's edge.
+        seg_edge: ``(S,)`` int64 edge of each segment.
+        frac_a, frac_b: ``(S,)`` float32 where each segment starts and ends along its edge (0 at its start,
+            1 at its end).
+    """
+
+    ends: torch.Tensor
+    seg_from: torch.Tensor
+    seg_to: torch.Tensor
+    seg_edge: torch.Tensor
+    frac_a: torch.Tensor
+    frac_b: torch.Tensor
+
+    @staticmethod
+    def of(model: EdgeModel) -> SegmentProjection:
+        """The tables of ``model``: each edge's segments are a straight chain of equal pieces from its first
+        segment's start to its last segment's end (:func:`edge_model`; :meth:`EdgeModel.sparse` keeps whole edges)."""
+        first, count = model.edge_segments.unbind(1)
+        edge_from = model.segments[first, 0]
+        edge_to = model.segments[first + count - 1, 1]
+        used, column = torch.unique(torch.cat([edge_from, edge_to]), return_inverse=True)
+        E = int(first.shape[0])
+        seg_edge = torch.repeat_interleave(torch.arange(E, device=model.device), count)
+        rank = _ranks(count).double()
+        pieces = count.double().index_select(0, seg_edge)
+        vertices = model.vertices.index_select(0, used)
+        ones = torch.ones((vertices.shape[0], 1), device=model.device, dtype=vertices.dtype)
+        return SegmentProjection(
+            ends=torch.cat([vertices, ones], 1).T.contiguous(),
+            seg_from=column[:E].index_select(0, seg_edge),
+            seg_to=column[E:].index_select(0, seg_edge),
+            seg_edge=seg_edge,
+            frac_a=(rank / pieces).float(),
+            frac_b=((rank + 1) / pieces).float(),
         )
 
 
@@ -214,6 +274,7 @@ def edge_costs(
     view_weights: torch.Tensor,
     occluder_depth: torch.Tensor | None = None,
     near: float = 1.0,
+    dense: bool | None = None,
 ) -> torch.Tensor:
     """Edge-point cost ``(B,)`` of B candidates over V views (see the module docstring).
 
@@ -227,6 +288,8 @@ def edge_costs(
         occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
             :func:`edge_occluder`; None: none.
         near: points closer to the camera plane than this (mm) are not drawn.
+        dense: cost every segment with a 0/1 weight (fixed shapes, no wait for the device) instead of the drawn
+            ones compacted; None (default): dense on CUDA, compacted elsewhere (the module docstring says why).
 
     Returns:
         ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
@@ -238,6 +301,8 @@ def edge_costs(
     if occluder_depth is not None:
         check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
     device = T_cam_model.device
+    if dense is None:
+        dense = device.type == "cuda"
     T = T_cam_model.to(torch.float32)
     B, V = sizes["B"], sizes["V"]
     per_view = torch.empty(B * V, dtype=torch.float32, device=device)
@@ -245,11 +310,33 @@ def edge_costs(
     Ks = K.to(device, torch.float32)
     dist = dist_maps.to(device, torch.float32)
     occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
-    for start in range(0, B * V, CANVAS_CHUNK):
-        stop = min(B * V, start + CANVAS_CHUNK)
-        canvas = torch.arange(start, stop, device=device)
-        per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], canvas % V, Ks, dist, occ, near)
+    chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
+    costs = _dense_canvas_costs if dense else _canvas_costs
+    for start in range(0, B * V, chunk):
+        stop = min(B * V, start + chunk)
+        view = torch.arange(start, stop, device=device) % V
+        per_view[start:stop] = costs(model, flat_T[start:stop], view, Ks, dist, occ, near)
     return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
+
+
+def _drawn_edges(model: EdgeModel, T: torch.Tensor) -> torch.Tensor:
+    """``(C, E)`` bool: the edges drawn in each canvas of pose ``T (C, 4, 4)``: contours (one face towards the
+    camera, the other away) and creases with a face towards it."""
+    C = T.shape[0]
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    eye = -torch.einsum("cji,cj->ci", R, t)  # (C, 3) camera centre in the model frame: -R^T t
+    planes = model.planes.reshape(-1, 4)  # (2E, 4)
+    facing = (torch.addmm(-planes[:, 3], eye, planes[:, :3].T) > 0).view(C, -1, 2)  # (C, E, 2)
+    f1, f2 = facing[..., 0], facing[..., 1]
+    return (f1 != f2) | (model.crease & (f1 | f2))
+
+
+def _projected_ends(model: EdgeModel, T: torch.Tensor, view: torch.Tensor, Ks: torch.Tensor) -> torch.Tensor:
+    """Homogeneous pixel coordinates ``(C, 3, M)`` (u z, v z, z) of the edges' end vertices in every canvas: one
+    matrix product ``(C, 3, 4) x (4, M)`` with ``K [R | t]`` folded in (full float32: where TF32 matmuls are
+    enabled on CUDA, t inside the product costs ~0.3 px; nothing enables them)."""
+    P = torch.matmul(Ks.index_select(0, view), T[:, :3, :])  # (C, 3, 4)
+    return torch.matmul(P, model.projection.ends)
 
 
 def _canvas_costs(
@@ -261,60 +348,107 @@ def _canvas_costs(
     occ: torch.Tensor | None,
     near: float,
 ) -> torch.Tensor:
-    """Unweighted cost ``(C,)`` of C canvases with poses ``T (C, 4, 4)`` in views ``view (C,)``.
+    """Unweighted cost ``(C,)`` of C canvases with poses ``T (C, 4, 4)`` in views ``view (C,)``: the drawn
+    segments compacted (the CPU layout).
 
-    The segment end points are projected in every canvas (one small matrix product); each drawn
-    segment is then sampled at :data:`SAMPLES_PER_SEGMENT` points between its projected ends (a
+    Each drawn segment is sampled at :data:`SAMPLES_PER_SEGMENT` points between its projected ends (a
     segment is short, so its projection is straight to well under a pixel), each weighing a share of
     its length in pixels, as a rendered edge weighs its pixels.
     """
     V, H, W = dist.shape
     C = T.shape[0]
-    N = model.vertices.shape[0]
     device = T.device
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    eye = -torch.einsum("cji,cj->ci", R, t)  # (C, 3) camera centre in the model frame: -R^T t
-    planes = model.planes.reshape(-1, 4)  # (2E, 4)
-    facing = (torch.addmm(-planes[:, 3], eye, planes[:, :3].T) > 0).view(C, -1, 2)  # (C, E, 2)
-    f1, f2 = facing[..., 0], facing[..., 1]
-    drawn = (f1 != f2) | (model.crease & (f1 | f2))  # (C, E)
-    c_edge, edge = drawn.nonzero(as_tuple=True)
+    c_edge, edge = _drawn_edges(model, T).nonzero(as_tuple=True)
     diagonal = math.hypot(H, W)
     if c_edge.numel() == 0:
         return torch.full((C,), diagonal, device=device)
     first, count = model.edge_segments.index_select(0, edge).unbind(1)
-    e_idx = torch.repeat_interleave(first, count) + _ranks(count)
+    s_idx = torch.repeat_interleave(first, count) + _ranks(count)
     c_idx = torch.repeat_interleave(c_edge, count)
-    # Homogeneous pixel coordinates (u z, v z, z) of every vertex in every canvas: one matrix product
-    # (C 3, 4) x (4, N) with K [R | t] folded in (a batched (C, 3, 3) x (3, N) product and per-vertex
-    # arithmetic over all N cost about 3x more at C = 21, N = 10k); only the drawn segments' ends are divided.
-    P = torch.matmul(Ks.index_select(0, view), T[:, :3, :]).reshape(C * 3, 4)  # K [R | t] per canvas
-    # full float32 (where TF32 matmuls are enabled on CUDA, t inside the product costs ~0.3 px; nothing enables them)
-    hom = torch.matmul(P, model.homogeneous_vertices).reshape(-1)  # (C 3 N): row c 3 + k, column n
-    ends = model.segments.index_select(0, e_idx)  # (S, 2)
-    base = c_idx * (3 * N)
-    ia, ib = base + ends[:, 0], base + ends[:, 1]
-    za, zb = hom.index_select(0, ia + 2 * N), hom.index_select(0, ib + 2 * N)
+    proj = model.projection
+    M = proj.ends.shape[1]
+    hom = _projected_ends(model, T, view, Ks).reshape(-1)  # (C 3 M): row c 3 + k, column m
+    base = c_idx * (3 * M)
+    ip = base + proj.seg_from.index_select(0, s_idx)
+    iq = base + proj.seg_to.index_select(0, s_idx)
+    p = [hom.index_select(0, ip + k * M) for k in range(3)]
+    q = [hom.index_select(0, iq + k * M) for k in range(3)]
+    w = _segment_weights(
+        p, q, proj.frac_a.index_select(0, s_idx), proj.frac_b.index_select(0, s_idx), view.index_select(0, c_idx),
+        dist, occ, near,
+    )  # fmt: skip
+    num = torch.zeros(C, device=device).index_add_(0, c_idx, w[0])
+    den = torch.zeros(C, device=device).index_add_(0, c_idx, w[1])
+    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+
+
+def _dense_canvas_costs(
+    model: EdgeModel,
+    T: torch.Tensor,
+    view: torch.Tensor,
+    Ks: torch.Tensor,
+    dist: torch.Tensor,
+    occ: torch.Tensor | None,
+    near: float,
+) -> torch.Tensor:
+    """:func:`_canvas_costs` with every segment of every canvas costed, undrawn ones with weight 0: no
+    ``nonzero`` and no data-dependent size, so nothing waits for the device (the CUDA layout)."""
+    V, H, W = dist.shape
+    C = T.shape[0]
+    proj = model.projection
+    S = proj.seg_edge.shape[0]
+    drawn = _drawn_edges(model, T).index_select(1, proj.seg_edge)  # (C, S)
+    hom = _projected_ends(model, T, view, Ks)  # (C, 3, M)
+    hp, hq = hom.index_select(2, proj.seg_from), hom.index_select(2, proj.seg_to)  # (C, 3, S)
+    w = _segment_weights(
+        [hp[:, k].reshape(-1) for k in range(3)], [hq[:, k].reshape(-1) for k in range(3)],
+        proj.frac_a.repeat(C), proj.frac_b.repeat(C), view[:, None].expand(C, S).reshape(-1), dist, occ, near,
+    )  # fmt: skip
+    drawn = drawn.reshape(-1).to(w.dtype)
+    num = (w[0] * drawn).view(C, S).sum(1)
+    den = (w[1] * drawn).view(C, S).sum(1)
+    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, math.hypot(H, W)))
+
+
+def _segment_weights(
+    p: list[torch.Tensor],
+    q: list[torch.Tensor],
+    frac_a: torch.Tensor,
+    frac_b: torch.Tensor,
+    view: torch.Tensor,
+    dist: torch.Tensor,
+    occ: torch.Tensor | None,
+    near: float,
+) -> torch.Tensor:
+    """``(2, n)``: per segment, the summed length-weighted distance of its sample points and their summed weight.
+
+    Args:
+        p, q: three ``(n,)`` homogeneous pixel coordinates (u z, v z, z) each of the start and end of each
+            segment's edge.
+        frac_a, frac_b: ``(n,)`` where the segment starts and ends along its edge.
+        view: ``(n,)`` view of each segment.
+        dist, occ, near: as :func:`_canvas_costs`.
+    """
+    V, H, W = dist.shape
+    za, zb = torch.lerp(p[2], q[2], frac_a), torch.lerp(p[2], q[2], frac_b)
     inv_a, inv_b = za.clamp_min(near).reciprocal(), zb.clamp_min(near).reciprocal()
-    xa, ya = hom.index_select(0, ia) * inv_a, hom.index_select(0, ia + N) * inv_a
-    xb, yb = hom.index_select(0, ib) * inv_b, hom.index_select(0, ib + N) * inv_b
-    frac = (torch.arange(SAMPLES_PER_SEGMENT, device=device, dtype=xa.dtype) + 0.5) / SAMPLES_PER_SEGMENT
-    xs = torch.lerp(xa[:, None], xb[:, None], frac)  # (S, k)
+    xa, ya = torch.lerp(p[0], q[0], frac_a) * inv_a, torch.lerp(p[1], q[1], frac_a) * inv_a
+    xb, yb = torch.lerp(p[0], q[0], frac_b) * inv_b, torch.lerp(p[1], q[1], frac_b) * inv_b
+    frac = (torch.arange(SAMPLES_PER_SEGMENT, device=xa.device, dtype=xa.dtype) + 0.5) / SAMPLES_PER_SEGMENT
+    xs = torch.lerp(xa[:, None], xb[:, None], frac)  # (n, k)
     ys = torch.lerp(ya[:, None], yb[:, None], frac)
-    zs = torch.lerp(za[:, None], zb[:, None], frac)
     length = torch.hypot(xb - xa, yb - ya)[:, None] / SAMPLES_PER_SEGMENT
     keep = (torch.minimum(za, zb) >= near)[:, None] & (xs >= 0) & (xs < W) & (ys >= 0) & (ys < H)
-    v_of = view.index_select(0, c_idx)[:, None].expand_as(xs)
+    v_of = view[:, None].expand_as(xs)
     if occ is not None:
+        zs = torch.lerp(za[:, None], zb[:, None], frac)
         u_i = xs.floor().clamp(0, W - 1).long()
         v_i = ys.floor().clamp(0, H - 1).long()
         o = occ.reshape(-1).index_select(0, ((v_of * H + v_i) * W + u_i).reshape(-1)).view_as(xs)
         keep &= ~((o > 0) & (zs > o - EDGE_COINCIDENCE_MM))
     d = _bilinear(dist, v_of.reshape(-1), (xs - 0.5).reshape(-1), (ys - 0.5).reshape(-1)).view_as(xs)
     w = length * keep
-    num = torch.zeros(C, device=device).index_add_(0, c_idx, (w * d).sum(1))
-    den = torch.zeros(C, device=device).index_add_(0, c_idx, w.sum(1))
-    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+    return torch.stack([(w * d).sum(1), w.sum(1)])
 
 
 def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:

@@ -107,6 +107,74 @@ def test_occluders_hide_edge_points_only_where_they_are_in_front(mini):
     assert _cost_pair(mini, T, obj_id=4, occ=everywhere)[0] == pytest.approx([diagonal])  # nothing drawn anywhere
 
 
+def _camera_poses(mini, T_world_model):
+    ds, scene, meshes, maps, cams, dist = mini
+    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, T_world_model), dtype=torch.float32)
+    return T, torch.as_tensor(cams.Ks, dtype=torch.float32), torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+
+
+def test_the_dense_layout_gives_the_compacted_costs(mini):
+    """Every segment costed with a 0/1 weight (CUDA's layout: fixed shapes) equals the drawn segments compacted
+    (the CPU's), with and without occluders, for the full and the sparse model, a pose that is partly out of the
+    image and one behind the cameras, and in chunks (one canvas per chunk)."""
+    from bop_cender.pose import edge_cost
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12), (40, 25))])
+    poses[2, :3, 3] += [60.0, 0.0, 0.0]  # partly out of some views
+    poses[3, :3, 3] -= 5000.0 * cams.T_cam_world[0, 2, :3]  # behind the first camera
+    T, K, w = _camera_poses(mini, poses)
+    occ = torch.zeros((len(cams.Ks), cams.height, cams.width))
+    occ[:, :, : cams.width // 2] = 300.0
+    model = edge_model_of(meshes(3))
+    for m in (model, model.sparse(40)):
+        for o in (None, occ):
+            compact = edge_costs(m, T, K, dist, w, occluder_depth=o, dense=False)
+            dense = edge_costs(m, T, K, dist, w, occluder_depth=o, dense=True)
+            torch.testing.assert_close(dense, compact, rtol=1e-5, atol=1e-4)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(edge_cost, "DENSE_CHUNK_SEGMENTS", 1)  # one canvas per chunk
+        torch.testing.assert_close(edge_costs(model, T, K, dist, w, dense=True), edge_costs(model, T, K, dist, w))
+
+
+def test_the_dense_layout_never_waits_for_the_device(mini, monkeypatch):
+    """No ``nonzero``, ``item`` or size read from a tensor in a dense call: on CUDA nothing would synchronise
+    before the result is read. Counted on the CPU by torch.profiler (the same operators run on either device)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    ds, scene, meshes, maps, cams, dist = mini
+    T, K, w = _camera_poses(mini, perturb(gt_of(scene, 3).T_world_model, 5, 3)[None])
+    model = edge_model_of(meshes(3))
+    assert model.projection.seg_edge.numel() == model.num_segments  # the tables are built once per model, not per call
+    syncing = {"aten::nonzero", "aten::item", "aten::_local_scalar_dense", "aten::repeat_interleave"}
+
+    def counted(dense: bool) -> int:
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            edge_costs(model, T, K, dist, w, occluder_depth=torch.zeros_like(dist), dense=dense)
+        return sum(e.count for e in prof.key_averages() if e.key in syncing)
+
+    assert counted(dense=False) > 0  # the compacted layout reads sizes from tensors (the counter works)
+    assert counted(dense=True) == 0
+
+
+def test_a_segment_is_projected_from_its_edge_ends():
+    """The projection tables place each segment of a cut edge where the cut points are: lerping the edge ends'
+    homogeneous coordinates at the segment's fractions, then dividing, gives the projection of the cut points."""
+    box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
+    model = edge_model(box.vertices, box.faces, segment_mm=3.0)
+    proj = model.projection
+    ends = proj.ends.T[:, :3].double()
+    a = torch.lerp(ends[proj.seg_from], ends[proj.seg_to], proj.frac_a.double()[:, None])
+    b = torch.lerp(ends[proj.seg_from], ends[proj.seg_to], proj.frac_b.double()[:, None])
+    v = model.vertices.double()
+    torch.testing.assert_close(a, v[model.segments[:, 0]], atol=1e-4, rtol=0)
+    torch.testing.assert_close(b, v[model.segments[:, 1]], atol=1e-4, rtol=0)
+    assert proj.ends.shape[1] == 8  # only the box's corners are projected, not the cut points
+    sparse = model.sparse(30).projection
+    assert sparse.seg_edge.shape[0] == model.sparse(30).num_segments
+
+
 def test_a_pose_outside_every_image_costs_the_diagonal(mini):
     ds, scene, meshes, maps, cams, dist = mini
     T = gt_of(scene, 3).T_world_model.copy()

@@ -1,0 +1,65 @@
+"""``scripts/gpu_session.sh``: the prepared device calls answer ``--help``, refuse an unknown phase, and (slow) the
+training phase runs end to end on the CPU at a tiny size, leaving the run's bundle under ``$OUT``."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "gpu_session.sh"
+
+
+def _run(*args: str, env: dict[str, str] | None = None, timeout: int = 60) -> subprocess.CompletedProcess:
+    return subprocess.run(["bash", str(SCRIPT), *args], capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_help_prints_the_phases_and_an_unknown_phase_is_refused() -> None:
+    done = _run("--help")
+    assert done.returncode == 0 and "check" in done.stdout and "train" in done.stdout
+    bad = _run("bench")
+    assert bad.returncode == 2 and "usage: bash scripts/gpu_session.sh check|train" in bad.stderr
+
+
+def test_cuda_asked_for_without_cuda_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    pytest.importorskip("trimesh")
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present")
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "DEVICE": "cuda", "PATH": os.path.dirname(sys.executable)
+           + os.pathsep + os.environ["PATH"]}  # fmt: skip
+    done = _run("check", env=env)
+    assert done.returncode == 2
+    assert "DEVICE=cuda but torch sees no CUDA device" in done.stdout
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.slow
+def test_the_training_phase_runs_on_the_cpu_and_bundles_the_run(tmp_path: Path) -> None:
+    env = {
+        **os.environ,
+        "PATH": os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"],
+        "OUT": str(tmp_path / "out"),
+        "DEVICE": "cpu",
+        "SCENES": "1",
+        "VARIANTS": "16",
+        "TRAIN_MINUTES": "1",
+        "BATCH": "2",
+        "WORKERS": "2",
+        "DATA": str(tmp_path / "data"),
+        "RUN": str(tmp_path / "run"),
+    }
+    done = _run("train", env=env, timeout=600)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    bundle = tmp_path / "out" / "train_run.tar.gz"
+    with tarfile.open(bundle) as tar:
+        names = tar.getnames()
+    assert "run/weights.pt" in names and "run/metrics.csv" in names
+    assert not any(n.endswith("checkpoint.pt") for n in names)
+    assert "validation heatmaps" in (tmp_path / "out" / "session.log").read_text()
