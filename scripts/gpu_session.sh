@@ -7,7 +7,7 @@
 #
 # check: `pytest -m "cuda and not slow"` (the CUDA paths against the CPU's), the method benchmark on the embedded
 #   demo (`--devices cuda --profile`: cost calls/s, the edge proxy in both layouts, seconds per scene) and the
-#   network benchmark; the figures land in results/bench/*.md and are copied to $OUT.
+#   network benchmark; the figures land in results/bench/*.md, bundled into $OUT/bench.tar.gz.
 # train: the paper's DIMO network (`--variant dimo`, 32/32/64/64 channels, focal centre loss) on SCENES piles x
 #   VARIANTS sim variants (seed 9021, the shipped network's second set), validated every epoch on 4 piles (seed
 #   9003), for TRAIN_MINUTES; the checkpoint is atomic per epoch, so a killed run resumes (`--resume`) next time.
@@ -68,7 +68,8 @@ if [[ "$mode" == "check" ]]; then
     | tee "$OUT/bench_run.txt" || true
   log "network benchmark"
   timeout 120 python3 scripts/bench_net.py --devices "$DEVICE" 2>&1 | tail -20 | tee "$OUT/bench_net.txt" || true
-  cp results/bench/*.md "$OUT/" 2>/dev/null || true
+  # one bundle: $OUT returns only a few files
+  tar czf "$OUT/bench.tar.gz" results/bench/*.md 2>/dev/null || true
   log "done"
   exit 0
 fi
