@@ -379,7 +379,7 @@ def _canvas_costs(
     )  # fmt: skip
     num = torch.zeros(C, device=device).index_add_(0, c_idx, w[0])
     den = torch.zeros(C, device=device).index_add_(0, c_idx, w[1])
-    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+    return _weighted_mean(num, den, diagonal)
 
 
 def _dense_canvas_costs(
@@ -407,7 +407,12 @@ def _dense_canvas_costs(
     drawn = drawn.reshape(-1).to(w.dtype)
     num = (w[0] * drawn).view(C, S).sum(1)
     den = (w[1] * drawn).view(C, S).sum(1)
-    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, math.hypot(H, W)))
+    return _weighted_mean(num, den, math.hypot(H, W))
+
+
+def _weighted_mean(num: torch.Tensor, den: torch.Tensor, diagonal: float) -> torch.Tensor:
+    """``num / den`` per canvas ``(C,)``, the image ``diagonal`` where nothing was drawn (``den`` 0)."""
+    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
 
 
 def _segment_weights(
