@@ -47,10 +47,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
     args = ap.parse_args(argv)
     try:
-        import pyrender  # noqa: F401
+        import pyrender
+
+        pyrender.OffscreenRenderer(8, 8).delete()  # an OpenGL context: EGL or OSMesa usually fails here, not at import
     except Exception as exc:  # ImportError, or an OpenGL platform that fails to load
-        print(f"error: pyrender is not usable here ({exc}); pip install pyrender, and set PYOPENGL_PLATFORM=egl or "
-              "osmesa", file=sys.stderr)  # fmt: skip
+        print(f"error: pyrender is not usable here ({exc}); pip install pyrender2 (the pyrender extra), and set "
+              "PYOPENGL_PLATFORM=egl or osmesa", file=sys.stderr)  # fmt: skip
         return 2
     from bop_cender.data.dimo import DimoSelection, open_dimo
     from bop_cender.data.registry import DatasetRequest, open_dataset
@@ -77,12 +79,17 @@ def main(argv: list[str] | None = None) -> int:
     shutil.copytree(args.src, tmp)
     keys = dataset.scene_keys[: args.limit_scenes]
     renderer = _Renderer(dataset, np.random.default_rng(args.seed), args.noise)
-    for n, key in enumerate(keys, 1):
-        scene = dataset.scene(key)
-        for view in scene.views:
-            out = tmp / Path(view.rgb_path).relative_to(args.src)
-            renderer.render(scene, view).save(out)
-        print(f"rerender: {n}/{len(keys)} scene {key}", flush=True)
+    try:
+        for n, key in enumerate(keys, 1):
+            scene = dataset.scene(key)
+            for view in scene.views:
+                out = tmp / Path(view.rgb_path).relative_to(args.src)
+                renderer.render(scene, view).save(out)
+            print(f"rerender: {n}/{len(keys)} scene {key}", flush=True)
+    except (BopCenderError, ValueError) as exc:
+        shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     tmp.rename(args.dst)
     print(f"wrote {args.dst} ({len(keys)} scenes of split {args.split} rendered by pyrender)")
     return 0
@@ -133,6 +140,8 @@ class _Renderer:
         for g in scene.gt:
             world.add(self.mesh(g.obj_id), pose=np.asarray(g.T_world_model, dtype=np.float64))
         K = np.asarray(view.K, dtype=np.float64)
+        if abs(K[0, 1]) > 1e-6:  # pyrender's pinhole has no skew: the image would be sheared against the GT
+            raise ValueError(f"{view.rgb_path}: K has skew {K[0, 1]:g}; pyrender cannot render a skewed camera")
         cam_pose = np.linalg.inv(np.asarray(view.T_cam_world, dtype=np.float64)) @ _CV_TO_GL
         camera = pyrender.IntrinsicsCamera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], znear=10.0, zfar=20000.0)
         world.add(camera, pose=cam_pose)

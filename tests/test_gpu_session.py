@@ -22,6 +22,7 @@ def _run(*args: str, env: dict[str, str] | None = None, timeout: int = 60) -> su
 def test_help_prints_the_phases_and_an_unknown_phase_is_refused() -> None:
     done = _run("--help")
     assert done.returncode == 0 and "check" in done.stdout and "train" in done.stdout
+    assert "set -euo" not in done.stdout  # the header alone
     bad = _run("bench")
     assert bad.returncode == 2 and "usage: bash scripts/gpu_session.sh check|train" in bad.stderr
 
@@ -49,7 +50,7 @@ def test_the_training_phase_runs_on_the_cpu_and_bundles_the_run(tmp_path: Path) 
         "DEVICE": "cpu",
         "SCENES": "1",
         "VARIANTS": "16",
-        "TRAIN_MINUTES": "1",
+        "TRAIN_MINUTES": "2",
         "BATCH": "2",
         "WORKERS": "2",
         "DATA": str(tmp_path / "data"),
@@ -60,6 +61,17 @@ def test_the_training_phase_runs_on_the_cpu_and_bundles_the_run(tmp_path: Path) 
     bundle = tmp_path / "out" / "train_run.tar.gz"
     with tarfile.open(bundle) as tar:
         names = tar.getnames()
-    assert "run/weights.pt" in names and "run/metrics.csv" in names
-    assert not any(n.endswith("checkpoint.pt") for n in names)
-    assert "validation heatmaps" in (tmp_path / "out" / "session.log").read_text()
+    assert {"run/weights.pt", "run/checkpoint.pt", "run/metrics.csv"} <= set(names)  # enough to resume elsewhere
+    log = (tmp_path / "out" / "session.log").read_text()
+    assert "validation_heatmaps" in log and "failed" not in log
+    assert "center_f1" in (tmp_path / "out" / "validation_heatmaps.txt").read_text()
+    # carried back, the bundle continues the run (RESUME_BUNDLE) in a fresh place
+    env2 = {
+        **env,
+        "RUN": str(tmp_path / "elsewhere" / "run"),
+        "RESUME_BUNDLE": str(bundle),
+        "OUT": str(tmp_path / "out2"),
+    }
+    again = _run("train", env=env2, timeout=600)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "Traceback" not in (tmp_path / "out2" / "train.txt").read_text()

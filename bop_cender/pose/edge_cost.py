@@ -135,7 +135,7 @@ class EdgeModel:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SegmentProjection:
     """Every segment as a stretch ``[frac_a, frac_b]`` of its edge, whose ends are mesh vertices.
 
@@ -404,9 +404,8 @@ def _dense_canvas_costs(
         [hp[:, k].reshape(-1) for k in range(3)], [hq[:, k].reshape(-1) for k in range(3)],
         proj.frac_a.repeat(C), proj.frac_b.repeat(C), view[:, None].expand(C, S).reshape(-1), dist, occ, near,
     )  # fmt: skip
-    drawn = drawn.reshape(-1).to(w.dtype)
-    num = (w[0] * drawn).view(C, S).sum(1)
-    den = (w[1] * drawn).view(C, S).sum(1)
+    w = torch.where(drawn.reshape(1, -1), w, torch.zeros((), device=w.device))  # undrawn: 0, even if NaN
+    num, den = w.view(2, C, S).sum(2)
     return _weighted_mean(num, den, math.hypot(H, W))
 
 
@@ -440,8 +439,10 @@ def _segment_weights(
     xa, ya = torch.lerp(p[0], q[0], frac_a) * inv_a, torch.lerp(p[1], q[1], frac_a) * inv_a
     xb, yb = torch.lerp(p[0], q[0], frac_b) * inv_b, torch.lerp(p[1], q[1], frac_b) * inv_b
     frac = (torch.arange(SAMPLES_PER_SEGMENT, device=xa.device, dtype=xa.dtype) + 0.5) / SAMPLES_PER_SEGMENT
-    xs = torch.lerp(xa[:, None], xb[:, None], frac)  # (n, k)
-    ys = torch.lerp(ya[:, None], yb[:, None], frac)
+    # a non-finite pose (only the dense layout costs undrawn segments of one) gives NaN points: moved out of the
+    # image (not kept) before they index a map
+    xs = torch.lerp(xa[:, None], xb[:, None], frac).nan_to_num_(nan=-1.0)  # (n, k)
+    ys = torch.lerp(ya[:, None], yb[:, None], frac).nan_to_num_(nan=-1.0)
     length = torch.hypot(xb - xa, yb - ya)[:, None] / SAMPLES_PER_SEGMENT
     keep = (torch.minimum(za, zb) >= near)[:, None] & (xs >= 0) & (xs < W) & (ys >= 0) & (ys < H)
     v_of = view[:, None].expand_as(xs)
@@ -452,8 +453,8 @@ def _segment_weights(
         o = occ.reshape(-1).index_select(0, ((v_of * H + v_i) * W + u_i).reshape(-1)).view_as(xs)
         keep &= ~((o > 0) & (zs > o - EDGE_COINCIDENCE_MM))
     d = _bilinear(dist, v_of.reshape(-1), (xs - 0.5).reshape(-1), (ys - 0.5).reshape(-1)).view_as(xs)
-    w = length * keep
-    return torch.stack([(w * d).sum(1), w.sum(1)])
+    zero = torch.zeros((), device=xs.device)
+    return torch.stack([torch.where(keep, length * d, zero).sum(1), torch.where(keep, length, zero).sum(1)])
 
 
 def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:

@@ -138,6 +138,22 @@ def test_the_dense_layout_gives_the_compacted_costs(mini):
         torch.testing.assert_close(edge_costs(model, T, K, dist, w, dense=True), edge_costs(model, T, K, dist, w))
 
 
+def test_a_non_finite_pose_costs_the_diagonal_in_both_layouts(mini):
+    """A NaN or infinite pose draws nothing: the image diagonal, never an index error (on CUDA, a device-side
+    assert that would break the process's context), and the finite poses beside it keep their costs."""
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3).T_world_model
+    bad_rotation, bad_translation = g.copy(), g.copy()
+    bad_rotation[0, 0] = np.nan
+    bad_translation[:3, 3] = np.inf
+    T, K, w = _camera_poses(mini, np.stack([g, bad_rotation, bad_translation]))
+    model = edge_model_of(meshes(3))
+    diagonal = float(np.hypot(cams.height, cams.width))
+    for dense in (False, True):
+        costs = edge_costs(model, T, K, dist, w, occluder_depth=torch.zeros_like(dist), dense=dense)
+        assert costs[0] < 0.3 and costs[1:].tolist() == pytest.approx([diagonal, diagonal]), (dense, costs)
+
+
 def test_the_dense_layout_never_waits_for_the_device(mini, monkeypatch):
     """No ``nonzero``, ``item`` or size read from a tensor in a dense call: on CUDA nothing would synchronise
     before the result is read. Counted on the CPU by torch.profiler (the same operators run on either device)."""
