@@ -24,7 +24,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,9 @@ from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig, network_curvature_choice
 from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
 from bop_cender.results.files import write_run_sidecar
+
+if TYPE_CHECKING:  # the network code loads only where a run uses a network
+    from bop_cender.net.weights import NetWeights
 
 SHARD_FORMAT = "bop-cender-shard"
 HEATMAP_SOURCES = ("oracle", "net", "oracle-centers", "oracle-curvature")
@@ -227,10 +230,14 @@ def net_predictor(request: RunRequest, dataset: Dataset):
         device=request.device,
         known_object_ids=request.config.known_object_ids,
         flips=request.config.test_flips,
-        curvature_threshold=network_curvature_choice(request.config, *weights.curvature_threshold_for(request.split))[
-            0
-        ],
+        curvature_threshold=_network_threshold(request, weights)[0],
     )
+
+
+def _network_threshold(request: RunRequest, weights: NetWeights) -> tuple[float | None, str]:
+    """:func:`~bop_cender.method.network_curvature_choice` for a run on ``request.split`` with ``weights``
+    (:class:`~bop_cender.net.weights.NetWeights`): the split's own calibration where the weights carry one."""
+    return network_curvature_choice(request.config, *weights.curvature_threshold_for(request.split))
 
 
 def run(
@@ -301,7 +308,7 @@ def _curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, 
     net = net_predictor(request, dataset)
     if request.heatmaps == "oracle-curvature":
         return request.config.poses.t_b, "poses.t_b"
-    value, source = network_curvature_choice(request.config, *net.weights.curvature_threshold_for(request.split))
+    value, source = _network_threshold(request, net.weights)
     return (request.config.poses.t_b if value is None else value), source
 
 

@@ -268,7 +268,8 @@ def main() -> None:
                     help="comma-separated devices to time (default: cpu, and cuda where present); the scene timing "
                          "and the scene polish run on the last one")  # fmt: skip
     ap.add_argument("--profile", action="store_true",
-                    help="also profile one cost call of 1 and of 8 poses on each device (torch.profiler)")  # fmt: skip
+                    help="also profile one cost call of 1 and of 8 poses, and an edge-proxy call in both layouts, on each"
+                         " device (torch.profiler)")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
     args = ap.parse_args()
@@ -276,9 +277,10 @@ def main() -> None:
     if args.devices is None:
         devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
     else:
-        devices = [torch.device(d.strip()) for d in args.devices.split(",") if d.strip()]
-        if not devices or any(d.type not in ("cpu", "cuda") for d in devices):
+        names = [d.strip() for d in args.devices.split(",") if d.strip()]
+        if not names or any(n not in ("cpu", "cuda") for n in names):
             ap.error(f"--devices {args.devices!r}: expected cpu and/or cuda")
+        devices = [torch.device(n) for n in names]
         if any(d.type == "cuda" for d in devices) and not torch.cuda.is_available():
             ap.error("--devices names cuda but no CUDA device is present")
     cost_rows = []

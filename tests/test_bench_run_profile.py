@@ -22,3 +22,14 @@ def test_an_edge_call_is_profiled_in_both_layouts_and_the_dense_one_never_synchr
     (_, _, ops_c, _, syncs_c), (_, ms, ops_d, launches, syncs_d) = rows
     assert ms > 0 and ops_d > 10 and (launches > 0) == (device.type == "cuda")
     assert syncs_c > 0 and syncs_d == 0
+
+
+def test_an_unknown_device_is_one_usage_error() -> None:
+    import subprocess
+
+    done = subprocess.run(
+        [sys.executable, str(Path(__file__).parents[1] / "scripts" / "bench_run.py"), "--devices", "gpu"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2 and "--devices 'gpu': expected cpu and/or cuda" in done.stderr
+    assert "Traceback" not in done.stderr

@@ -311,11 +311,10 @@ def edge_costs(
     dist = dist_maps.to(device, torch.float32)
     occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
     chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
-    costs = _dense_canvas_costs if dense else _canvas_costs
     for start in range(0, B * V, chunk):
         stop = min(B * V, start + chunk)
         view = torch.arange(start, stop, device=device) % V
-        per_view[start:stop] = costs(model, flat_T[start:stop], view, Ks, dist, occ, near)
+        per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
     return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
 
 
@@ -347,71 +346,46 @@ def _canvas_costs(
     dist: torch.Tensor,
     occ: torch.Tensor | None,
     near: float,
+    dense: bool,
 ) -> torch.Tensor:
-    """Unweighted cost ``(C,)`` of C canvases with poses ``T (C, 4, 4)`` in views ``view (C,)``: the drawn
-    segments compacted (the CPU layout).
+    """Unweighted cost ``(C,)`` of C canvases with poses ``T (C, 4, 4)`` in views ``view (C,)``.
 
     Each drawn segment is sampled at :data:`SAMPLES_PER_SEGMENT` points between its projected ends (a
     segment is short, so its projection is straight to well under a pixel), each weighing a share of
-    its length in pixels, as a rendered edge weighs its pixels.
+    its length in pixels, as a rendered edge weighs its pixels. The layouts (module docstring) differ only in
+    which (canvas, segment) pairs are costed: the drawn ones (compacted), or every one with the undrawn weighted
+    0 (``dense``: fixed sizes, nothing read back from the device).
     """
     V, H, W = dist.shape
     C = T.shape[0]
     device = T.device
-    c_edge, edge = _drawn_edges(model, T).nonzero(as_tuple=True)
-    diagonal = math.hypot(H, W)
-    if c_edge.numel() == 0:
-        return torch.full((C,), diagonal, device=device)
-    first, count = model.edge_segments.index_select(0, edge).unbind(1)
-    s_idx = torch.repeat_interleave(first, count) + _ranks(count)
-    c_idx = torch.repeat_interleave(c_edge, count)
     proj = model.projection
+    drawn = _drawn_edges(model, T)  # (C, E)
+    if dense:
+        S = proj.seg_edge.shape[0]
+        c_idx = torch.arange(C, device=device)[:, None].expand(C, S).reshape(-1)
+        s_idx = torch.arange(S, device=device).repeat(C)
+    else:
+        c_edge, edge = drawn.nonzero(as_tuple=True)
+        first, count = model.edge_segments.index_select(0, edge).unbind(1)
+        s_idx = torch.repeat_interleave(first, count) + _ranks(count)
+        c_idx = torch.repeat_interleave(c_edge, count)
     M = proj.ends.shape[1]
     hom = _projected_ends(model, T, view, Ks).reshape(-1)  # (C 3 M): row c 3 + k, column m
     base = c_idx * (3 * M)
     ip = base + proj.seg_from.index_select(0, s_idx)
     iq = base + proj.seg_to.index_select(0, s_idx)
-    p = [hom.index_select(0, ip + k * M) for k in range(3)]
-    q = [hom.index_select(0, iq + k * M) for k in range(3)]
     w = _segment_weights(
-        p, q, proj.frac_a.index_select(0, s_idx), proj.frac_b.index_select(0, s_idx), view.index_select(0, c_idx),
+        [hom.index_select(0, ip + k * M) for k in range(3)], [hom.index_select(0, iq + k * M) for k in range(3)],
+        proj.frac_a.index_select(0, s_idx), proj.frac_b.index_select(0, s_idx), view.index_select(0, c_idx),
         dist, occ, near,
     )  # fmt: skip
-    num = torch.zeros(C, device=device).index_add_(0, c_idx, w[0])
-    den = torch.zeros(C, device=device).index_add_(0, c_idx, w[1])
-    return _weighted_mean(num, den, diagonal)
-
-
-def _dense_canvas_costs(
-    model: EdgeModel,
-    T: torch.Tensor,
-    view: torch.Tensor,
-    Ks: torch.Tensor,
-    dist: torch.Tensor,
-    occ: torch.Tensor | None,
-    near: float,
-) -> torch.Tensor:
-    """:func:`_canvas_costs` with every segment of every canvas costed, undrawn ones with weight 0: no
-    ``nonzero`` and no data-dependent size, so nothing waits for the device (the CUDA layout)."""
-    V, H, W = dist.shape
-    C = T.shape[0]
-    proj = model.projection
-    S = proj.seg_edge.shape[0]
-    drawn = _drawn_edges(model, T).index_select(1, proj.seg_edge)  # (C, S)
-    hom = _projected_ends(model, T, view, Ks)  # (C, 3, M)
-    hp, hq = hom.index_select(2, proj.seg_from), hom.index_select(2, proj.seg_to)  # (C, 3, S)
-    w = _segment_weights(
-        [hp[:, k].reshape(-1) for k in range(3)], [hq[:, k].reshape(-1) for k in range(3)],
-        proj.frac_a.repeat(C), proj.frac_b.repeat(C), view[:, None].expand(C, S).reshape(-1), dist, occ, near,
-    )  # fmt: skip
-    w = torch.where(drawn.reshape(1, -1), w, torch.zeros((), device=w.device))  # undrawn: 0, even if NaN
-    num, den = w.view(2, C, S).sum(2)
-    return _weighted_mean(num, den, math.hypot(H, W))
-
-
-def _weighted_mean(num: torch.Tensor, den: torch.Tensor, diagonal: float) -> torch.Tensor:
-    """``num / den`` per canvas ``(C,)``, the image ``diagonal`` where nothing was drawn (``den`` 0)."""
-    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
+    if dense:  # undrawn: 0, even where a non-finite pose made them NaN; a fixed-shape sum (deterministic on CUDA)
+        w = torch.where(drawn.index_select(1, proj.seg_edge).reshape(1, -1), w, torch.zeros((), device=device))
+        num, den = w.view(2, C, -1).sum(2)
+    else:
+        num, den = torch.zeros((2, C), device=device).index_add_(1, c_idx, w)
+    return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, math.hypot(H, W)))
 
 
 def _segment_weights(
