@@ -10,7 +10,8 @@
    With ``--profile``: where one cost call's time goes (torch.profiler, batches of 1 and 8): wall time, the
    operators it runs, the CUDA kernels it launches and the calls that wait for the device (``nonzero``,
    ``item``, copies, synchronisations): why a small batch on a GPU is bound by the host; and one edge-proxy call
-   of 3 poses in its two layouts (compacted, the CPU's; dense, CUDA's: no synchronising call).
+   of 3 poses in each of its layouts (the kernel, the CPU's default: no torch operator; compacted torch; dense
+   torch, CUDA's default: no synchronising call).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
@@ -82,14 +83,14 @@ def cost_calls_per_second(device: torch.device, batch: int, seconds: float, work
 
 
 def edge_calls_per_second(
-    device: torch.device, batch: int, seconds: float, max_segments: int | None, dense: bool | None = None
+    device: torch.device, batch: int, seconds: float, max_segments: int | None, layout: str | None = None
 ) -> tuple[float, float]:
     """Median calls/s and ms per call of the edge-point proxy (:mod:`bop_cender.pose.edge_cost`) on the same
     workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking;
-    ``dense``: its layout (None: the device's default, dense on CUDA)."""
+    ``layout``: its layout (None: the device's default, the kernel on the CPU, dense on CUDA)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, max_segments)
-    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, dense=dense), device, batch, seconds)
+    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, layout=layout), device, batch, seconds)
 
 
 def _edge_model(mesh, max_segments: int | None):
@@ -118,18 +119,16 @@ def cost_call_profile(
     return rows
 
 
-def edge_call_profile(
-    device: torch.device, batch: int = 3, layouts: tuple[bool, ...] = (False, True)
-) -> list[tuple[str, float, int, int, int]]:
+def edge_call_profile(device: torch.device, batch: int = 3) -> list[tuple[str, float, int, int, int]]:
     """:func:`cost_call_profile` of one edge-proxy call (full model; ``batch`` poses: a Nelder-Mead step) in each
-    layout: ``(layout, ms, operators, launches, synchronising calls)``. The dense layout (CUDA's default) makes no
-    ``nonzero`` and reads no size from a tensor, so on a GPU nothing waits before the result is read."""
+    layout of the device: ``(layout, ms, operators, launches, synchronising calls)``. The dense layout (CUDA's
+    default) makes no ``nonzero`` and reads no size from a tensor, so on a GPU nothing waits before the result is
+    read; the kernel (the CPU's default) runs no torch operator at all."""
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, None)
     rows = []
-    for dense in layouts:
-        layout = "dense" if dense else "compacted"
-        rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, dense=dense), device)))
+    for layout in ("compacted", "dense") + (("kernel",) if device.type == "cpu" else ()):
+        rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, layout=layout), device)))
         print(f"profile edge proxy {device.type} batch {batch} {layout}: " + _profile_line(rows[-1][1:]), flush=True)
     return rows
 
@@ -268,7 +267,7 @@ def main() -> None:
                     help="comma-separated devices to time (default: cpu, and cuda where present); the scene timing "
                          "and the scene polish run on the last one")  # fmt: skip
     ap.add_argument("--profile", action="store_true",
-                    help="also profile one cost call of 1 and of 8 poses, and an edge-proxy call in both layouts, on each"
+                    help="also profile one cost call of 1 and of 8 poses, and an edge-proxy call in each layout, on each"
                          " device (torch.profiler)")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
@@ -299,16 +298,26 @@ def main() -> None:
             cost_rows.append((device.type, batch, how, calls, ms))
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
     edge_rows = []
+    torch.set_num_threads(threads)
     for device in devices:
-        layouts = ((None, ""), (False, ", compacted layout")) if device.type == "cuda" else ((None, ""),)
-        for (batch, segments, label), (dense, named) in itertools.product(
+        # each device's default layout, then the compacted torch one for reference; on the CPU the kernel with one
+        # thread too (as `run` calls it: one torch thread per process)
+        layouts = [("dense", threads), ("compacted", threads)]
+        if device.type == "cpu":
+            layouts = (
+                [("kernel", 1), ("kernel", threads), ("compacted", threads)]
+                if threads > 1
+                else [("kernel", 1), ("compacted", 1)]
+            )
+        for (batch, segments, label), (layout, n_threads) in itertools.product(
             ((2000, 600, "candidates (sparse, 600 segments)"), (2000, None, "full model"),
              (3, None, "full model (a Nelder-Mead step of 3 starts)")), layouts):  # fmt: skip
-            label = label + named
-            calls, ms = edge_calls_per_second(device, batch, args.seconds, segments, dense)
-            edge_rows.append((device.type, batch, label, calls, ms))
+            torch.set_num_threads(n_threads)
+            calls, ms = edge_calls_per_second(device, batch, args.seconds, segments, layout)
+            how = f"{layout}, {n_threads} thread(s)"
+            edge_rows.append((device.type, batch, label, how, calls, ms))
             print(
-                f"edge proxy {device.type} batch {batch} {label}: {calls:,.0f} calls/s ({ms:.2f} ms per call)",
+                f"edge proxy {device.type} batch {batch} {label} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)",
                 flush=True,
             )
     torch.set_num_threads(threads)
@@ -335,8 +344,8 @@ def main() -> None:
               "| device | batch | threads | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
     lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in cost_rows]
     lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
-              "| device | batch | model | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
-    lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in edge_rows]
+              "| device | batch | model | layout, threads | calls/s | ms per call |", "|---|---:|---|---|---:|---:|"]  # fmt: skip
+    lines += [f"| {d} | {b} | {h} | {lay} | {c:,.0f} | {m:.2f} |" for d, b, h, lay, c, m in edge_rows]
     if profile_rows:
         lines += ["", "## One cost call profiled (`--profile`: torch.profiler, one call after 3 warm-ups)", "",
                   "| device | batch | ms per call | aten operators | CUDA kernel launches | synchronising calls |",

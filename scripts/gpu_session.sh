@@ -16,12 +16,12 @@
 # Environment: OUT (default out/), DEVICE (cuda; cpu for a dry run), SCENES (24), VARIANTS (16,17,18,19),
 # TRAIN_MINUTES (5), BATCH (32), WORKERS (CPU count - 2), RESUME_BUNDLE (a train_run.tar.gz to continue), WHEELS
 # (.whl: wheels of dependencies the device lacks, installed with --no-deps into /tmp/site; fetch them here with
-# `pip download --only-binary=:all: --python-version 3.12 --no-deps -d .whl trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1`
-# and carry .whl).
+# `pip download --only-binary=:all: --python-version 3.12 --no-deps -d .whl trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1
+# numba==0.68.1 llvmlite==0.50.0` and carry .whl).
 set -euo pipefail
 mode=${1:-}
 if [[ "$mode" != "check" && "$mode" != "train" ]]; then
-  sed -n '2,19p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'
   [[ "$mode" == "-h" || "$mode" == "--help" ]] && exit 0
   echo "usage: bash scripts/gpu_session.sh check|train" >&2
   exit 2
@@ -52,18 +52,18 @@ stage() {
 }
 
 # Dependencies: the package from this checkout; the wheels the device lacks, without touching its torch.
-if ! python3 -c "import trimesh, manifold3d, rtree" 2>/dev/null; then
+if ! python3 -c "import trimesh, manifold3d, rtree, numba" 2>/dev/null; then
   if compgen -G "$WHEELS/*.whl" > /dev/null; then
     python3 -m pip install -q --no-deps --target /tmp/site "$WHEELS"/*.whl
     export PYTHONPATH="/tmp/site:${PYTHONPATH:-}"
   else
-    log "trimesh/manifold3d/rtree missing and no wheels in $WHEELS: see the header"
+    log "trimesh/manifold3d/rtree/numba missing and no wheels in $WHEELS: see the header"
     exit 2
   fi
 fi
 export PYTHONPATH="$PWD:${PYTHONPATH:-}"
 missing=$(python3 -c "import importlib.util as u; print(' '.join(m for m in ('torch', 'numpy', 'scipy', 'trimesh',
-  'manifold3d', 'rtree', 'skimage', 'pandas', 'cv2', 'tqdm', 'matplotlib', 'pytest') if u.find_spec(m) is None))")
+  'manifold3d', 'rtree', 'numba', 'skimage', 'pandas', 'cv2', 'tqdm', 'matplotlib', 'pytest') if u.find_spec(m) is None))")
 if [[ -n "$missing" ]]; then
   log "missing Python modules: $missing (carry their wheels in $WHEELS)"
   exit 2

@@ -29,13 +29,19 @@ the render cost (a render-cost polish is optional, ``PoseConfig.polish_maxfev``,
 back onto the pixel grid). Being continuous in the pose (bilinear lookups, no pixel
 snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
 
-Two layouts of the same arithmetic (:func:`edge_costs`' ``dense``): on the CPU the drawn segments are
-compacted first (``nonzero``: of a part's segments only the contour and the creases facing the camera are
-drawn, often under a tenth, so compaction saves most of the work); on CUDA every segment of every canvas
-is costed with a 0/1 weight instead. That costs several times the arithmetic but has fixed shapes: no
-``nonzero`` or data-dependent ``repeat_interleave``, so a call never waits for the device until its result
-is read, which is what bounds the small calls of Nelder-Mead on a GPU (``results/bench/``). The two agree
-to float rounding (``tests/pose/test_edge_cost.py``).
+Three layouts of the same arithmetic (:func:`edge_costs`' ``layout``), which agree to float rounding
+(``tests/pose/test_edge_cost.py``):
+
+- ``kernel``, the CPU's default: one compiled loop over canvases, edges and segments
+  (:mod:`bop_cender.pose.edge_kernel`), nothing allocated per segment. A Nelder-Mead step of 3 poses took
+  2.6 ms in the compacted torch layout (~430 operators) and takes 0.6 ms here on one 2-core Intel Xeon thread;
+- ``compacted`` (torch): the drawn segments gathered first (``nonzero``: of a part's segments only the
+  contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
+  the work); the CPU's layout before the kernel, kept as its reference;
+- ``dense`` (torch), CUDA's default: every segment of every canvas costed with a 0/1 weight. That costs
+  several times the arithmetic but has fixed shapes: no ``nonzero`` or data-dependent ``repeat_interleave``,
+  so a call never waits for the device until its result is read, which is what bounds the small calls of
+  Nelder-Mead on a GPU (``results/bench/``).
 
 Measured (``scripts/bench_run.py``): see ``results/bench/``.
 """
@@ -64,6 +70,9 @@ SAMPLES_PER_SEGMENT = 2
 #: contours, where the surface is steep and the placed object's depth, sampled at pixel centres, can be
 #: 1 mm deeper than the point on the same surface).
 EDGE_COINCIDENCE_MM = 1.0
+
+#: The layouts of :func:`edge_costs` (module docstring).
+LAYOUTS = ("kernel", "compacted", "dense")
 
 #: Canvases (candidate x view) costed together in the compacted layout: bounds the memory of the per-segment arrays.
 CANVAS_CHUNK = 512
@@ -274,7 +283,7 @@ def edge_costs(
     view_weights: torch.Tensor,
     occluder_depth: torch.Tensor | None = None,
     near: float = 1.0,
-    dense: bool | None = None,
+    layout: str | None = None,
 ) -> torch.Tensor:
     """Edge-point cost ``(B,)`` of B candidates over V views (see the module docstring).
 
@@ -288,8 +297,10 @@ def edge_costs(
         occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
             :func:`edge_occluder`; None: none.
         near: points closer to the camera plane than this (mm) are not drawn.
-        dense: cost every segment with a 0/1 weight (fixed shapes, no wait for the device) instead of the drawn
-            ones compacted; None (default): dense on CUDA, compacted elsewhere (the module docstring says why).
+        layout: ``kernel`` (CPU only: one compiled loop, :mod:`bop_cender.pose.edge_kernel`), ``compacted`` (torch:
+            the drawn segments gathered first) or ``dense`` (torch: every segment costed with a 0/1 weight, fixed
+            shapes, no wait for the device); None (default): dense on CUDA, the kernel on the CPU (the module
+            docstring says why).
 
     Returns:
         ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
@@ -301,20 +312,33 @@ def edge_costs(
     if occluder_depth is not None:
         check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
     device = T_cam_model.device
-    if dense is None:
-        dense = device.type == "cuda"
+    if layout is None:
+        layout = "dense" if device.type == "cuda" else "kernel"
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown edge-cost layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
+    if layout == "kernel" and device.type != "cpu":
+        raise ValueError(f"the kernel layout runs on the CPU only, not on {device}")
     T = T_cam_model.to(torch.float32)
     B, V = sizes["B"], sizes["V"]
-    per_view = torch.empty(B * V, dtype=torch.float32, device=device)
     flat_T = T.reshape(B * V, 4, 4)
     Ks = K.to(device, torch.float32)
     dist = dist_maps.to(device, torch.float32)
     occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
-    chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
-    for start in range(0, B * V, chunk):
-        stop = min(B * V, start + chunk)
-        view = torch.arange(start, stop, device=device) % V
-        per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
+    if layout == "kernel":
+        from bop_cender.pose.edge_kernel import kernel_canvas_costs  # numba: imported where it is used
+
+        view = torch.arange(B * V) % V
+        per_view = kernel_canvas_costs(
+            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
+        )
+    else:
+        dense = layout == "dense"
+        per_view = torch.empty(B * V, dtype=torch.float32, device=device)
+        chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
+        for start in range(0, B * V, chunk):
+            stop = min(B * V, start + chunk)
+            view = torch.arange(start, stop, device=device) % V
+            per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
     return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
 
 

@@ -44,6 +44,7 @@ import torch
 
 from bop_cender.pose.cost import view_costs
 from bop_cender.pose.coverage import mean_distance_to_own_edges
+from bop_cender.pose.window_kernel import window_costs
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
@@ -69,14 +70,22 @@ class SceneWindow:
     dist: torch.Tensor
     edge_threshold: float
 
-    def costs(self, T_world_model: np.ndarray) -> np.ndarray:
+    def costs(self, T_world_model: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """``(m,)`` windowed scene costs (pixels, the mean over the views of forward plus backward, as
-        :func:`~bop_cender.pose.coverage.scene_cost`) of poses ``(m, 4, 4)`` of the object."""
+        :func:`~bop_cender.pose.coverage.scene_cost`) of poses ``(m, 4, 4)`` of the object.
+
+        ``compiled``: after the render, composite and cost in one compiled pass
+        (:func:`~bop_cender.pose.window_kernel.window_costs`, CPU only) instead of torch operators; None (default):
+        compiled on the CPU, torch elsewhere. The two agree to float32 rounding."""
         m, V = len(T_world_model), len(self.T_cam_world)
         h, w = self.size
         T_cm = np.einsum("vij,mjk->mvik", self.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
         T = torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device)
         render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w)
+        if compiled if compiled is not None else self.dist.device.type == "cpu":
+            total = window_costs(render.depth, render.normals, self.other_depth, self.other_normals, self.dist,
+                                 self.offsets, self.target_edges, self.edge_threshold)  # fmt: skip
+            return total.view(m, V).mean(1).numpy()
         other_depth = self.other_depth.repeat(m, 1, 1)
         front = (render.depth > 0) & ((other_depth == 0) | (render.depth < other_depth))
         normals = torch.where(front[..., None], render.normals, self.other_normals.repeat(m, 1, 1, 1))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -35,19 +36,36 @@ class SceneRender:
     Attributes:
         depth: ``(V, H, W)`` float32 z in mm (not distance), 0 on background.
         normals: ``(V, H, W, 3)`` float32 camera-space unit normals, 0 on background.
-        instance: ``(V, H, W)`` int64 index into the rendered meshes, -1 on background.
-        face: ``(V, H, W)`` int64 face index within that mesh, -1 on background.
+        packed_face: ``(V, H, W)`` int64 face index among all the meshes' faces (packed), -1 on background.
+        face_instance, face_local: ``(F,)`` int64 mesh and face within it of each packed face.
+
+    ``instance`` and ``face`` (below) are worked out from ``packed_face`` when first read: a render whose caller
+    wants only depth and normals (stage 3's costs, thousands of renders a scene) does not pay for them.
     """
 
     depth: torch.Tensor
     normals: torch.Tensor
-    instance: torch.Tensor
-    face: torch.Tensor
+    packed_face: torch.Tensor
+    face_instance: torch.Tensor
+    face_local: torch.Tensor
+
+    @cached_property
+    def instance(self) -> torch.Tensor:
+        """``(V, H, W)`` int64 index into the rendered meshes, -1 on background."""
+        return self._per_face(self.face_instance)
+
+    @cached_property
+    def face(self) -> torch.Tensor:
+        """``(V, H, W)`` int64 face index within that mesh, -1 on background."""
+        return self._per_face(self.face_local)
 
     @property
     def mask(self) -> torch.Tensor:
         """``(V, H, W)`` bool, any object."""
-        return self.instance >= 0
+        return self.packed_face >= 0
+
+    def _per_face(self, table: torch.Tensor) -> torch.Tensor:
+        return torch.where(self.packed_face >= 0, table[self.packed_face.clamp_min(0)], -1)
 
 
 @dataclass(frozen=True)
@@ -120,14 +138,18 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
-    merged = _empty_maps(V, height, width, device)
-    for views in _chunks(V, max(1, DEFAULT_CHUNK_PIXELS // (height * width))):
+    chunks = _chunks(V, max(1, DEFAULT_CHUNK_PIXELS // (height * width)))
+    # one chunk: its maps are the maps (no copy)
+    merged = None if len(chunks) == 1 and V > 0 else _empty_maps(V, height, width, device)
+    for views in chunks:
         n = views.stop - views.start
         windows = Windows.uniform(torch.zeros((n, 2), dtype=torch.int64, device=device), height, width)
-        _copy_maps(merged, views, resolve(rasterize(packed, R[views], t[views], Ks[views], windows, near)))
-    instance = torch.where(merged.face >= 0, packed.face_instance[merged.face.clamp_min(0)], -1)
-    face = torch.where(merged.face >= 0, packed.face_local[merged.face.clamp_min(0)], -1)
-    return SceneRender(depth=merged.depth, normals=merged.normals, instance=instance, face=face)
+        maps = resolve(rasterize(packed, R[views], t[views], Ks[views], windows, near))
+        if merged is None:
+            merged = maps
+        else:
+            _copy_maps(merged, views, maps)
+    return SceneRender(merged.depth, merged.normals, merged.face, packed.face_instance, packed.face_local)
 
 
 def render_objects_separately(

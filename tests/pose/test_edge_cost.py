@@ -113,10 +113,11 @@ def _camera_poses(mini, T_world_model):
     return T, torch.as_tensor(cams.Ks, dtype=torch.float32), torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
 
 
-def test_the_dense_layout_gives_the_compacted_costs(mini):
-    """Every segment costed with a 0/1 weight (CUDA's layout: fixed shapes) equals the drawn segments compacted
-    (the CPU's), with and without occluders, for the full and the sparse model, a pose that is partly out of the
-    image and one behind the cameras, and in chunks (one canvas per chunk)."""
+def test_every_layout_gives_the_compacted_costs(mini):
+    """Every segment costed with a 0/1 weight (CUDA's layout: fixed shapes) and the compiled loop (the CPU's) equal
+    the drawn segments compacted (torch), with and without occluders, for the full and the sparse model, a pose
+    that is partly out of the image and one behind the cameras, and the dense one in chunks (one canvas per
+    chunk)."""
     from bop_cender.pose import edge_cost
 
     ds, scene, meshes, maps, cams, dist = mini
@@ -130,28 +131,41 @@ def test_the_dense_layout_gives_the_compacted_costs(mini):
     model = edge_model_of(meshes(3))
     for m in (model, model.sparse(40)):
         for o in (None, occ):
-            compact = edge_costs(m, T, K, dist, w, occluder_depth=o, dense=False)
-            dense = edge_costs(m, T, K, dist, w, occluder_depth=o, dense=True)
-            torch.testing.assert_close(dense, compact, rtol=1e-5, atol=1e-4)
+            compact = edge_costs(m, T, K, dist, w, occluder_depth=o, layout="compacted")
+            assert compact[-1] == pytest.approx(float(np.hypot(cams.height, cams.width)))  # behind: nothing drawn
+            for layout in ("dense", "kernel"):
+                torch.testing.assert_close(
+                    edge_costs(m, T, K, dist, w, occluder_depth=o, layout=layout), compact, rtol=1e-5, atol=1e-4
+                )
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(edge_cost, "DENSE_CHUNK_SEGMENTS", 1)  # one canvas per chunk
-        torch.testing.assert_close(edge_costs(model, T, K, dist, w, dense=True), edge_costs(model, T, K, dist, w))
+        torch.testing.assert_close(
+            edge_costs(model, T, K, dist, w, layout="dense"), edge_costs(model, T, K, dist, w, layout="compacted")
+        )
 
 
-def test_a_non_finite_pose_costs_the_diagonal_in_both_layouts(mini):
-    """A NaN or infinite pose draws nothing: the image diagonal, never an index error (on CUDA, a device-side
-    assert that would break the process's context), and the finite poses beside it keep their costs."""
+def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads(mini):
+    """With no layout named, a CPU call runs the compiled loop; each canvas is summed by one thread in a fixed
+    order, so 1 and 2 threads give the same bits. An unknown layout, or the kernel on a non-CPU device, is one
+    clear error."""
     ds, scene, meshes, maps, cams, dist = mini
-    g = gt_of(scene, 3).T_world_model
-    bad_rotation, bad_translation = g.copy(), g.copy()
-    bad_rotation[0, 0] = np.nan
-    bad_translation[:3, 3] = np.inf
-    T, K, w = _camera_poses(mini, np.stack([g, bad_rotation, bad_translation]))
+    g = gt_of(scene, 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12), (3, 1), (9, 4))])
+    T, K, w = _camera_poses(mini, poses)
     model = edge_model_of(meshes(3))
-    diagonal = float(np.hypot(cams.height, cams.width))
-    for dense in (False, True):
-        costs = edge_costs(model, T, K, dist, w, occluder_depth=torch.zeros_like(dist), dense=dense)
-        assert costs[0] < 0.3 and costs[1:].tolist() == pytest.approx([diagonal, diagonal]), (dense, costs)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = edge_costs(model, T, K, dist, w)
+        torch.set_num_threads(2)
+        two = edge_costs(model, T, K, dist, w)
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(one, two) and torch.equal(one, edge_costs(model, T, K, dist, w, layout="kernel"))
+    with pytest.raises(ValueError, match="unknown edge-cost layout 'sparse'"):
+        edge_costs(model, T, K, dist, w, layout="sparse")
+    with pytest.raises(ValueError, match="the CPU only"):
+        edge_costs(model, T.to("meta"), K, dist, w, layout="kernel")
 
 
 def test_the_dense_layout_never_waits_for_the_device(mini, monkeypatch):
@@ -165,13 +179,13 @@ def test_the_dense_layout_never_waits_for_the_device(mini, monkeypatch):
     assert model.projection.seg_edge.numel() == model.num_segments  # the tables are built once per model, not per call
     syncing = {"aten::nonzero", "aten::item", "aten::_local_scalar_dense", "aten::repeat_interleave"}
 
-    def counted(dense: bool) -> int:
+    def counted(layout: str) -> int:
         with profile(activities=[ProfilerActivity.CPU]) as prof:
-            edge_costs(model, T, K, dist, w, occluder_depth=torch.zeros_like(dist), dense=dense)
+            edge_costs(model, T, K, dist, w, occluder_depth=torch.zeros_like(dist), layout=layout)
         return sum(e.count for e in prof.key_averages() if e.key in syncing)
 
-    assert counted(dense=False) > 0  # the compacted layout reads sizes from tensors (the counter works)
-    assert counted(dense=True) == 0
+    assert counted("compacted") > 0  # the compacted layout reads sizes from tensors (the counter works)
+    assert counted("dense") == 0
 
 
 def test_a_segment_is_projected_from_its_edge_ends():

@@ -59,6 +59,38 @@ def test_window_cost_ranks_poses_as_the_full_scene_cost(mini):
     assert np.corrcoef(windowed, full)[0, 1] > 0.95
 
 
+def test_the_compiled_window_cost_gives_the_torch_costs(mini):
+    """The CPU's compiled pass after the render (composite, curvature, forward, own edges) gives the torch steps'
+    costs: near the truth, far from it, a pose that leaves the windows (no own edge: the window's diagonal) and a
+    window without target edges (no backward term); the own-edge binarisation sees the same float32 curvature, so
+    a clean silhouette step (curvature 3.0, the default threshold) falls on the same side."""
+    from bop_cender.pose.scene_polish import SceneWindow
+    from bop_cender.pose.window_kernel import window_costs
+
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    moving, other = sorted(parts)
+    trials = np.stack([parts[moving]] + [perturb(parts[moving], a, s) for a, s in ((1, 0.5), (6, 2), (25, 15))])
+    gone = parts[moving].copy()
+    gone[:3, 3] += 1000.0 * cams.T_cam_world[0, 2, :3]  # a metre further from the first camera: out of its window
+    trials = np.concatenate([trials, gone[None]])
+    for threshold in (EDGE_THRESHOLD, 3.0):
+        window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks,
+                              cams.T_cam_world, edges, dist, threshold, margin_px=12)  # fmt: skip
+        np.testing.assert_allclose(window.costs(trials, compiled=True), window.costs(trials, compiled=False), rtol=1e-5)
+        no_targets = SceneWindow(**{**window.__dict__, "target_edges": torch.zeros_like(window.target_edges)})
+        np.testing.assert_allclose(no_targets.costs(trials, compiled=True), no_targets.costs(trials, compiled=False),
+                                   rtol=1e-5)  # fmt: skip
+    assert window.costs(trials[:1]).tolist() == window.costs(trials[:1], compiled=True).tolist()  # the CPU default
+    V, (h, w) = len(cams.Ks), window.size
+    blank = torch.zeros((V, h, w))
+    only_background = window_costs(blank, torch.zeros((V, h, w, 3)), blank, torch.zeros((V, h, w, 3)), dist,
+                                   window.offsets, torch.ones((V, h, w), dtype=torch.bool), 3.0)  # fmt: skip
+    diagonal = np.hypot(cams.height, cams.width) + np.float32(np.hypot(h, w))  # nothing drawn: both terms at most
+    np.testing.assert_allclose(only_background.numpy(), np.full(V, diagonal), rtol=1e-6)
+
+
 def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B

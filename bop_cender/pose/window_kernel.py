@@ -1,0 +1,134 @@
+"""The scene polish's windowed cost after the render, as one compiled loop per canvas (CPU).
+
+Why. :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` renders the moving part into its windows, then
+composites it over the other parts by depth, takes the curvature of the composite normals
+(:func:`~bop_cender.render.curvature.curvature`), the forward cost (:func:`~bop_cender.pose.cost.view_costs`)
+and the backward one (:func:`~bop_cender.pose.coverage.mean_distance_to_own_edges`). In torch those steps are
+about 40 operators over ``(V, h, w)`` arrays, 7 of 12 ms of a call on one CPU thread (``scripts/bench_run.py``,
+"Scene polish"), and the scene polish makes about 70 calls per part. Here the composite, the curvature, the
+forward sums and the binarised own edges are one pass over each canvas's pixels; the own edges' distance
+transform stays OpenCV's (:func:`~bop_cender.pose.cost.distance_map`), and the backward mean is taken from it.
+
+Same arithmetic as the torch steps, in float32 for the curvature (so the binarisation at the edge threshold
+sees the same values) and float64 for the sums: the costs agree to float32 rounding
+(``tests/pose/test_scene_polish.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+
+from bop_cender.pose.cost import distance_map
+
+
+@numba.njit(parallel=True, nogil=True, cache=True)
+def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, threshold, forward, own_edges):
+    """Per canvas c (view ``c % V``): the forward cost into ``forward[c]`` and the composite's own edges (1 where
+    its curvature exceeds ``threshold``) into ``own_edges[c]``; returns the number of own-edge pixels per canvas."""
+    N, h, w = depth.shape
+    V, H, W = dist.shape
+    diagonal = math.hypot(H, W)
+    edge_count = np.zeros(N, dtype=np.int64)
+    for c in numba.prange(N):
+        v = c % V
+        comp = np.empty((h, w, 3), dtype=np.float32)
+        for i in range(h):
+            for j in range(w):
+                d = depth[c, i, j]
+                o = other_depth[v, i, j]
+                if d > 0 and (o == 0 or d < o):
+                    for k in range(3):
+                        comp[i, j, k] = normals[c, i, j, k]
+                else:
+                    for k in range(3):
+                        comp[i, j, k] = other_normals[v, i, j, k]
+        top, left = offsets[v, 0], offsets[v, 1]
+        num = 0.0
+        den = 0.0
+        edges = 0
+        for i in range(h):
+            i0, i2 = max(i - 1, 0), min(i + 1, h - 1)
+            for j in range(w):
+                j0, j2 = max(j - 1, 0), min(j + 1, w - 1)
+                total = np.float32(0.0)
+                for k in range(3):
+                    gx = (comp[i0, j2, k] + comp[i, j2, k] + comp[i2, j2, k]) - (
+                        comp[i0, j0, k] + comp[i, j0, k] + comp[i2, j0, k]
+                    )
+                    gy = (comp[i2, j0, k] + comp[i2, j, k] + comp[i2, j2, k]) - (
+                        comp[i0, j0, k] + comp[i0, j, k] + comp[i0, j2, k]
+                    )
+                    # torch's order: gx0 * gx0, then fused multiply-adds (its CPU addcmul_), emulated in float64
+                    # (a float32 product is exact there); the rounding matters, as the edge threshold (3.0 by
+                    # default) is the curvature of a clean step from a unit normal to background
+                    if k == 0:
+                        total = gx * gx
+                    else:
+                        total = np.float32(np.float64(total) + np.float64(gx) * np.float64(gx))
+                    total = np.float32(np.float64(total) + np.float64(gy) * np.float64(gy))
+                curv = np.sqrt(total)
+                r, s = top + i, left + j
+                if 0 <= r < H and 0 <= s < W:
+                    num += np.float64(curv) * np.float64(dist[v, r, s])
+                    den += np.float64(curv)
+                if curv > threshold:
+                    own_edges[c, i, j] = 1
+                    edges += 1
+                else:
+                    own_edges[c, i, j] = 0
+        forward[c] = num / den if den > 0.0 else diagonal
+        edge_count[c] = edges
+    return edge_count
+
+
+def window_costs(
+    depth: torch.Tensor,
+    normals: torch.Tensor,
+    other_depth: torch.Tensor,
+    other_normals: torch.Tensor,
+    dist: torch.Tensor,
+    offsets: torch.Tensor,
+    target_edges: torch.Tensor,
+    edge_threshold: float,
+) -> torch.Tensor:
+    """Forward plus backward cost ``(N,)`` float64 of N canvases (canvas c in view ``c % V``), CPU tensors.
+
+    Args:
+        depth, normals: ``(N, h, w)``, ``(N, h, w, 3)`` the moving part's render in the windows.
+        other_depth, other_normals: ``(V, h, w)``, ``(V, h, w, 3)`` the other parts there (depth 0: none).
+        dist: ``(V, H, W)`` the target's full distance maps; ``offsets (V, 2)`` each view's window origin (row,
+            column).
+        target_edges: ``(V, h, w)`` bool, the target edges the backward term measures.
+        edge_threshold: raw curvature above which a composite pixel is one of its own edges.
+    """
+    N, h, w = depth.shape
+    forward = np.empty(N, dtype=np.float64)
+    own_edges = np.empty((N, h, w), dtype=np.bool_)
+    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+    counts = _composite_costs(
+        _np(depth), _np(normals), _np(other_depth), _np(other_normals), _np(dist), _np(offsets),
+        np.float32(edge_threshold), forward, own_edges,
+    )  # fmt: skip
+    targets = _np(target_edges)
+    V = targets.shape[0]
+    backward = np.zeros(N, dtype=np.float64)
+    for c in range(N):
+        pixels = targets[c % V]
+        n_pixels = int(np.count_nonzero(pixels))
+        if n_pixels == 0:
+            continue
+        if counts[c] == 0:
+            backward[c] = np.float32(math.hypot(h, w))  # no own edge: every pixel at the window's diagonal
+            continue
+        own = distance_map(own_edges[c])
+        backward[c] = float(own[pixels].sum(dtype=np.float64)) / n_pixels
+    return torch.from_numpy(forward + backward)
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    """A CPU tensor's data as a C-contiguous NumPy array (no copy where it is contiguous already)."""
+    return np.ascontiguousarray(x.detach().numpy())
