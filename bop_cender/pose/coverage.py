@@ -109,6 +109,7 @@ def scene_cost(
     target_edges: torch.Tensor,
     dist_maps: torch.Tensor,
     edge_threshold: float,
+    compiled: bool | None = None,
 ) -> float:
     """The symmetric edge distance of a whole placement: all objects rendered together, against the target.
 
@@ -124,6 +125,10 @@ def scene_cost(
         meshes: the M placed objects' meshes.
         T_cam_model: ``(V, M, 4, 4)`` their poses in each view's camera frame (mm).
         K, target_edges, dist_maps, edge_threshold: as :func:`two_sided_costs`.
+        compiled: the steps after the render in one compiled pass
+            (:func:`~bop_cender.pose.window_kernel.window_costs`, the full frame as one window with nothing else in
+            it; CPU only) instead of torch operators; None (default): compiled on the CPU. Equal to float32
+            rounding.
 
     Returns:
         The mean over the V views of forward plus backward, in pixels (a view where the composite draws no
@@ -133,8 +138,17 @@ def scene_cost(
     _, H, W = target_edges.shape
     device = dist_maps.device
     render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
+    offsets = torch.zeros((V, 2), dtype=torch.int64, device=device)
+    if compiled if compiled is not None else device.type == "cpu":
+        from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
+
+        nothing = torch.zeros((V, H, W), device=device)
+        return float(
+            window_costs(render.depth, render.normals, nothing, torch.zeros((V, H, W, 3), device=device),
+                         dist_maps.to(device), offsets, target_edges.to(device), edge_threshold).mean()
+        )  # fmt: skip
     curv = curvature(render.normals)  # (V, H, W)
-    forward = view_costs(curv, dist_maps.to(device), torch.zeros((V, 2), dtype=torch.int64, device=device))
+    forward = view_costs(curv, dist_maps.to(device), offsets)
     backward = mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)
     return float((forward + backward).mean())
 

@@ -6,9 +6,9 @@ arithmetic of a segment is a few dozen flops, but each operator reads and writes
 its dispatch. Stage 3 makes thousands of such calls per scene (the edge search's Nelder-Mead is half of
 its time, ``results/bench/``). Here the same arithmetic runs as one loop (numba, compiled once and cached on
 disk): per canvas, each edge's facing test, then the drawn edges' segments sampled, looked up and summed in
-registers, with nothing allocated per segment. The canvases are spread over the threads torch uses
-(:func:`torch.get_num_threads`), each canvas summed by one thread in a fixed order: the same bits for any
-thread count.
+registers, with nothing allocated per segment. With more than one torch thread the canvases are spread over
+them, each canvas summed by one thread in a fixed order: the same bits for any thread count
+(:mod:`bop_cender.pose.numba_loops`: why one thread runs a serial compilation).
 
 The arithmetic is that of the torch layouts (``edge_cost._canvas_costs`` and ``_segment_weights``, module
 docstring of :mod:`bop_cender.pose.edge_cost`), in float64 instead of float32: the costs agree to float32
@@ -16,8 +16,7 @@ rounding (``tests/pose/test_edge_cost.py``), except where a face lies within rou
 edge one layout draws and the other not.
 
 numba is imported on the first kernel call (:func:`~bop_cender.pose.edge_cost.edge_costs` imports this module then:
-half a second), so that nothing else pays for it. The loop is compiled once (4 s) and cached beside this module
-(numba's cache; where that folder is read-only, in the user's cache folder).
+half a second), so that nothing else pays for it. Its serial compilation (4 s) is cached on disk.
 """
 
 from __future__ import annotations
@@ -29,11 +28,13 @@ import numba
 import numpy as np
 import torch
 
+from bop_cender.pose.numba_loops import as_numpy, canvas_loop
+
 if TYPE_CHECKING:
     from bop_cender.pose.edge_cost import EdgeModel
 
 
-@numba.njit(parallel=True, nogil=True, cache=True)
+@canvas_loop
 def canvas_costs(
     T, view, Ks, dist, occ, planes, crease, edge_first, edge_count, seg_from, seg_to, frac_a, frac_b, ends,
     near, samples, coincidence, out,
@@ -130,15 +131,9 @@ def kernel_canvas_costs(
     proj = model.projection
     first, count = model.edge_segments.unbind(1)
     out = np.empty(T.shape[0], dtype=np.float64)
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
     canvas_costs(
-        _np(T), _np(view), _np(Ks), _np(dist), _np(occ) if occ is not None else np.zeros((0, 1, 1), np.float32),
-        _np(model.planes), _np(model.crease), _np(first), _np(count), _np(proj.seg_from), _np(proj.seg_to),
-        _np(proj.frac_a), _np(proj.frac_b), _np(proj.ends), float(near), int(samples), float(coincidence_mm), out,
+        as_numpy(T), as_numpy(view), as_numpy(Ks), as_numpy(dist), as_numpy(occ) if occ is not None else np.zeros((0, 1, 1), np.float32),
+        as_numpy(model.planes), as_numpy(model.crease), as_numpy(first), as_numpy(count), as_numpy(proj.seg_from), as_numpy(proj.seg_to),
+        as_numpy(proj.frac_a), as_numpy(proj.frac_b), as_numpy(proj.ends), float(near), int(samples), float(coincidence_mm), out,
     )  # fmt: skip
     return torch.from_numpy(out).to(torch.float32)
-
-
-def _np(x: torch.Tensor) -> np.ndarray:
-    """A CPU tensor's data as a C-contiguous NumPy array (no copy where it is contiguous already)."""
-    return np.ascontiguousarray(x.detach().numpy())

@@ -19,7 +19,10 @@ each trial pose of the moving one is rendered into them alone and composited by 
 backward terms are those of :func:`~bop_cender.pose.coverage.scene_cost` inside the windows (normalised
 over the window's pixels, and a window without any composite edge costs the image diagonal as a frame
 does: a constant offset against the full cost, the same ranking). A pose the window polish finds is kept
-only where the full scene cost falls.
+only where the full scene cost falls. On the CPU the steps after the render (composite, curvature, both terms)
+run as one compiled pass (:mod:`bop_cender.pose.window_kernel`): a call of 7 windows of 138 x 138 took 10.8 ms
+with them as torch operators and takes 8.6 ms (the render itself 5.4 ms, 9.1 before ``render_scene`` stopped
+copying a single chunk and building instance maps nobody reads).
 
 Target edges within ``WINDOW_BORDER_PX`` of a window side that lies inside the image are left out of the
 backward term: they are mostly a neighbour's edges spilling across the side, which the windowed composite
@@ -44,7 +47,6 @@ import torch
 
 from bop_cender.pose.cost import view_costs
 from bop_cender.pose.coverage import mean_distance_to_own_edges
-from bop_cender.pose.window_kernel import window_costs
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
@@ -83,6 +85,8 @@ class SceneWindow:
         T = torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device)
         render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w)
         if compiled if compiled is not None else self.dist.device.type == "cpu":
+            from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
+
             total = window_costs(render.depth, render.normals, self.other_depth, self.other_normals, self.dist,
                                  self.offsets, self.target_edges, self.edge_threshold)  # fmt: skip
             return total.view(m, V).mean(1).numpy()

@@ -23,9 +23,11 @@ import numpy as np
 import torch
 
 from bop_cender.pose.cost import distance_map
+from bop_cender.pose.numba_loops import as_numpy as _np
+from bop_cender.pose.numba_loops import canvas_loop
 
 
-@numba.njit(parallel=True, nogil=True, cache=True)
+@canvas_loop
 def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, threshold, forward, own_edges):
     """Per canvas c (view ``c % V``): the forward cost into ``forward[c]`` and the composite's own edges (1 where
     its curvature exceeds ``threshold``) into ``own_edges[c]``; returns the number of own-edge pixels per canvas."""
@@ -108,7 +110,6 @@ def window_costs(
     N, h, w = depth.shape
     forward = np.empty(N, dtype=np.float64)
     own_edges = np.empty((N, h, w), dtype=np.bool_)
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
     counts = _composite_costs(
         _np(depth), _np(normals), _np(other_depth), _np(other_normals), _np(dist), _np(offsets),
         np.float32(edge_threshold), forward, own_edges,
@@ -127,8 +128,3 @@ def window_costs(
         own = distance_map(own_edges[c])
         backward[c] = float(own[pixels].sum(dtype=np.float64)) / n_pixels
     return torch.from_numpy(forward + backward)
-
-
-def _np(x: torch.Tensor) -> np.ndarray:
-    """A CPU tensor's data as a C-contiguous NumPy array (no copy where it is contiguous already)."""
-    return np.ascontiguousarray(x.detach().numpy())

@@ -314,3 +314,33 @@ def test_edge_points_are_projected_by_the_full_intrinsics_and_dropped_behind_the
 
     assert cost(_one_segment(c, d), close, near=1.0) == pytest.approx((u_close(c) + u_close(d)) / 2 - 0.5, abs=1e-2)
     assert cost(_one_segment(c, d), close, near=near) == pytest.approx(np.hypot(H, W))
+
+
+def test_with_one_thread_the_compiled_loops_start_no_thread_pool():
+    """With one torch thread (each `run` process) the compiled loops run serially and never start numba's OpenMP
+    pool, whose idle threads spin between calls and took half a core from the other worker (``numba_loops``). In a
+    fresh process: other tests here may have started the pool."""
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np, torch, trimesh
+import numba.np.ufunc.parallel as pool
+from bop_cender.pose.edge_cost import edge_costs, edge_model
+from bop_cender.pose.window_kernel import window_costs
+torch.set_num_threads(1)
+box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
+T = torch.eye(4).repeat(2, 1, 1, 1)
+T[..., 2, 3] = 300.0
+K = torch.tensor([[[500.0, 0, 32], [0, 500, 24], [0, 0, 1]]])
+dist = torch.rand(1, 48, 64)
+cost = edge_costs(edge_model(box.vertices, box.faces), T, K, dist, torch.ones(1))
+z = torch.zeros(2, 8, 8)
+window_costs(z, torch.zeros(2, 8, 8, 3), z[:1], torch.zeros(1, 8, 8, 3), dist, torch.zeros(1, 2, dtype=torch.long),
+             torch.ones(1, 8, 8, dtype=torch.bool), 3.0)
+assert bool(torch.isfinite(cost).all()) and cost.shape == (2,)
+print("pool started" if pool._is_initialized else "no pool")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "no pool"

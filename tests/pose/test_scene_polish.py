@@ -91,6 +91,23 @@ def test_the_compiled_window_cost_gives_the_torch_costs(mini):
     np.testing.assert_allclose(only_background.numpy(), np.full(V, diagonal), rtol=1e-6)
 
 
+def test_the_compiled_scene_cost_gives_the_torch_cost(mini):
+    """The full scene cost with its post-render steps compiled (the CPU's default) equals the torch steps', for the
+    truth, a perturbed part and a part that has left every view."""
+    ds, scene, meshes, maps, cams, dist = mini
+    edges = maps.curvature > BOX_T_B
+    parts = _parts(ds, scene)
+    ids = sorted(parts)
+    Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    away = parts[ids[1]].copy()
+    away[:3, 3] += 1e5
+    for poses in (parts, {**parts, ids[1]: perturb(parts[ids[1]], 6, 3)}, {**parts, ids[1]: away}):
+        T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
+        args = ([meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, 3.0)
+        compiled, torch_steps = scene_cost(*args, compiled=True), scene_cost(*args, compiled=False)
+        assert compiled == pytest.approx(torch_steps, rel=1e-5) and scene_cost(*args) == compiled
+
+
 def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B

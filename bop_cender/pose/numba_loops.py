@@ -1,0 +1,44 @@
+"""What stage 3's compiled CPU loops share: one loop compiled twice (serial and threaded), NumPy views of tensors.
+
+Why two compilations. A loop over canvases written with ``numba.prange`` can run on threads, but numba's OpenMP
+pool, once started, keeps its idle threads spinning between parallel regions; stage 3 calls its loops thousands
+of times a second, so with ``run --workers 2`` on 2 cores each process's idle OpenMP thread took half a core
+from the other process's work (50 % system time, every scene about twice as slow). With one thread (what ``run``
+gives each process: :func:`torch.get_num_threads` is 1 there) the serial version runs and no pool is ever
+started; with more, the threaded one, each canvas summed by one thread in the same order, so both give the
+same bits.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numba
+import numpy as np
+import torch
+
+
+def canvas_loop(py_func: Callable) -> Callable:
+    """``py_func`` (a loop over canvases with ``numba.prange``) compiled serial and threaded; the returned function
+    runs the serial one where torch uses one thread, else the threaded one on torch's thread count (at most
+    numba's). The serial version is cached on disk (numba's cache beside this package, or the user's cache
+    folder where that is read-only); the threaded one is compiled on first use in a process (not cached: the
+    cache's index does not tell the two compilations of one function apart)."""
+    serial = numba.njit(nogil=True, cache=True)(py_func)
+    threaded = numba.njit(nogil=True, parallel=True)(py_func)
+
+    def run(*args):
+        threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
+        if threads <= 1:
+            return serial(*args)
+        numba.set_num_threads(threads)
+        return threaded(*args)
+
+    run.__doc__ = py_func.__doc__
+    run.serial, run.threaded = serial, threaded
+    return run
+
+
+def as_numpy(x: torch.Tensor) -> np.ndarray:
+    """A CPU tensor's data as a C-contiguous NumPy array (no copy where it is contiguous already)."""
+    return np.ascontiguousarray(x.detach().numpy())
