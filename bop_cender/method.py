@@ -138,7 +138,8 @@ class CenDerNet:
         ``pose_device``: where stage 3 renders and costs (None: the device of the heatmaps). The CPU by default,
         whatever device the heatmaps come from: on an H200 machine the pose stage of three DIMO scenes took 14.0,
         13.1 and 34.0 s on CUDA (``results/bench/run_*nvidia-h200.md``), against 8.7, 9.0 and 17.9 s on 2 CPU
-        cores (``results/bench/run_amd-epyc-2cores.md``): its batches are small (a Nelder-Mead step costs 1 to 8
+        cores (``results/bench/run_amd-epyc-2cores.md``; 3.9, 8.8 and 13.9 s on a 2-core Intel Xeon since stage 3's
+        CPU loops are compiled, ``results/bench/run_intel-*``): its batches are small (a Nelder-Mead step costs 1 to 8
         poses), so a cost call is bound by its ~730 kernel launches and ~77 host synchronisations (1.3 ms of GPU
         work in a 24 ms call), not by the GPU."""
         self.cost_threads = cost_threads
