@@ -131,9 +131,8 @@ def kernel_canvas_costs(
     proj = model.projection
     first, count = model.edge_segments.unbind(1)
     out = np.empty(T.shape[0], dtype=np.float64)
-    canvas_costs(
-        as_numpy(T), as_numpy(view), as_numpy(Ks), as_numpy(dist), as_numpy(occ) if occ is not None else np.zeros((0, 1, 1), np.float32),
-        as_numpy(model.planes), as_numpy(model.crease), as_numpy(first), as_numpy(count), as_numpy(proj.seg_from), as_numpy(proj.seg_to),
-        as_numpy(proj.frac_a), as_numpy(proj.frac_b), as_numpy(proj.ends), float(near), int(samples), float(coincidence_mm), out,
-    )  # fmt: skip
+    inputs = [as_numpy(x) for x in (T, view, Ks, dist)]
+    inputs.append(as_numpy(occ) if occ is not None else np.zeros((0, 1, 1), np.float32))  # no rows: no occluder
+    tables = (model.planes, model.crease, first, count, proj.seg_from, proj.seg_to, proj.frac_a, proj.frac_b, proj.ends)
+    canvas_costs(*inputs, *(as_numpy(x) for x in tables), float(near), int(samples), float(coincidence_mm), out)
     return torch.from_numpy(out).to(torch.float32)

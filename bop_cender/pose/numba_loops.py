@@ -22,17 +22,24 @@ def canvas_loop(py_func: Callable) -> Callable:
     """``py_func`` (a loop over canvases with ``numba.prange``) compiled serial and threaded; the returned function
     runs the serial one where torch uses one thread, else the threaded one on torch's thread count (at most
     numba's). The serial version is cached on disk (numba's cache beside this package, or the user's cache
-    folder where that is read-only); the threaded one is compiled on first use in a process (not cached: the
+    folder where that is read-only; compiled in each process where neither is writable); the threaded one is compiled on first use in a process (not cached: the
     cache's index does not tell the two compilations of one function apart)."""
-    serial = numba.njit(nogil=True, cache=True)(py_func)
+    try:
+        serial = numba.njit(nogil=True, cache=True)(py_func)
+    except RuntimeError:  # "cannot cache function ...: no locator available": no writable cache folder anywhere
+        serial = numba.njit(nogil=True)(py_func)  # compiled afresh in each process (4 s)
     threaded = numba.njit(nogil=True, parallel=True)(py_func)
 
     def run(*args):
         threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
         if threads <= 1:
             return serial(*args)
+        before = numba.get_num_threads()
         numba.set_num_threads(threads)
-        return threaded(*args)
+        try:
+            return threaded(*args)
+        finally:
+            numba.set_num_threads(before)  # numba's setting is per thread: leave it as found
 
     run.__doc__ = py_func.__doc__
     run.serial, run.threaded = serial, threaded

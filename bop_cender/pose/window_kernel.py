@@ -114,7 +114,7 @@ def window_costs(
         _np(depth), _np(normals), _np(other_depth), _np(other_normals), _np(dist), _np(offsets),
         np.float32(edge_threshold), forward, own_edges,
     )  # fmt: skip
-    targets = _np(target_edges)
+    targets = _np(target_edges).astype(bool, copy=False)  # a 0/1 mask of any dtype selects pixels, as in torch
     V = targets.shape[0]
     backward = np.zeros(N, dtype=np.float64)
     for c in range(N):

@@ -168,6 +168,23 @@ def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads
         edge_costs(model, T.to("meta"), K, dist, w, layout="kernel")
 
 
+def test_a_non_finite_pose_costs_the_diagonal_in_every_layout(mini):
+    """A NaN or infinite pose draws nothing: the image diagonal, never an index error (on CUDA, a device-side
+    assert that would break the process's context), and the finite poses beside it keep their costs."""
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3).T_world_model
+    bad_rotation, bad_translation = g.copy(), g.copy()
+    bad_rotation[0, 0] = np.nan
+    bad_translation[:3, 3] = np.inf
+    T, K, w = _camera_poses(mini, np.stack([g, bad_rotation, bad_translation]))
+    model = edge_model_of(meshes(3))
+    diagonal = float(np.hypot(cams.height, cams.width))
+    for layout in ("compacted", "dense", "kernel"):
+        for occ in (None, torch.zeros_like(dist)):
+            costs = edge_costs(model, T, K, dist, w, occluder_depth=occ, layout=layout)
+            assert costs[0] < 0.3 and costs[1:].tolist() == pytest.approx([diagonal, diagonal]), (layout, costs)
+
+
 def test_the_dense_layout_never_waits_for_the_device(mini, monkeypatch):
     """No ``nonzero``, ``item`` or size read from a tensor in a dense call: on CUDA nothing would synchronise
     before the result is read. Counted on the CPU by torch.profiler (the same operators run on either device)."""
@@ -314,6 +331,32 @@ def test_edge_points_are_projected_by_the_full_intrinsics_and_dropped_behind_the
 
     assert cost(_one_segment(c, d), close, near=1.0) == pytest.approx((u_close(c) + u_close(d)) / 2 - 0.5, abs=1e-2)
     assert cost(_one_segment(c, d), close, near=near) == pytest.approx(np.hypot(H, W))
+
+
+def test_the_serial_and_threaded_compilations_give_the_same_bits(mini, monkeypatch):
+    """Both compilations of each compiled loop (``numba_loops.canvas_loop``) run and agree bit for bit, whatever the
+    machine's core count (the threaded one called directly, on the threads numba has)."""
+    from bop_cender.pose import edge_kernel, window_kernel
+
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    T, K, w = _camera_poses(mini, np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 9))]))
+    model = edge_model_of(meshes(3))
+    serial = edge_costs(model, T, K, dist, w, layout="kernel")
+    monkeypatch.setattr(edge_kernel, "canvas_costs", edge_kernel.canvas_costs.threaded)
+    assert torch.equal(edge_costs(model, T, K, dist, w, layout="kernel"), serial)
+
+    V, H, W = dist.shape
+    gen = torch.Generator().manual_seed(0)
+    depth = torch.where(torch.rand((2 * V, H, W), generator=gen) > 0.5, 400.0, 0.0)
+    normals = torch.nn.functional.normalize(torch.randn((2 * V, H, W, 3), generator=gen), dim=-1)
+    args = [depth, normals, depth[:V].flip(1), normals[:V].flip(2), dist, torch.zeros((V, 2), dtype=torch.long),
+            torch.rand((V, H, W), generator=gen) > 0.9, 3.0]  # fmt: skip
+    before = window_kernel.window_costs(*args)
+    monkeypatch.setattr(window_kernel, "_composite_costs", window_kernel._composite_costs.threaded)
+    assert torch.equal(window_kernel.window_costs(*args), before)
+    args[6] = args[6].to(torch.uint8)  # a 0/1 mask of another dtype selects the same pixels
+    assert torch.equal(window_kernel.window_costs(*args), before)
 
 
 def test_with_one_thread_the_compiled_loops_start_no_thread_pool():

@@ -1,0 +1,38 @@
+"""numba_loops.canvas_loop: the serial/threaded pair, and a machine where no cache folder is writable."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import torch
+
+from bop_cender.pose import numba_loops
+
+
+def _squares(x, out):
+    for i in numba.prange(x.shape[0]):
+        out[i] = x[i] * x[i]
+
+
+def test_without_a_writable_cache_the_loop_is_compiled_uncached(monkeypatch):
+    """numba raises "cannot cache function ... no locator available" where no cache folder is writable (a read-only
+    install, no writable home): the loop still compiles, uncached, instead of the CPU default failing."""
+    real = numba.njit
+
+    def njit(*args, **flags):
+        if flags.get("cache"):
+            raise RuntimeError("cannot cache function '_squares': no locator available for file 'x.py'")
+        return real(*args, **flags)
+
+    monkeypatch.setattr(numba_loops.numba, "njit", njit)
+    loop = numba_loops.canvas_loop(_squares)
+    out = np.zeros(4)
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            loop(np.arange(4.0), out)
+            assert out.tolist() == [0.0, 1.0, 4.0, 9.0]
+    finally:
+        torch.set_num_threads(threads)
+    assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS  # the threaded call left numba's setting alone
