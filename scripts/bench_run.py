@@ -245,6 +245,10 @@ def scene_polish_costs(
         T = np.repeat(parts[0].T_world_model[None], batch, 0)
         rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}", batch,
                      *_calls_per_second(lambda T=T: window.costs(T), device, batch, seconds)))  # fmt: skip
+    if device.type == "cpu":  # the same call with its post-render steps as torch operators (CUDA's path)
+        T = parts[0].T_world_model[None]
+        rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}, torch steps after the render", 1,
+                     *_calls_per_second(lambda: window.costs(T, compiled=False), device, 1, seconds)))  # fmt: skip
     torch.set_num_threads(threads)
     for what, batch, calls, ms in rows:
         print(f"scene polish ({device.type}): {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)",

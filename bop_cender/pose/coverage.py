@@ -142,11 +142,9 @@ def scene_cost(
     if compiled if compiled is not None else device.type == "cpu":
         from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
 
-        nothing = torch.zeros((V, H, W), device=device)
-        return float(
-            window_costs(render.depth, render.normals, nothing, torch.zeros((V, H, W, 3), device=device),
-                         dist_maps.to(device), offsets, target_edges.to(device), edge_threshold).mean()
-        )  # fmt: skip
+        total = window_costs(render.depth, render.normals, None, None, dist_maps.to(device), offsets,
+                             target_edges.to(device), edge_threshold)  # fmt: skip
+        return float(total.mean())
     curv = curvature(render.normals)  # (V, H, W)
     forward = view_costs(curv, dist_maps.to(device), offsets)
     backward = mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)

@@ -20,9 +20,8 @@ backward terms are those of :func:`~bop_cender.pose.coverage.scene_cost` inside 
 over the window's pixels, and a window without any composite edge costs the image diagonal as a frame
 does: a constant offset against the full cost, the same ranking). A pose the window polish finds is kept
 only where the full scene cost falls. On the CPU the steps after the render (composite, curvature, both terms)
-run as one compiled pass (:mod:`bop_cender.pose.window_kernel`): a call of 7 windows of 138 x 138 took 10.8 ms
-with them as torch operators and takes 8.6 ms (the render itself 5.4 ms, 9.1 before ``render_scene`` stopped
-copying a single chunk and building instance maps nobody reads).
+run as one compiled pass (:mod:`bop_cender.pose.window_kernel`; ``python scripts/bench_run.py``, section "Scene
+polish", times a call both ways).
 
 Target edges within ``WINDOW_BORDER_PX`` of a window side that lies inside the image are left out of the
 backward term: they are mostly a neighbour's edges spilling across the side, which the windowed composite

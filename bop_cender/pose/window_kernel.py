@@ -35,19 +35,19 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
     V, H, W = dist.shape
     diagonal = math.hypot(H, W)
     edge_count = np.zeros(N, dtype=np.int64)
+    has_other = other_depth.shape[0] > 0
     for c in numba.prange(N):
         v = c % V
         comp = np.empty((h, w, 3), dtype=np.float32)
         for i in range(h):
             for j in range(w):
                 d = depth[c, i, j]
-                o = other_depth[v, i, j]
-                if d > 0 and (o == 0 or d < o):
-                    for k in range(3):
+                o = other_depth[v, i, j] if has_other else 0.0
+                for k in range(3):
+                    if d > 0 and (o == 0 or d < o):
                         comp[i, j, k] = normals[c, i, j, k]
-                else:
-                    for k in range(3):
-                        comp[i, j, k] = other_normals[v, i, j, k]
+                    else:
+                        comp[i, j, k] = other_normals[v, i, j, k] if has_other else 0.0
         top, left = offsets[v, 0], offsets[v, 1]
         num = 0.0
         den = 0.0
@@ -90,8 +90,8 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
 def window_costs(
     depth: torch.Tensor,
     normals: torch.Tensor,
-    other_depth: torch.Tensor,
-    other_normals: torch.Tensor,
+    other_depth: torch.Tensor | None,
+    other_normals: torch.Tensor | None,
     dist: torch.Tensor,
     offsets: torch.Tensor,
     target_edges: torch.Tensor,
@@ -101,7 +101,8 @@ def window_costs(
 
     Args:
         depth, normals: ``(N, h, w)``, ``(N, h, w, 3)`` the moving part's render in the windows.
-        other_depth, other_normals: ``(V, h, w)``, ``(V, h, w, 3)`` the other parts there (depth 0: none).
+        other_depth, other_normals: ``(V, h, w)``, ``(V, h, w, 3)`` the other parts there (depth 0: none); None:
+            nothing else in the windows (the full scene cost: every part is in ``depth`` already).
         dist: ``(V, H, W)`` the target's full distance maps; ``offsets (V, 2)`` each view's window origin (row,
             column).
         target_edges: ``(V, h, w)`` bool, the target edges the backward term measures.
@@ -110,10 +111,13 @@ def window_costs(
     N, h, w = depth.shape
     forward = np.empty(N, dtype=np.float64)
     own_edges = np.empty((N, h, w), dtype=np.bool_)
+    if other_depth is None or other_normals is None:  # no rows: nothing to composite with
+        other = (np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1, 3), np.float32))
+    else:
+        other = (_np(other_depth), _np(other_normals))
     counts = _composite_costs(
-        _np(depth), _np(normals), _np(other_depth), _np(other_normals), _np(dist), _np(offsets),
-        np.float32(edge_threshold), forward, own_edges,
-    )  # fmt: skip
+        _np(depth), _np(normals), *other, _np(dist), _np(offsets), np.float32(edge_threshold), forward, own_edges
+    )
     targets = _np(target_edges).astype(bool, copy=False)  # a 0/1 mask of any dtype selects pixels, as in torch
     V = targets.shape[0]
     backward = np.zeros(N, dtype=np.float64)
