@@ -65,6 +65,13 @@ def register(sub) -> None:
         default=None,
         help="draws the object catalogue (default: the layout's one catalogue, the same for every --seed)",
     )
+    p.add_argument(
+        "--appearance",
+        choices=("dimo", "randomised"),
+        default="dimo",
+        help="dimo: the look of the sim folders: DIMO's synthetic camera (default), or randomised materials, "
+        "lights, environment, carrier, background and sensor (domain randomisation for training sets)",
+    )
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes (default 1)")
     p.add_argument("--no-contact-sheets", action="store_true")
     p.add_argument(
@@ -116,8 +123,15 @@ def cmd_synth(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 contact_sheets=not args.no_contact_sheets,
                 catalogue_seed=catalogue_seed,
+                appearance=args.appearance,
             )
         else:
+            if args.appearance != "dimo":
+                raise ConfigError(
+                    "the T-LESS layout has one look per split (test: grey plastic; train_pbr: random colours and "
+                    "lights already)",
+                    field="--appearance",
+                )
             spec = TlessSpec(
                 n_scenes=args.scenes,
                 n_views=args.views or 10,

@@ -111,7 +111,11 @@ def _shading_inputs(style: Style, rng: np.random.Generator, height: int, width: 
     """Environment map, carrier texture and background of one scene (shared by all its views)."""
     env = make_environment(rng, style.env_style)
     texture = torch.as_tensor(procedural_texture(rng, 256, style.carrier_texture))
-    background = torch.as_tensor(random_background(rng, height, width))  # one per scene: a static backdrop
+    if style.background == "flat":
+        colour = rng.uniform(0.0, 0.35) * rng.uniform(0.8, 1.2, 3)
+        background = torch.as_tensor(np.full((height, width, 3), colour, dtype=np.float32))
+    else:
+        background = torch.as_tensor(random_background(rng, height, width))  # one per scene: a static backdrop
     return env, texture, background
 
 

@@ -22,19 +22,27 @@ from bop_cender.synth.demo import DEMO_VERSION
 RECORD_FILE = "bop_cender_synth.json"
 #: The fields a resumed run must match (the others, the generator version, only inform).
 CHECKED_FIELDS = ("layout", "seed", "catalogue_seed")
+#: Checked fields a record may lack, with the value their absence means: records written before the field
+#: existed, and records of the default appearance (which keep the bytes they always had).
+OPTIONAL_FIELDS = {"appearance": "dimo"}
 #: The ``bop-cender synth`` option that sets each checked field.
-OPTIONS = {"layout": "--layout", "seed": "--seed", "catalogue_seed": "--catalogue-seed"}
+OPTIONS = {"layout": "--layout", "seed": "--seed", "catalogue_seed": "--catalogue-seed", "appearance": "--appearance"}
 
 
 def dataset_record(layout: str, spec: Any) -> dict[str, Any]:
     """What the record holds for a generation of ``layout`` with ``spec`` (a DimoSpec or TlessSpec)."""
-    return {
+    record = {
         "generator": "bop-cender synth",
         "generator_version": DEMO_VERSION,
         "layout": layout,
         "seed": int(spec.seed),
         "catalogue_seed": int(spec.catalogue_seed),
     }
+    for field, default in OPTIONAL_FIELDS.items():
+        value = getattr(spec, field, default)
+        if value != default:
+            record[field] = value
+    return record
 
 
 def check_output_folder(root: str | Path, force: bool = False) -> Path:
@@ -86,11 +94,12 @@ def check_or_write_record(root: str | Path, layout: str, spec: Any) -> Path:
         raise DatasetError(f"cannot read the dataset record: {e}", file=path) from None
     if not isinstance(found, dict) or any(f not in found for f in CHECKED_FIELDS):
         raise DatasetError(f"expected a JSON object with the fields {', '.join(CHECKED_FIELDS)}", file=path)
-    for field in CHECKED_FIELDS:
-        if found[field] != wanted[field]:
+    for field in (*CHECKED_FIELDS, *OPTIONAL_FIELDS):
+        was, now = (found.get(field, OPTIONAL_FIELDS.get(field)), wanted.get(field, OPTIONAL_FIELDS.get(field)))
+        if was != now:
             raise ConfigError(
-                f"this dataset was generated with {field} {found[field]!r}, not {wanted[field]!r}: resuming it "
-                f"would mix two datasets (give {OPTIONS[field]} {found[field]}, or another --out)",
+                f"this dataset was generated with {field} {was!r}, not {now!r}: resuming it "
+                f"would mix two datasets (give {OPTIONS[field]} {was}, or another --out)",
                 file=path,
                 field=field,
             )

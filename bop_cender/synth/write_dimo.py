@@ -50,6 +50,10 @@ RIG_TARGET = (0.0, 0.0, 20.0)
 RIG_FX = 450.0
 
 
+#: ``DimoSpec.appearance`` values: DIMO's look, or domain randomisation of the sim folders.
+APPEARANCES = ("dimo", "randomised")
+
+
 @dataclass(frozen=True)
 class DimoSpec:
     """What to generate.
@@ -67,6 +71,10 @@ class DimoSpec:
             carriers). Fixed per layout, as a real dataset has one catalogue, so that sets of other seeds
             share their objects (a network trained on one is tested on another); the default is the
             demo's seed, so the demo's models are the catalogue.
+        appearance: ``dimo`` (the sim folders look like DIMO's synthetic camera) or ``randomised`` (the sim
+            folders' materials, lights, environment, carrier, background and sensor drawn wide: domain
+            randomisation for training sets; see :mod:`bop_cender.synth.styles`). ``real_jaigo`` keeps the
+            real camera's look either way.
     """
 
     n_scenes: int = 3
@@ -80,8 +88,11 @@ class DimoSpec:
     write_real: bool = True
     contact_sheets: bool = True
     catalogue_seed: int = DIMO_CATALOGUE_SEED
+    appearance: str = "dimo"
 
     def __post_init__(self) -> None:
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
         bad = [v for v in self.variants if not 0 <= v <= 70]
         if bad:
             raise ValueError(f"sim variants must be 0..70, got {bad}")
@@ -168,7 +179,8 @@ def write_scene(
 
         real_light = v == 0 or 16 <= v <= 30
         lid = light_id if real_light else None
-        folders.append((path, pile, "sim", lid, light_id if real_light else 100 + v))
+        sim_domain = "randomised" if spec.appearance == "randomised" else "sim"
+        folders.append((path, pile, sim_domain, lid, light_id if real_light else 100 + v))
     written = 0
     for path, pile, domain, lid, light_value in folders:
         if scene_done(path):

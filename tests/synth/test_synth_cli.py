@@ -99,3 +99,18 @@ def test_synth_refuses_a_folder_it_did_not_make_unless_forced(tmp_path: Path, ca
     (tmp_path / "a_file").write_text("x")
     assert main(models_only("tless", tmp_path / "a_file")) == 2
     assert "a_file: --out: exists and is not a directory" in capsys.readouterr().err
+
+
+def test_appearance_flag(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "dimo"
+    assert main(models_only("dimo", out, "--appearance", "randomised")) == 0
+    assert json.loads((out / RECORD_FILE).read_text())["appearance"] == "randomised"
+    capsys.readouterr()
+    assert main(models_only("dimo", out)) == 2  # a resume with DIMO's look would mix two looks
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "field appearance" not in err
+    assert f"{out / RECORD_FILE}: appearance: this dataset was generated with appearance 'randomised'" in err
+    assert "--appearance randomised" in err
+    assert main(models_only("tless", tmp_path / "tless", "--appearance", "randomised")) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "--appearance" in err and len(err.strip().splitlines()) == 1

@@ -153,3 +153,59 @@ def test_the_catalogue_is_the_same_for_every_seed(dimo_root, tmp_path):
     generate("dimo", another, DimoSpec(n_scenes=0, seed=5, catalogue_seed=7), progress=False)
     assert digest(another / "models") != digest(dimo_root / "models")
     assert load(another / RECORD_FILE)["catalogue_seed"] == 7
+
+
+def test_randomised_appearance_changes_the_look_not_the_ground_truth(dimo_root, tmp_path):
+    """``--appearance randomised``: the same scenes (poses, cameras, GT), other images; recorded, resumable."""
+    from dataclasses import replace
+
+    from bop_cender.data.bop_io import load_rgb
+
+    spec = DimoSpec(n_scenes=1, n_viewpoints=2, variants=(0, 17), width=96, height=80, seed=5, contact_sheets=False)
+    plain, randomised = tmp_path / "plain", tmp_path / "randomised"
+    generate("dimo", plain, spec, progress=False)
+    generate("dimo", randomised, replace(spec, appearance="randomised"), progress=False)
+    assert RECORD_FILE in {p.name for p in plain.iterdir()}
+    assert "appearance" not in load(plain / RECORD_FILE)  # the default's record keeps its bytes
+    assert load(randomised / RECORD_FILE)["appearance"] == "randomised"
+    for folder in ("real_jaigo/000000", "sim_jaigo/000000_00", "sim_jaigo/000000_17"):
+        for name in ("scene_gt.json", "scene_camera.json", "scene_gt_world.json", "scene_info.json"):
+            assert load(plain / folder / name) == load(randomised / folder / name), (folder, name)
+    # real_jaigo keeps the real camera's look; the sim folders get another one.
+    assert digest(plain / "real_jaigo") == digest(randomised / "real_jaigo")
+    a = load_rgb(plain / "sim_jaigo" / "000000_17" / "rgb" / "000000.png").astype(float)
+    b = load_rgb(randomised / "sim_jaigo" / "000000_17" / "rgb" / "000000.png").astype(float)
+    assert np.abs(a - b).mean() > 5
+    # A resume with the other appearance would mix two looks in one set: refused, naming the field.
+    from bop_cender.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="appearance 'randomised', not 'dimo'"):
+        generate("dimo", randomised, spec, progress=False)
+    with pytest.raises(ValueError, match="appearance must be one of"):
+        DimoSpec(appearance="pbr")
+
+
+def test_randomised_styles_span_more_than_the_sim_and_real_cameras():
+    """Across many draws the randomised domain covers both cameras' ranges and goes past them."""
+    from bop_cender.synth.styles import make_style
+
+    centre = np.zeros(3)
+    rng = np.random.default_rng(0)
+    styles = [make_style(rng, "randomised", 4, centre, carrier_index=0) for _ in range(300)]
+    metals = [m for s in styles for m in s.materials[1:]]
+    rough = np.array([m.roughness for m in metals])
+    grey = np.array([np.mean(m.base_color) for m in metals])
+    assert rough.min() < 0.05 and rough.max() > 0.6  # sim 0.1-0.45, real 0.05-0.3
+    assert grey.min() < 0.4 and grey.max() > 0.9  # sim and real 0.55-0.9
+    assert {s.env_style for s in styles} == {"studio", "hall"}
+    assert {s.background for s in styles} == {"texture", "flat"}
+    carriers = [s.materials[0] for s in styles]
+    assert any(c.texture for c in carriers) and any(not c.texture for c in carriers)  # textured and plain
+    assert {len(s.lights) for s in styles} == {1, 2, 3, 4}
+    exposure = np.array([s.exposure for s in styles])
+    assert exposure.min() < 0.6 and exposure.max() > 1.5
+    # Deterministic by seed; the other domains' draws are not touched by the new one.
+    again = make_style(np.random.default_rng(0), "randomised", 4, centre, carrier_index=0)
+    assert again == styles[0]
+    fixed = make_style(np.random.default_rng(1), "randomised", 4, centre, light_id=3, carrier_index=0)
+    assert fixed.lights == make_style(np.random.default_rng(2), "sim", 4, centre, light_id=3, carrier_index=0).lights
