@@ -18,7 +18,7 @@ twins (variants 00 and 16-30): :func:`fixed_lights` is a pure function of the li
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -88,26 +88,39 @@ def carrier_material(rng: np.random.Generator) -> Material:
     return Material((1.0, 1.0, 1.0), 0.0, float(rng.uniform(0.7, 1.0)), texture=True)
 
 
+#: Uniform ranges of the sensor model's parameters per domain, drawn in this order (``tless``: fixed values).
+SENSOR_RANGES = {
+    "real": {
+        "gain": (0.8, 1.2),
+        "read_noise": (0.015, 0.03),
+        "shot_noise": (0.03, 0.06),
+        "blur_sigma_px": (0.5, 0.9),
+        "vignetting": (0.2, 0.4),
+    },
+    "sim": {"gain": (0.9, 1.1), "read_noise": (0.003, 0.01), "shot_noise": (0.005, 0.02), "blur_sigma_px": (0.0, 0.4)},
+    "randomised": {
+        "gain": (0.7, 1.3),
+        "read_noise": (0.0, 0.035),
+        "shot_noise": (0.0, 0.07),
+        "blur_sigma_px": (0.0, 1.0),
+        "vignetting": (0.0, 0.45),
+    },
+}
+
+
+def _draw_sensor(rng: np.random.Generator, domain: str, **fixed) -> SensorModel:
+    """A sensor with ``SENSOR_RANGES[domain]`` drawn in their order, and the ``fixed`` fields as given."""
+    return SensorModel(**{k: float(rng.uniform(*r)) for k, r in SENSOR_RANGES[domain].items()}, **fixed)
+
+
 def sensor_model(rng: np.random.Generator, domain: str) -> SensorModel:
     """Noise, blur and colour response per domain (``real`` is the harshest)."""
     if domain == "real":
         cast = tuple(float(c) for c in rng.uniform(0.9, 1.1, 3) * [1.06, 1.0, 0.9])
-        return SensorModel(
-            gain=float(rng.uniform(0.8, 1.2)),
-            read_noise=float(rng.uniform(0.015, 0.03)),
-            shot_noise=float(rng.uniform(0.03, 0.06)),
-            blur_sigma_px=float(rng.uniform(0.5, 0.9)),
-            vignetting=float(rng.uniform(0.2, 0.4)),
-            color_cast=cast,
-        )
+        return _draw_sensor(rng, "real", color_cast=cast)
     if domain == "tless":
         return SensorModel(read_noise=0.01, shot_noise=0.02, blur_sigma_px=0.4, vignetting=0.1)
-    return SensorModel(
-        gain=float(rng.uniform(0.9, 1.1)),
-        read_noise=float(rng.uniform(0.003, 0.01)),
-        shot_noise=float(rng.uniform(0.005, 0.02)),
-        blur_sigma_px=float(rng.uniform(0.0, 0.4)),
-    )
+    return _draw_sensor(rng, "sim")
 
 
 def randomised_metal(rng: np.random.Generator) -> Material:
@@ -134,14 +147,8 @@ def randomised_carrier(rng: np.random.Generator) -> tuple[Material, str]:
 
 def randomised_sensor(rng: np.random.Generator) -> SensorModel:
     """Noise, blur, vignetting and colour cast from none to more than the ``real`` camera's."""
-    return SensorModel(
-        gain=float(rng.uniform(0.7, 1.3)),
-        read_noise=float(rng.uniform(0.0, 0.035)),
-        shot_noise=float(rng.uniform(0.0, 0.07)),
-        blur_sigma_px=float(rng.uniform(0.0, 1.0)),
-        vignetting=float(rng.uniform(0.0, 0.45)),
-        color_cast=tuple(float(c) for c in rng.uniform(0.85, 1.15, 3)),
-    )
+    sensor = _draw_sensor(rng, "randomised")
+    return replace(sensor, color_cast=tuple(float(c) for c in rng.uniform(0.85, 1.15, 3)))
 
 
 def randomised_style(
