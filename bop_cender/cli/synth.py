@@ -67,10 +67,11 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--appearance",
-        choices=("dimo", "randomised"),
-        default="dimo",
-        help="dimo: the look of the sim folders: DIMO's synthetic camera (default), or randomised materials, "
-        "lights, environment, carrier, background and sensor (domain randomisation for training sets)",
+        choices=("default", "randomised"),  # styles.APPEARANCES (not imported: it loads torch; tested equal)
+        default="default",
+        help="the look of the training folders (dimo: sim_jaigo, tless: train_pbr): the layout's own (default), "
+        "or randomised materials, lights, environment, carrier, background and sensor (domain randomisation); "
+        "test folders keep their look",
     )
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes (default 1)")
     p.add_argument("--no-contact-sheets", action="store_true")
@@ -126,12 +127,6 @@ def cmd_synth(args: argparse.Namespace) -> int:
                 appearance=args.appearance,
             )
         else:
-            if args.appearance != "dimo":
-                raise ConfigError(
-                    "the T-LESS layout has one look per split (test: grey plastic; train_pbr: random colours and "
-                    "lights already)",
-                    field="--appearance",
-                )
             spec = TlessSpec(
                 n_scenes=args.scenes,
                 n_views=args.views or 10,
@@ -140,6 +135,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 contact_sheets=not args.no_contact_sheets,
                 catalogue_seed=catalogue_seed,
+                appearance=args.appearance,
             )
     except ValueError as e:
         raise ConfigError(str(e)) from None

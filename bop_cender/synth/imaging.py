@@ -80,10 +80,13 @@ def render_views(
         if style is not None:
             env, texture, background = shading_inputs
             shadow = _shadow_visibility(maps, scene.depth[v], Ks[v], T_cw[v]) if maps is not None else None
+            shaded = scene.instance[v]
+            if style.hidden:  # in depth and masks, but shaded as background
+                shaded = torch.where(torch.isin(shaded, torch.tensor(style.hidden)), -1, shaded)
             linear = shade_view(
                 scene.depth[v],
                 scene.normals[v],
-                scene.instance[v],
+                shaded,
                 torch.as_tensor(Ks[v], dtype=torch.float32),
                 torch.as_tensor(T_cw[v], dtype=torch.float32),
                 style.materials,

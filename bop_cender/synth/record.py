@@ -24,7 +24,7 @@ RECORD_FILE = "bop_cender_synth.json"
 CHECKED_FIELDS = ("layout", "seed", "catalogue_seed")
 #: Checked fields a record may lack, with the value their absence means: records written before the field
 #: existed, and records of the default appearance (which keep the bytes they always had).
-OPTIONAL_FIELDS = {"appearance": "dimo"}
+OPTIONAL_FIELDS = {"appearance": "default"}
 #: The ``bop-cender synth`` option that sets each checked field.
 OPTIONS = {"layout": "--layout", "seed": "--seed", "catalogue_seed": "--catalogue-seed", "appearance": "--appearance"}
 

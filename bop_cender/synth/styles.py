@@ -8,9 +8,11 @@ Four domains, so that there is a gap to measure between them:
 - ``tless``: T-LESS-like textureless, non-reflective light-grey plastic, Primesense-like noise;
 - ``pbr``: T-LESS ``train_pbr``-like renders: random object colours and lights;
 - ``randomised``: domain randomisation for training sets (``bop-cender synth --appearance randomised``):
-  metal, lights, environment, carrier, background, exposure and sensor drawn from ranges wider than
-  ``sim`` and ``real`` together, so that a network trained on it does not learn one renderer's look
-  (the shipped network lost a fifth of its DIMO result on images of another renderer).
+  metal (DIMO) or plastic (T-LESS), lights, environment, carrier, background, exposure and sensor drawn
+  from ranges wider than the test domains' together, so that a network trained on it does not learn one
+  renderer's look (the shipped networks lost a fifth of their DIMO and a quarter of their T-LESS result on
+  images of another renderer). On T-LESS the table is also hidden from half the scenes (shaded as
+  background): BOP test images show whatever the objects rest on, or nothing of it.
 
 "Real-world lighting" in DIMO means the same light set-up for a scene's real capture and its sim
 twins (variants 00 and 16-30): :func:`fixed_lights` is a pure function of the light id.
@@ -25,6 +27,11 @@ import numpy as np
 from bop_cender.render.shading import Material, PointLight, SensorModel
 
 DOMAINS = ("sim", "real", "tless", "pbr", "randomised")
+#: ``bop-cender synth --appearance`` values: the layout's own look of its training folders (DIMO's sim camera,
+#: T-LESS's ``train_pbr`` renders), or domain randomisation of them. Test folders keep their look either way.
+APPEARANCES = ("default", "randomised")
+#: Surfaces of the ``randomised`` domain's objects: DIMO's metal parts, T-LESS's plastic ones.
+SURFACES = ("metal", "plastic")
 #: Background kinds: a tiled procedural texture under a gradient, or one flat colour.
 BACKGROUNDS = ("texture", "flat")
 
@@ -41,6 +48,8 @@ class Style:
     exposure: float
     carrier_texture: str
     background: str = "texture"
+    #: Instance indices rendered into depth and masks but shaded as background (a hidden table).
+    hidden: tuple[int, ...] = ()
 
 
 def fixed_lights(light_id: int, centre: np.ndarray) -> list[PointLight]:
@@ -136,6 +145,19 @@ def randomised_metal(rng: np.random.Generator) -> Material:
     )
 
 
+def randomised_plastic(rng: np.random.Generator) -> Material:
+    """Plastic of any colour or grey, glossy to matte, now and then slightly metallic (painted or coated parts)."""
+    if rng.uniform() < 0.5:
+        base = np.full(3, rng.uniform(0.15, 0.9)) * rng.uniform(0.95, 1.05, 3)
+    else:
+        base = rng.uniform(0.05, 0.9, 3)
+    return Material(
+        tuple(float(c) for c in np.clip(base, 0, 1)),
+        float(rng.uniform(0.0, 0.3)) if rng.uniform() < 0.2 else 0.0,
+        float(rng.uniform(0.15, 1.0)),
+    )
+
+
 def randomised_carrier(rng: np.random.Generator) -> tuple[Material, str]:
     """A textured carrier (cardboard, wood or coloured noise) or a plain one of a random colour."""
     kind = str(rng.choice(["cardboard", "wood", "noise", "plain"]))
@@ -157,19 +179,25 @@ def randomised_style(
     centre: np.ndarray,
     light_id: int | None = None,
     carrier_index: int | None = None,
+    surface: str = "metal",
 ) -> Style:
     """The ``randomised`` domain: every appearance factor drawn wide (see the module docstring).
 
     A fixed light set-up (``light_id``) stays fixed, as in the other domains; only its brightness varies,
-    through the exposure.
+    through the exposure. ``surface`` (:data:`SURFACES`) picks the objects' materials; ``plastic`` (T-LESS)
+    also hides the carrier from half the scenes. ``metal`` draws exactly what it drew before ``surface``
+    existed (the same seed makes the same training set).
     """
+    if surface not in SURFACES:
+        raise ValueError(f"unknown surface {surface!r}; expected one of {SURFACES}")
+    draw_object = randomised_metal if surface == "metal" else randomised_plastic
     materials = [Material((0.5, 0.5, 0.5), 0.0, 0.5)] * n_objects
     carrier_texture = "cardboard"
     for i in range(n_objects):
         if i == carrier_index:
             materials[i], carrier_texture = randomised_carrier(rng)
         else:
-            materials[i] = randomised_metal(rng)
+            materials[i] = draw_object(rng)
     if light_id is not None:
         lights = fixed_lights(light_id, centre)
     else:
@@ -183,7 +211,14 @@ def randomised_style(
         exposure=float(rng.uniform(0.5, 1.6)),
         carrier_texture=carrier_texture,
         background=str(rng.choice(BACKGROUNDS)),
+        hidden=_hidden_carrier(rng, carrier_index) if surface == "plastic" else (),
     )
+
+
+def _hidden_carrier(rng: np.random.Generator, carrier_index: int | None) -> tuple[int, ...]:
+    """The carrier's index with probability 0.5 (drawn even without a carrier, so the draws stay aligned)."""
+    hide = rng.uniform() < 0.5
+    return (carrier_index,) if hide and carrier_index is not None else ()
 
 
 def make_style(
@@ -193,17 +228,19 @@ def make_style(
     centre: np.ndarray,
     light_id: int | None = None,
     carrier_index: int | None = None,
+    surface: str = "metal",
 ) -> Style:
     """A complete style for a scene of ``n_objects`` instances (index ``carrier_index`` is the carrier).
 
     Args:
         domain: one of :data:`DOMAINS`.
         light_id: use the fixed "real-world" light set-up with this id; None draws random lights.
+        surface: the ``randomised`` domain's object materials (:data:`SURFACES`); the other domains have theirs.
     """
     if domain not in DOMAINS:
         raise ValueError(f"unknown domain {domain!r}; expected one of {DOMAINS}")
     if domain == "randomised":
-        return randomised_style(rng, n_objects, centre, light_id, carrier_index)
+        return randomised_style(rng, n_objects, centre, light_id, carrier_index, surface)
     materials = []
     for i in range(n_objects):
         if i == carrier_index:

@@ -35,7 +35,7 @@ from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import dimo_rig
-from bop_cender.synth.styles import make_style
+from bop_cender.synth.styles import APPEARANCES, make_style
 
 N_CARRIERS = 3
 #: (min, max) number of parts per composition id; compositions in SAME_TYPE use one part type.
@@ -48,10 +48,6 @@ DIMO_CATALOGUE_SEED = 20221023
 RIG_TARGET = (0.0, 0.0, 20.0)
 #: Focal length (px) of the rig at DIMO small's 320x256.
 RIG_FX = 450.0
-
-
-#: ``DimoSpec.appearance`` values: DIMO's look, or domain randomisation of the sim folders.
-APPEARANCES = ("dimo", "randomised")
 
 
 @dataclass(frozen=True)
@@ -71,7 +67,7 @@ class DimoSpec:
             carriers). Fixed per layout, as a real dataset has one catalogue, so that sets of other seeds
             share their objects (a network trained on one is tested on another); the default is the
             demo's seed, so the demo's models are the catalogue.
-        appearance: ``dimo`` (the sim folders look like DIMO's synthetic camera) or ``randomised`` (the sim
+        appearance: ``default`` (the sim folders look like DIMO's synthetic camera) or ``randomised`` (the sim
             folders' materials, lights, environment, carrier, background and sensor drawn wide: domain
             randomisation for training sets; see :mod:`bop_cender.synth.styles`). ``real_jaigo`` keeps the
             real camera's look either way.
@@ -88,7 +84,7 @@ class DimoSpec:
     write_real: bool = True
     contact_sheets: bool = True
     catalogue_seed: int = DIMO_CATALOGUE_SEED
-    appearance: str = "dimo"
+    appearance: str = "default"
 
     def __post_init__(self) -> None:
         if self.appearance not in APPEARANCES:

@@ -33,7 +33,7 @@ from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
-from bop_cender.synth.styles import make_style
+from bop_cender.synth.styles import APPEARANCES, make_style
 
 DEPTH_SCALE = 0.1
 #: The split's camera file at the dataset root.
@@ -62,6 +62,10 @@ class TlessSpec:
         catalogue_seed: draws the 30 objects (:func:`tless_models`). Fixed per layout, as a real dataset
             has one catalogue, so that sets of other seeds share their objects (a network trained on one
             is tested on another).
+        appearance: ``default`` (``train_pbr`` as BOP's PBR renders: plastic of random colours, random
+            lights) or ``randomised`` (plastic of any colour and finish, lights, environment, table (hidden
+            from half the piles), background and sensor drawn wide: domain randomisation; see
+            :mod:`bop_cender.synth.styles`). The test folders keep T-LESS's look either way.
     """
 
     n_scenes: int = 2
@@ -76,8 +80,11 @@ class TlessSpec:
     seed: int = 0
     contact_sheets: bool = True
     catalogue_seed: int = TLESS_CATALOGUE_SEED
+    appearance: str = "default"
 
     def __post_init__(self) -> None:
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
         for name in ("objects_per_scene", "models_per_scene"):
             lo, hi = getattr(self, name)
             if not 1 <= lo <= hi:
@@ -162,10 +169,13 @@ def write_scene(
 
 
 def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec, rng, meshes, records) -> list:
-    domain = "tless" if kind == "test" else "pbr"
+    if kind == "test":
+        domain = "tless"
+    else:
+        domain = "randomised" if spec.appearance == "randomised" else "pbr"
     mesh_list = meshes.many(pile.obj_ids)
     centre = pile.T_world_model[:, :3, 3].mean(axis=0)
-    style = make_style(rng, domain, len(pile.obj_ids), centre, carrier_index=0)
+    style = make_style(rng, domain, len(pile.obj_ids), centre, carrier_index=0, surface="plastic")
     views = render_views(mesh_list, pile.T_world_model, cameras, spec.height, spec.width, style, rng)
     ext = "png" if kind == "test" else "jpg"
     for im_id, (K, T_cw), view in zip(im_ids, cameras, views, strict=True):

@@ -111,6 +111,19 @@ def test_appearance_flag(tmp_path: Path, capsys) -> None:
     assert len(err.strip().splitlines()) == 1 and "field appearance" not in err
     assert f"{out / RECORD_FILE}: appearance: this dataset was generated with appearance 'randomised'" in err
     assert "--appearance randomised" in err
-    assert main(models_only("tless", tmp_path / "tless", "--appearance", "randomised")) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: ") and "--appearance" in err and len(err.strip().splitlines()) == 1
+    tless = tmp_path / "tless"
+    assert main(models_only("tless", tless, "--appearance", "randomised")) == 0
+    assert json.loads((tless / RECORD_FILE).read_text())["appearance"] == "randomised"
+    with pytest.raises(SystemExit):  # argparse's one-line error; "dimo" was the default's name before T-LESS had one
+        main(models_only("dimo", tmp_path / "x", "--appearance", "dimo"))
+    assert "--appearance: invalid choice: 'dimo'" in capsys.readouterr().err
+
+
+def test_appearance_choices_are_the_styles_appearances() -> None:
+    """The CLI lists them literally (importing the styles loads torch); they must not drift apart."""
+    from bop_cender.cli.app import build_parser
+    from bop_cender.synth.styles import APPEARANCES
+
+    synth = build_parser()._subparsers._group_actions[0].choices["synth"]
+    action = next(a for a in synth._actions if a.dest == "appearance")
+    assert tuple(action.choices) == APPEARANCES and action.default == APPEARANCES[0]

@@ -179,7 +179,7 @@ def test_randomised_appearance_changes_the_look_not_the_ground_truth(dimo_root, 
     # A resume with the other appearance would mix two looks in one set: refused, naming the field.
     from bop_cender.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="appearance 'randomised', not 'dimo'"):
+    with pytest.raises(ConfigError, match="appearance 'randomised', not 'default'"):
         generate("dimo", randomised, spec, progress=False)
     with pytest.raises(ValueError, match="appearance must be one of"):
         DimoSpec(appearance="pbr")
@@ -209,3 +209,48 @@ def test_randomised_styles_span_more_than_the_sim_and_real_cameras():
     assert again == styles[0]
     fixed = make_style(np.random.default_rng(1), "randomised", 4, centre, light_id=3, carrier_index=0)
     assert fixed.lights == make_style(np.random.default_rng(2), "sim", 4, centre, light_id=3, carrier_index=0).lights
+
+
+def test_randomised_plastic_styles_hide_the_table_from_about_half_the_piles():
+    """T-LESS's randomised look: plastic of any colour and finish; the carrier shaded as background now and then."""
+    from bop_cender.synth.styles import make_style
+
+    rng = np.random.default_rng(0)
+    styles = [make_style(rng, "randomised", 4, np.zeros(3), carrier_index=0, surface="plastic") for _ in range(300)]
+    plastics = [m for s in styles for m in s.materials[1:]]
+    assert max(m.metallic for m in plastics) <= 0.3 and np.mean([m.metallic == 0 for m in plastics]) > 0.7
+    colour = np.array([np.ptp(m.base_color) for m in plastics])
+    assert (colour < 0.1).mean() > 0.3 and (colour > 0.3).mean() > 0.2  # greys and colours
+    hidden = np.array([s.hidden == (0,) for s in styles])
+    assert 0.4 < hidden.mean() < 0.6 and all(s.hidden in ((), (0,)) for s in styles)
+    assert all(make_style(rng, "randomised", 4, np.zeros(3), carrier_index=0).hidden == () for _ in range(50))
+    with pytest.raises(ValueError, match="unknown surface"):
+        make_style(rng, "randomised", 4, np.zeros(3), carrier_index=0, surface="wood")
+
+
+def test_a_hidden_instance_is_shaded_as_background_but_kept_in_depth_and_instances():
+    """``Style.hidden``: the table is in the depth and instance maps (it occludes, GT masks see it), not the RGB."""
+    from dataclasses import replace
+
+    from bop_cender.render.mesh import prepare_mesh
+    from bop_cender.render.shading import SensorModel
+    from bop_cender.synth.imaging import render_views
+    from bop_cender.synth.parts import make_carrier
+    from bop_cender.synth.styles import make_style
+
+    carrier = make_carrier(np.random.default_rng(1), (300.0, 200.0, 20.0))
+    T_wm = np.eye(4)[None]
+    K = np.array([[150.0, 0, 48], [0, 150.0, 40], [0, 0, 1]])
+    T_cw = np.diag([1.0, -1.0, -1.0, 1.0])
+    T_cw[2, 3] = 600.0  # looking down at the carrier from 600 mm
+    style = make_style(np.random.default_rng(2), "randomised", 1, np.zeros(3), carrier_index=0, surface="plastic")
+    style = replace(style, sensor=SensorModel(read_noise=0.0, shot_noise=0.0), background="flat")
+    mesh = [prepare_mesh(carrier.mesh)]
+    shown = render_views(mesh, T_wm, [(K, T_cw)], 80, 96, replace(style, hidden=()), np.random.default_rng(3))[0]
+    hidden = render_views(mesh, T_wm, [(K, T_cw)], 80, 96, replace(style, hidden=(0,)), np.random.default_rng(3))[0]
+    on_carrier = shown.instance == 0
+    assert on_carrier.mean() > 0.3 and (hidden.instance == shown.instance).all()
+    np.testing.assert_array_equal(hidden.depth, shown.depth)
+    assert np.abs(hidden.rgb.astype(float) - shown.rgb).mean() > 5  # the carrier's pixels are other
+    flat = hidden.rgb.reshape(-1, 3)
+    assert np.ptp(flat, axis=0).max() <= 1  # all background: one flat colour

@@ -188,6 +188,35 @@ def test_the_record_names_the_seeds_and_a_mismatched_resume_is_refused(tless_roo
     generate("tless", root, models_only(SPEC), progress=False)  # the same seeds resume
 
 
+def test_randomised_appearance_changes_train_pbr_images_only(tless_root, tmp_path):
+    """``--appearance randomised``: train_pbr looks other, its piles, poses, masks and depth do not; test is untouched."""
+    import hashlib
+
+    from bop_cender.data.bop_io import load_rgb
+
+    def files(folder):
+        return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.rglob("*")
+                if p.is_file()}  # fmt: skip
+
+    randomised = tmp_path / "randomised"
+    generate("tless", randomised, dataclasses.replace(SPEC, appearance="randomised"), progress=False)
+    assert load(randomised / RECORD_FILE)["appearance"] == "randomised"
+    assert "appearance" not in load(tless_root / RECORD_FILE)
+    assert files(randomised / "test_primesense") == files(tless_root / "test_primesense")
+    ours, theirs = files(tless_root / "train_pbr"), files(randomised / "train_pbr")
+    assert ours.keys() == theirs.keys()
+    for name in ours:
+        if "/rgb/" in name:
+            a = load_rgb(tless_root / "train_pbr" / name).astype(float)
+            assert np.abs(a - load_rgb(randomised / "train_pbr" / name)).mean() > 5, name
+        else:  # GT files, masks, depth: the same pile at the same poses (the table is in depth either way)
+            assert ours[name] == theirs[name], name
+    with pytest.raises(ConfigError, match="appearance 'randomised', not 'default'"):
+        generate("tless", randomised, SPEC, progress=False)
+    with pytest.raises(ValueError, match="appearance must be one of"):
+        TlessSpec(appearance="pbr")
+
+
 def test_spec_is_validated():
     with pytest.raises(ValueError, match="models_per_scene"):
         TlessSpec(models_per_scene=(3, 31))
