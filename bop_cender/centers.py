@@ -37,6 +37,7 @@ from skimage.feature import peak_local_max
 from bop_cender.geometry.camera import camera_center_in_world
 from bop_cender.geometry.sampling import sample_scores
 from bop_cender.pose.simplex import batched_nelder_mead
+from bop_cender.settings_checks import COUNT, FRACTION_OPEN, NON_NEGATIVE, POSITIVE, Bound, check_settings
 
 
 @dataclass(frozen=True)
@@ -101,10 +102,29 @@ class CenterConfig:
     refine_tol: float = 0.05
     refine_maxiter: int = 200
 
+    def __post_init__(self) -> None:
+        check_settings("centers", self, _CENTER_BOUNDS)
+
     @staticmethod
     def paper() -> CenterConfig:
         """The paper's values: d_t = d_c = d_o = 30 mm."""
         return CenterConfig(d_t=30.0, d_c=30.0, d_o=30.0)
+
+
+_CENTER_BOUNDS = {
+    "peak_threshold": FRACTION_OPEN,
+    "peak_min_distance": COUNT,
+    "d_t": POSITIVE,
+    "d_c": NON_NEGATIVE,
+    "d_o": NON_NEGATIVE,
+    "min_views": COUNT,
+    "min_view_score": Bound(0.0, 1.0),
+    "min_views_unknown_count": COUNT,
+    "peak_match_px": POSITIVE,
+    "refine_tol": POSITIVE,
+    "refine_maxiter": COUNT,
+}
+"""What each stage-2 setting may be (:func:`~bop_cender.settings_checks.check_settings`)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -64,6 +64,10 @@ class ConfigError(BopCenderError):
     """A command-line option or configuration value is invalid."""
 
 
+class RunError(ResultsError):
+    """A run produced nothing usable (every scene failed); carries one problem per failed scene."""
+
+
 class DatasetWarning(UserWarning):
     """Something in a dataset is suspicious but usable (rounded poses, say)."""
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file
 from bop_cender.data.types import Dataset, Scene
-from bop_cender.errors import BopCenderError, ConfigError
+from bop_cender.errors import BopCenderError, ConfigError, RunError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig, network_curvature_choice
@@ -275,6 +275,15 @@ def run(
         if not any(work.iterdir()):
             work.rmdir()  # nothing done: leave nothing behind
         raise
+    failed = {k: o.error for k, o in outcomes.items() if o.error is not None}
+    if len(failed) == len(keys):  # nothing to write: no results file, no sidecar, no shards to resume from
+        shutil.rmtree(work, ignore_errors=True)
+        raise RunError(
+            f"every scene failed ({len(keys)}); nothing was written",
+            file=request.out,
+            problems=[f"scene {k}: {e}" for k, e in list(failed.items())[:10]]
+            + ([f"... and {len(failed) - 10} more"] if len(failed) > 10 else []),
+        )
     return _merge(request, dataset, keys, outcomes, resumed, work, start, threshold)
 
 
@@ -356,9 +365,13 @@ def _merge(request, dataset, keys, outcomes, resumed, work, start, threshold: tu
             "devices": {"heatmaps": request.device, "poses": request.pose_device},
             "curvature_threshold": {"value": threshold[0], "from": threshold[1]},
             "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
+            # scenes with no rows because they failed (their targets count as misses); absent when none did
+            **({"failed_scenes": failed} if failed else {}),
         },
     )
-    shutil.rmtree(work, ignore_errors=True)
+    if not failed:
+        shutil.rmtree(work, ignore_errors=True)
+    # else the shards stay: `--resume` keeps the scenes done and redoes only the failed ones (read_shard)
     return RunSummary(
         out=request.out,
         sidecar=sidecar,
@@ -441,16 +454,17 @@ def write_shard(path: Path, outcome: SceneOutcome, fingerprint: str) -> None:
 
 
 def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
-    """A shard made with the same settings, or None (missing, other settings, or unreadable: it is redone)."""
+    """A shard made with the same settings, or None (missing, other settings, unreadable, or of a scene that failed:
+    it is redone)."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
     if not isinstance(data, dict) or data.get("format") != SHARD_FORMAT or data.get("fingerprint") != fingerprint:
         return None
+    if data.get("error") is not None:
+        return None  # a failed scene is tried again (its input may have been mended since)
     try:
-        if data.get("error") is not None:
-            return SceneOutcome(data["scene_key"], None, str(data["error"]))
         objects = tuple(
             ObjectEstimate(
                 o["obj_id"],
@@ -467,7 +481,7 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
 
 
 def _check_request(request: RunRequest) -> None:
-    from bop_cender.results.files import parse_result_filename
+    from bop_cender.results.files import default_result_filename, name_contradiction, parse_result_filename
 
     _check_source(request.heatmaps)
     if request.workers < 1:
@@ -484,7 +498,13 @@ def _check_request(request: RunRequest) -> None:
         check_output_dir(request.vis_dir, "--vis")
     if out.suffix != ".csv":
         raise ConfigError(f"expected a .csv file name, got {out.name!r}", field="--out")
-    parse_result_filename(out.name)
+    contradiction = name_contradiction(parse_result_filename(out.name), request.dataset, request.split)
+    if contradiction is not None:
+        raise ConfigError(
+            f"{contradiction}; `score` reads the data from the name: name it"
+            f" {default_result_filename(parse_result_filename(out.name).method, request.dataset, request.split)}",
+            field="--out",
+        )
 
 
 def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):

@@ -182,7 +182,32 @@ def test_settings_override_the_config():
         c.with_settings(["poses.t_b_network=x"])
 
 
-def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize(
+    "setting, expected",
+    [
+        ("centers.d_c=-5", "centers.d_c: expected a number >= 0, got -5.0"),
+        ("centers.d_t=0", "centers.d_t: expected a number > 0"),
+        ("centers.peak_threshold=5", r"centers.peak_threshold: expected a number in \(0, 1\)"),
+        ("centers.min_views=-2", "centers.min_views: expected an integer >= 1"),
+        ("centers.refine_maxiter=-1", "centers.refine_maxiter: expected an integer >= 1"),
+        ("poses.top_k=0", "poses.top_k: expected an integer >= 1, got 0"),
+        ("poses.n_candidates=0", "poses.n_candidates: expected an integer >= 1"),
+        ("poses.nm_maxfev=-1", "poses.nm_maxfev: expected an integer >= 1"),
+        ("poses.rotation_bound_rad=0", "poses.rotation_bound_rad: expected a number > 0"),
+        ("poses.candidate_downscale=0", "poses.candidate_downscale: expected an integer >= 1"),
+        ("targets.min_visib_fract=2", r"targets.min_visib_fract: expected a number in \[0, 1\)"),
+        ("targets.s_e=0", "targets.s_e: expected a number > 0"),
+        ("targets.curvature_scale=-1", "targets.curvature_scale: expected a number > 0"),
+    ],
+)
+def test_a_setting_out_of_its_range_is_one_error_naming_it(setting, expected):
+    """Every stage's settings are range-checked as the flags are (a zero-candidate search or a peak threshold no
+    heatmap reaches would otherwise run and report every scene empty)."""
+    with pytest.raises(ConfigError, match="--set: " + expected):
+        CenDerNetConfig.for_dataset("dimo").with_settings([setting])
+
+
+def test_a_run_where_every_scene_fails_writes_nothing_and_exits_non_zero(mini_root, tmp_path, capsys, monkeypatch):
     import bop_cender.method as method_module
 
     def broken(self, scene):
@@ -190,23 +215,97 @@ def test_a_run_where_every_scene_fails_exits_non_zero(mini_root, tmp_path, capsy
 
     monkeypatch.setattr(method_module.CenDerNet, "run_scene", broken)
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
-    code = main(
-        [
-            "run",
-            "--heatmaps",
-            "oracle",
-            "--dataset",
-            "dimo",
-            "--data-root",
-            str(mini_root),
-            "--out",
-            str(out),
-            "--no-progress",
-        ]
-    )
+    code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out),
+                 "--no-progress"])  # fmt: skip
     err = capsys.readouterr().err
-    assert code == 1
-    assert "every scene failed" in err and err.count("no estimates (RuntimeError: heatmaps of the wrong size)") == 2
+    assert code == 2 and "every scene failed (2); nothing was written" in err
+    assert err.count("RuntimeError: heatmaps of the wrong size") == 2 and "scene 000001:" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no CSV, no sidecar, no shards
+
+
+def test_a_failed_scene_is_reported_recorded_and_redone_by_resume(mini_root, reference_csv, tmp_path, capsys,
+                                                                  monkeypatch):  # fmt: skip
+    """One scene of two fails (an unreadable input): the other's rows are written, the sidecar names the failure,
+    the exit code is 1; once mended, ``--resume`` redoes only that scene and ends with an uninterrupted run's rows."""
+    import bop_cender.method as method_module
+
+    real_run_scene, seen = method_module.CenDerNet.run_scene, []
+
+    def second_fails(self, scene):
+        seen.append(scene.key)
+        if scene.key == "000001":
+            raise RuntimeError("rgb/000000.png: truncated image")
+        return real_run_scene(self, scene)
+
+    monkeypatch.setattr(method_module.CenDerNet, "run_scene", second_fails)
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    summary = run(request(mini_root, out))
+    assert summary.failed == {"000001": "RuntimeError: rgb/000000.png: truncated image"}
+    assert {r.scene_id for r in read_bop_results(out)} == {0} and work_dir(out).is_dir()
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["extra"]["failed_scenes"] == summary.failed
+    from bop_cender.errors import ResultsWarning
+    from bop_cender.eval.score_file import score_file
+
+    with pytest.warns(ResultsWarning, match=r"the run failed on 1 scene\(s\) \(000001; see its sidecar\)"):
+        scored = score_file(out, progress=False, write=False, render_process=False)
+    assert any("count as misses" in n for n in scored.report.notes) and scored.report.metadata.counts.target_images == 8
+    seen.clear()
+    monkeypatch.setattr(method_module.CenDerNet, "run_scene", lambda self, scene: seen.append(scene.key)
+                        or real_run_scene(self, scene))  # fmt: skip
+    again = run(request(mini_root, out, resume=True))
+    assert seen == ["000001"] and again.resumed == 1 and not again.failed and not work_dir(out).exists()
+    assert out.read_bytes() == reference_csv.read_bytes()
+    assert "failed_scenes" not in json.loads(out.with_suffix(".json").read_text())["extra"]
+
+
+def test_an_undecodable_image_fails_its_scene_naming_the_file(mini_root, tmp_path):
+    """A truncated PNG (a broken download) is the scene's error, naming the file; the other scene still runs."""
+    import shutil
+
+    import torch
+
+    from bop_cender.net.targets import TargetConfig
+    from bop_cender.net.unet import UNet, UNetSpec
+    from bop_cender.net.weights import save_weights, weights_payload
+
+    root = tmp_path / "dimo"
+    shutil.copytree(mini_root, root)
+    broken = sorted((root / "real_jaigo" / "000001" / "rgb").glob("*.png"))[0]
+    broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    torch.manual_seed(0)
+    weights = tmp_path / "w.pt"
+    save_weights(weights, weights_payload(UNet(UNetSpec.dimo_lean(width=0.25)), "dimo", None, TargetConfig()))
+    summary = run(request(root, tmp_path / "out" / "cendernet_dimo-real.csv", heatmaps="net", weights=str(weights)))
+    assert list(summary.failed) == ["000001"] and f"{broken}: cannot decode image" in summary.failed["000001"]
+
+
+def test_the_cli_exits_1_when_a_scene_failed(mini_root, tmp_path, capsys, monkeypatch):
+    import bop_cender.method as method_module
+
+    real_run_scene = method_module.CenDerNet.run_scene
+
+    def second_fails(self, scene):
+        if scene.key == "000001":
+            raise RuntimeError("truncated image")
+        return real_run_scene(self, scene)
+
+    monkeypatch.setattr(method_module.CenDerNet, "run_scene", second_fails)
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out),
+                 "--no-progress", "--deterministic-time", "--candidates", "48", "--top-k", "2", "--set", "poses.nm_maxfev=40"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1 and "warning: scene 000001: no estimates (RuntimeError: truncated image)" in err
+    assert "error: 1 of 2 scene(s) failed" in err and "--resume" in err and out.is_file()
+
+
+def test_run_refuses_an_output_named_for_other_data(mini_root, tmp_path):
+    """`score` reads the data from the name: a `real` run written as `-sim` would be scored on `sim`."""
+    for name, message in (("m_dimo-sim.csv", "file name says split 'sim', the results are of 'real'"),
+                          ("m_tless-real.csv", "file name says dataset 'tless', the results are of 'dimo'")):  # fmt: skip
+        with pytest.raises(ConfigError, match=message + r".*name it m_dimo-real\.csv"):
+            run(request(mini_root, tmp_path / name))
+        assert list(tmp_path.iterdir()) == []
 
 
 def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):

@@ -34,7 +34,13 @@ from bop_cender.eval.render_process import RenderProcess, render_process_useful
 from bop_cender.eval.score_report import ScoreReport, write_score_files
 from bop_cender.eval.scoring import score_results
 from bop_cender.results.bop_csv import read_bop_results
-from bop_cender.results.files import ResultName, parse_result_filename, read_run_sidecar, sidecar_path
+from bop_cender.results.files import (
+    ResultName,
+    name_contradiction,
+    parse_result_filename,
+    read_run_sidecar,
+    sidecar_path,
+)
 
 
 @dataclass(frozen=True)
@@ -47,11 +53,14 @@ class DataChoice:
         scene_keys: the scenes a run covered (its sidecar's ``selection.scene_keys``, written by a run
             with ``--limit-scenes``): only these are scored, so the recall of a partial run is not
             diluted by the targets of scenes it never saw. None: every scene of the split.
+        failed_scenes: the scenes the run failed on (its sidecar's ``extra.failed_scenes``): scored as misses,
+            and said so.
     """
 
     request: DatasetRequest
     origin: str
     scene_keys: tuple[str, ...] | None = None
+    failed_scenes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -86,11 +95,14 @@ def choose_data(
     parsed = _parse_name(csv_path)
     sidecar = read_run_sidecar(csv_path)
     origin = []
-    if sidecar is not None and parsed is not None and sidecar["dataset"] not in (parsed.dataset, "bop"):
-        raise ConfigError(
-            f"the run sidecar says dataset {sidecar['dataset']!r} but the file name says {parsed.dataset!r}",
-            field="dataset",
-        )
+    if sidecar is not None and parsed is not None and dataset is None and split is None:
+        contradiction = name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
+        if contradiction is not None:  # renamed after the run: which data the rows belong to is not known
+            raise ConfigError(
+                f"{contradiction} (its run sidecar {sidecar_path(csv_path).name}); rename the file back, or give"
+                " --dataset / --split to choose",
+                field="file name",
+            )
     name = dataset or (sidecar or {}).get("dataset") or (parsed.dataset if parsed else None)
     if name is None:
         raise ConfigError(
@@ -120,7 +132,10 @@ def choose_data(
     keys = selection.get("scene_keys")
     if keys is not None and not (isinstance(keys, list) and all(isinstance(k, str) for k in keys) and keys):
         raise ResultsError("selection.scene_keys: expected a non-empty list of scene keys", file=sidecar_path(csv_path))
-    return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys))
+    failed = (sidecar or {}).get("extra", {}).get("failed_scenes") or {}
+    if not (isinstance(failed, dict) and all(isinstance(k, str) for k in failed)):
+        raise ResultsError("extra.failed_scenes: expected an object of scene keys", file=sidecar_path(csv_path))
+    return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys), tuple(failed))
 
 
 def score_file(
@@ -189,6 +204,14 @@ def score_file(
     report.timings.update(read_results=read - clock, open_dataset=opened - read)
     report = replace(report, metadata=replace(report.metadata, data_origin=choice.origin, method=method_name(csv_path)))
     check_matching(report, csv_path, choice)
+    if choice.failed_scenes:
+        shown = ", ".join(choice.failed_scenes[:5]) + (" ..." if len(choice.failed_scenes) > 5 else "")
+        message = (
+            f"the run failed on {len(choice.failed_scenes)} scene(s) ({shown}; see its sidecar): their targets count"
+            " as misses"
+        )
+        report.notes.append(message)
+        warnings.warn(f"{csv_path}: {message}", ResultsWarning, stacklevel=2)
     out = Path(out_dir) if out_dir is not None else csv_path.parent
     stem = csv_path.name.split(".")[0]
     scored = ScoredFile(report, choice, ds, out / f"scores_{stem}.json", out / f"errors_{stem}.csv")

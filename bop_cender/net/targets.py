@@ -30,6 +30,7 @@ from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE, curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_objects_separately, render_scene
+from bop_cender.settings_checks import POSITIVE, Bound, check_settings
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,14 @@ class TargetConfig:
     curvature_scale: float = DEFAULT_CURVATURE_SCALE
     min_visib_fract: float = 0.1
     per_object_channels: bool = False
+
+    def __post_init__(self) -> None:
+        check_settings(
+            "targets",
+            self,
+            {"s_e": POSITIVE, "curvature_scale": POSITIVE, "min_visib_fract": Bound(0.0, 1.0, high_open=True)},
+            flags=("per_object_channels",),
+        )
 
     @staticmethod
     def for_dataset(name: str) -> TargetConfig:

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 from bop_cender.data.bop_io import check_output_dir, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
-from bop_cender.errors import ConfigError
+from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
@@ -143,6 +143,9 @@ class TrainConfig:
             raise ConfigError(f"must be a positive number, got {self.class_loss_weight}", field="--class-loss-weight")
         if self.crop is not None and min(self.crop) < 1:
             raise ConfigError(f"crop sizes must be >= 1, got {self.crop}", field="--crop")
+        if self.val_data_root is not None and self.val_split is None:
+            raise ConfigError("validation data needs --val-split (which split of it to validate on)",
+                              field="--val-data-root")  # fmt: skip
         for name in ("limit_scenes", "val_limit_scenes"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -243,17 +246,33 @@ def train(
         val_set = _open_samples(
             config.dataset, val_root, config.val_split, config.val_limit_scenes, targets, cache_dir, progress,
             channel_obj_ids=train_set.channel_obj_ids,
+            flags=("--val-data-root" if config.val_data_root else "--data-root", "--val-split"),
         )  # fmt: skip
+    if config.crop is not None and (
+        config.crop[0] > train_set.images.shape[1] or config.crop[1] > train_set.images.shape[2]
+    ):
+        raise ConfigError(
+            f"{config.crop[0]}x{config.crop[1]} is larger than the training images"
+            f" ({train_set.images.shape[1]}x{train_set.images.shape[2]}); crop at most that, or leave --crop out",
+            field="--crop",
+        )
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
     spec = config.network_spec(n_channels)
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
         init = load_weights(config.init_weights, dataset=config.dataset)
-        if not _can_start_from(init.model.spec, spec) or init.channel_obj_ids != train_set.channel_obj_ids:
+        if not _can_start_from(init.model.spec, spec):
             raise ConfigError(
                 f"its network ({init.model.spec.name}, {init.model.spec.center_channels} center channels) is not"
                 f" this run's ({spec.name}, {spec.center_channels})",
+                file=config.init_weights,
+                field="--init-weights",
+            )
+        if init.channel_obj_ids != train_set.channel_obj_ids:
+            raise ConfigError(
+                f"its center channels are of object ids {_ids_text(init.channel_obj_ids)}; this run's data has"
+                f" {_ids_text(train_set.channel_obj_ids)}",
                 file=config.init_weights,
                 field="--init-weights",
             )
@@ -266,6 +285,8 @@ def train(
     if resume and checkpoint_path.exists():
         start_epoch, history = _restore(checkpoint_path, config, model, optimiser, device)
         say(f"resuming {run_dir} after epoch {start_epoch}")
+    elif resume:  # a resumable job's first start (scripts rerun the same command): go on, but say so
+        say(f"--resume: {run_dir} holds no checkpoint yet; starting a new run")
     run_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(run_dir / CONFIG, json.dumps(config.as_dict(), indent=2) + "\n")
     only = (
@@ -295,6 +316,10 @@ def train(
         _write_metrics(run_dir / METRICS, history)
         say(_epoch_line(record, config.epochs))
     return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
+
+
+def _ids_text(ids: tuple[int, ...] | None) -> str:
+    return "none (one shared channel)" if ids is None else str(list(ids))
 
 
 def _freeze_all_but(model: UNet, train_only: tuple[str, ...]) -> list[torch.nn.Parameter]:
@@ -346,8 +371,17 @@ def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
     return base == init
 
 
-def _open_samples(dataset, root, split, limit, targets, cache_dir, progress, channel_obj_ids=None) -> SampleSet:
-    ds = open_dataset(DatasetRequest(dataset=dataset, root=None if root is None else Path(root), split=split))
+def _open_samples(
+    dataset, root, split, limit, targets, cache_dir, progress, channel_obj_ids=None, flags=("--data-root", "--split")
+) -> SampleSet:
+    """The samples of one split; an error about the data names this split's own flags (``--val-split`` ...)."""
+    try:
+        ds = open_dataset(DatasetRequest(dataset=dataset, root=None if root is None else Path(root), split=split))
+    except BopCenderError as exc:
+        renamed = dict(zip(("--data-root", "--split"), flags, strict=True)).get(exc.field or "")
+        if renamed is None or renamed == exc.field:
+            raise
+        raise type(exc)(exc.message, file=exc.file, field=renamed) from None
     keys = ds.scene_keys[:limit] if limit else ds.scene_keys
     return load_samples(ds, targets, MeshCache(ds.models), cache_dir, channel_obj_ids, keys, progress)
 
@@ -442,7 +476,7 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
     bar = progress_bar(
         batches, desc=f"epoch {epoch + 1}/{config.epochs}", unit="batch", disable=not progress, leave=False
     )
-    for idx in bar:
+    for number, idx in enumerate(bar, 1):
         image, center, curvature = samples.batch(idx, device)
         if config.crop is not None:
             image, center, curvature = random_crop(image, center, curvature, config.crop, gen)
@@ -456,13 +490,28 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
         loss.backward()
         optimiser.step()
         n = len(idx)
-        totals += n * np.array([loss.item(), loss_center.item(), loss_curvature.item()])
+        values = np.array([loss.item(), loss_center.item(), loss_curvature.item()])
+        if not np.isfinite(values).all():
+            raise _diverged(config, epoch, len(batches), number, f"the loss became {values[0]}")
+        totals += n * values
         seen += n
         bar.set_postfix(loss=f"{totals[0] / seen:.4f}", img_s=f"{seen / (time.perf_counter() - t0):.1f}")
     bar.close()
+    if not all(bool(torch.isfinite(p).all()) for p in model.parameters()):
+        raise _diverged(config, epoch, len(batches), len(batches), "the weights became non-finite")
     wall = time.perf_counter() - t0
     mean = totals / max(seen, 1)
     return EpochRecord(epoch + 1, float(mean[0]), float(mean[1]), float(mean[2]), seen / wall, wall)
+
+
+def _diverged(config: TrainConfig, epoch: int, batches: int, batch: int, what: str) -> ConfigError:
+    """The error that stops a diverged run: nothing of this epoch is written, the last checkpoint stands."""
+    kept = f"epoch {epoch}'s checkpoint stands" if epoch else "no checkpoint was written"
+    return ConfigError(
+        f"training diverged: {what} at epoch {epoch + 1}, batch {batch} of {batches}; nothing of this epoch was"
+        f" written ({kept}). Try a smaller --lr (this run: {config.lr:g})",
+        field="--lr",
+    )
 
 
 def random_crop(

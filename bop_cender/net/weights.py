@@ -136,8 +136,9 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
+        # torch's own text (a paragraph on weights_only, "[Errno 22]") helps nobody: say what the file is
         raise ConfigError(
-            f"not a readable weights file ({type(exc).__name__}: {_first_line(exc)})", file=path
+            f"not a readable weights file: truncated, or not written by torch.save ({type(exc).__name__})", file=path
         ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
@@ -153,8 +154,13 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
         channel_obj_ids = None if ids is None else tuple(int(i) for i in ids)
         targets = TargetConfig(**payload["targets"])
         state = payload["state_dict"]
-    except (KeyError, TypeError, ValueError) as exc:
+    except ConfigError as exc:  # a target setting out of range, named by its field
+        raise ConfigError(f"malformed weights file ({exc.message})", file=path) from None
+    except KeyError as exc:
+        raise ConfigError(f"malformed weights file (missing key {exc.args[0]!r})", file=path) from None
+    except (TypeError, ValueError) as exc:
         raise ConfigError(f"malformed weights file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
+    _check_channels(path, spec, kind, channel_obj_ids)
     if dataset is not None:
         wanted = "dimo" if dataset == "dimo" else "tless"
         if kind != wanted:
@@ -169,6 +175,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     except (RuntimeError, TypeError) as exc:
         raise ConfigError(f"the weights do not fit their network spec: {_first_line(exc, 2)}", file=path) from None
     model.eval()
+    _check_finite(path, state)
     threshold = payload.get(CURVATURE_THRESHOLD)
     if threshold is not None and not (isinstance(threshold, float | int) and 0.0 < float(threshold) < 1.0):
         raise ConfigError(f"malformed weights file ({CURVATURE_THRESHOLD}: expected a number in (0, 1), got {threshold!r})",
@@ -187,6 +194,49 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
         model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold),
         {str(k): float(v) for k, v in by_split.items()},
     )  # fmt: skip
+
+
+def _check_channels(path: Path, spec: UNetSpec, kind: str, channel_obj_ids: tuple[int, ...] | None) -> None:
+    """The dataset kind and the center channels' object ids agree with the network's center channels (one shared
+    channel for ``dimo``; one distinct positive object id per channel for ``tless``).
+
+    Raises:
+        ConfigError: they do not (``malformed weights file``, naming the field).
+    """
+    if kind not in SHIPPED:
+        raise ConfigError(f"malformed weights file (dataset: expected one of {', '.join(SHIPPED)}, got {kind!r})",
+                          file=path)  # fmt: skip
+    if kind == "dimo":
+        problem = None if channel_obj_ids is None and spec.center_channels == 1 else (
+            f"dimo weights have one shared center channel and no channel_obj_ids; got {spec.center_channels}"
+            f" channel(s) and {channel_obj_ids!r}"
+        )  # fmt: skip
+    elif channel_obj_ids is None or len(channel_obj_ids) != spec.center_channels:
+        count = "none" if channel_obj_ids is None else len(channel_obj_ids)
+        problem = f"expected one object id per center channel ({spec.center_channels}), got {count}"
+    elif len(set(channel_obj_ids)) != len(channel_obj_ids) or min(channel_obj_ids) < 1:
+        problem = f"expected distinct positive object ids, got {list(channel_obj_ids)}"
+    else:
+        problem = None
+    if problem is not None:
+        raise ConfigError(f"malformed weights file (channel_obj_ids: {problem})", file=path)
+
+
+def _check_finite(path: Path, state: Mapping[str, torch.Tensor]) -> None:
+    """Every floating-point tensor of the state dict is finite (a diverged training run writes NaN weights, whose
+    heatmaps are NaN: stage 2 would find no centre in any scene and the run would end with an empty CSV).
+
+    Raises:
+        ConfigError: a tensor holds NaN or infinite values (``malformed weights file``, naming the first one).
+    """
+    bad = [k for k, v in state.items() if torch.is_floating_point(v) and not bool(torch.isfinite(v).all())]
+    if bad:
+        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+        raise ConfigError(
+            f"malformed weights file (state_dict: non-finite values (NaN or inf) in {bad[0]}{more};"
+            " the training run that wrote it diverged)",
+            file=path,
+        )
 
 
 def _first_line(exc: BaseException, lines: int = 1, limit: int = 200) -> str:

@@ -68,6 +68,7 @@ from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
+from bop_cender.settings_checks import COUNT, COUNT_OR_ZERO, NON_NEGATIVE, POSITIVE, Bound, check_settings
 
 #: Nelder-Mead works on rotation-vector perturbations scaled by this (mm per radian, about a part's
 #: radius), so that one unit of either parameter moves a surface point by about a millimetre.
@@ -263,28 +264,49 @@ class PoseConfig:
     screen_maxfev: int = 30
 
     def __post_init__(self) -> None:
-        """The named choices are checked here, so that a bad ``--set`` is one error before any scene runs."""
-        for name, allowed in (("search_cost", SEARCH_COSTS), ("refiner", REFINERS), ("view_weights", VIEW_WEIGHTS)):
+        """Every setting is checked here (named choices, types and ranges), so that a bad ``--set`` is one error
+        before any scene runs."""
+        for name, allowed in (("search_cost", SEARCH_COSTS), ("refiner", REFINERS), ("view_weights", VIEW_WEIGHTS),
+                              ("acceptance", ACCEPTANCES)):  # fmt: skip
             if getattr(self, name) not in allowed:
                 raise ConfigError(
                     f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
                 )
-        for name in ("scene_polish_maxfev", "scene_polish_margin_px", "scene_polish_xatol", "scene_polish_fatol",
-                     "center_weight", "screen_starts", "screen_maxfev"):  # fmt: skip
-            if not getattr(self, name) >= 0:  # NaN too
-                raise ConfigError(f"poses.{name}: expected 0 or more, got {getattr(self, name)}", field="--set")
-        for name in ("t_b", "t_b_network"):
-            value = getattr(self, name)
-            if value is not None and not 0.0 <= value < 1.0:  # NaN too
-                raise ConfigError(f"poses.{name}: expected a number in [0, 1), got {value}", field="--set")
-        if self.passes < 1:
-            raise ConfigError(f"poses.passes: expected at least 1, got {self.passes}", field="--set")
-        if self.acceptance not in ACCEPTANCES:
-            raise ConfigError(
-                f"poses.acceptance: expected one of {', '.join(ACCEPTANCES)}, got {self.acceptance!r}", field="--set"
-            )
-        if not self.coverage_weight >= 0:
-            raise ConfigError(f"poses.coverage_weight: expected >= 0, got {self.coverage_weight}", field="--set")
+        check_settings("poses", self, _POSE_BOUNDS, flags=("occlusion",))
+
+
+_UNIT_INTERVAL = Bound(0.0, 1.0, high_open=True)
+_POSE_BOUNDS = {
+    "t_b": _UNIT_INTERVAL,
+    "t_b_network": replace(_UNIT_INTERVAL, optional=True),
+    "n_candidates": COUNT,
+    "translation_sigma_mm": NON_NEGATIVE,
+    "top_k": COUNT,
+    "rotation_bound_rad": POSITIVE,
+    "translation_bound_mm": POSITIVE,
+    "nm_initial_rotation_rad": POSITIVE,
+    "nm_initial_translation_mm": POSITIVE,
+    "nm_xatol": POSITIVE,
+    "nm_fatol": POSITIVE,
+    "nm_maxfev": COUNT,
+    "candidate_downscale": COUNT,
+    "seed": Bound(0, integer=True),
+    "edge_segment_mm": POSITIVE,
+    "candidate_segments": COUNT,
+    "rerank": COUNT,
+    "start_separation_rad": NON_NEGATIVE,
+    "polish_maxfev": COUNT_OR_ZERO,
+    "coverage_weight": NON_NEGATIVE,
+    "passes": COUNT,
+    "scene_polish_maxfev": COUNT_OR_ZERO,
+    "scene_polish_margin_px": COUNT_OR_ZERO,
+    "scene_polish_xatol": NON_NEGATIVE,
+    "scene_polish_fatol": NON_NEGATIVE,
+    "center_weight": NON_NEGATIVE,
+    "screen_starts": COUNT_OR_ZERO,
+    "screen_maxfev": COUNT_OR_ZERO,
+}
+"""What each stage-3 setting may be (:func:`~bop_cender.settings_checks.check_settings`)."""
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,28 @@ def result_filename(
     return ResultName(method, dataset, split, split_type, optional_id).filename()
 
 
+def name_contradiction(name: ResultName, dataset: str, split: str) -> str | None:
+    """How a result file name contradicts the dataset and split of the results it holds; None where it does not.
+
+    The toolkit and ``score`` read the data from the name: a file named for another split would be scored on it.
+    A run on ``--dataset bop`` (any BOP dataset, by its folder) agrees with every dataset part; a split folder
+    ``train_pbr`` agrees with the name's split ``train`` and split type ``pbr`` (BOP's naming).
+    """
+    if dataset != "bop" and name.dataset != dataset:
+        return f"the file name says dataset {name.dataset!r}, the results are of {dataset!r}"
+    named = {name.split} if name.split_type is None else {name.split, f"{name.split}_{name.split_type}"}
+    if split not in named:
+        shown = name.split + (f"-{name.split_type}" if name.split_type else "")
+        return f"the file name says split {shown!r}, the results are of {split!r}"
+    return None
+
+
+def default_result_filename(method: str, dataset: str, split: str) -> str:
+    """The result file name of ``method`` on a split folder (``train_pbr`` named split ``train``, type ``pbr``)."""
+    main, _, split_type = split.partition("_")
+    return result_filename(method, dataset, main, split_type or None)
+
+
 def sidecar_path(csv_path: str | Path) -> Path:
     """The run sidecar beside a results CSV: ``<csv stem>.json``."""
     csv_path = Path(csv_path)

@@ -91,11 +91,13 @@ class DimoSpec:
             raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
         bad = [v for v in self.variants if not 0 <= v <= 70]
         if bad:
-            raise ValueError(f"sim variants must be 0..70, got {bad}")
+            raise ValueError(f"sim variants (--variants) must be 0..70, got {bad}")
         if any(c not in COMPOSITION_SIZES for c in self.compositions):
-            raise ValueError(f"compositions must be among {sorted(COMPOSITION_SIZES)}")
+            raise ValueError(
+                f"compositions (--compositions) must be among {sorted(COMPOSITION_SIZES)}, got {list(self.compositions)}"
+            )
         if any(not 0 <= c < N_CARRIERS for c in self.carriers):
-            raise ValueError(f"carriers must be 0..{N_CARRIERS - 1}")
+            raise ValueError(f"carriers (--carriers) must be 0..{N_CARRIERS - 1}, got {list(self.carriers)}")
         if self.seed < 0 or self.catalogue_seed < 0:
             raise ValueError(f"seeds must be >= 0, got seed {self.seed}, catalogue_seed {self.catalogue_seed}")
 

@@ -64,10 +64,27 @@ def test_score_refuses_a_sidecar_for_another_dataset(small_fixture, results_dir,
     csv_path = results_dir / "cendernet_tless-test.csv"
     write_bop_results(csv_path, gt_rows(small_fixture)[:1])
     write_run_sidecar(csv_path, small_fixture.root, "dimo", "real", {}, seed=0)
-    with pytest.raises(ConfigError, match="sidecar says dataset 'dimo'"):
+    message = (
+        "file name says dataset 'tless', the results are of 'dimo' \\(its run sidecar cendernet_tless-test.json\\)"
+    )
+    with pytest.raises(ConfigError, match=message):
         choose_data(csv_path)
     assert main(["score", str(csv_path)]) == 2
-    assert "sidecar says dataset 'dimo'" in capsys.readouterr().err
+    assert "the results are of 'dimo'" in capsys.readouterr().err
+
+
+def test_score_refuses_a_sidecar_for_another_split_unless_told(small_fixture, results_dir) -> None:
+    """A results file renamed to another split after its run: which split the rows are of is not known."""
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:1])
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "train_pbr", {}, seed=0)
+    with pytest.raises(ConfigError, match="file name says split 'test', the results are of 'train_pbr'"):
+        choose_data(csv_path)
+    assert choose_data(csv_path, split="test").request.split == "test"  # the user chooses
+    pbr = results_dir / "cendernet_tless-train-pbr.csv"  # BOP's name of the train_pbr folder agrees
+    write_bop_results(pbr, gt_rows(small_fixture)[:1])
+    write_run_sidecar(pbr, small_fixture.root, "tless", "train_pbr", {}, seed=0)
+    assert choose_data(pbr).request.split == "train_pbr"
 
 
 def test_score_refuses_results_made_on_other_data(small_fixture, dimo_copy, results_dir, capsys) -> None:

@@ -120,6 +120,40 @@ def test_runs_are_guarded(tiny_root, tmp_path) -> None:
     for bad in bad_settings:
         with pytest.raises(ConfigError):
             _config(tiny_root, **bad)
+    with pytest.raises(ConfigError, match="--val-data-root: validation data needs --val-split"):
+        _config(tiny_root, val_split=None, val_data_root=str(tiny_root))
+    with pytest.raises(ConfigError, match=r"--crop: 200x100 is larger than the training images \(128x160\)"):
+        train(_config(tiny_root, epochs=1, val_split=None, crop=(200, 100)), tmp_path / "crop", progress=False)
+    with pytest.raises(ConfigError, match="--val-split"):  # the validation split's own flag, not --split
+        train(_config(tiny_root, epochs=1, val_split="nosuch"), tmp_path / "val", progress=False)
+    said = []
+    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "fresh", resume=True, progress=False,
+          announce=said.append)  # fmt: skip
+    assert any("holds no checkpoint yet; starting a new run" in line for line in said)
+
+
+def test_a_diverged_run_stops_with_one_error_and_keeps_the_last_good_checkpoint(tiny_root, tmp_path, monkeypatch):
+    """A non-finite loss ends the run (never NaN weights written with exit 0): the error names the epoch, the batch
+    and --lr, and the previous epoch's checkpoint, weights and metrics are what is left."""
+    from bop_cender.net import train as train_module
+
+    real_loss, calls = train_module._center_loss, []
+
+    def nan_in_epoch_two(*args, **kwargs):
+        calls.append(1)
+        loss = real_loss(*args, **kwargs)
+        return loss * float("nan") if len(calls) == 5 else loss  # 4 batches of 2 views per epoch
+
+    monkeypatch.setattr(train_module, "_center_loss", nan_in_epoch_two)
+    run = tmp_path / "run"
+    with pytest.raises(ConfigError, match=r"--lr: training diverged: the loss became nan at epoch 2, batch 1 of 4"):
+        train(_config(tiny_root, epochs=3, batch_size=2, val_split=None), run, progress=False)
+    assert load_weights(run / WEIGHTS).extra["epoch"] == 1 and load_weights(run / CHECKPOINT).extra["epoch"] == 1
+    assert len((run / METRICS).read_text().splitlines()) == 2
+    monkeypatch.undo()
+    with pytest.raises(ConfigError, match=r"training diverged: the (loss|weights) became"):
+        train(_config(tiny_root, epochs=1, batch_size=2, val_split=None, lr=1e30), tmp_path / "huge", progress=False)
+    assert not (tmp_path / "huge" / WEIGHTS).exists()
 
 
 def test_random_crops_cut_image_and_targets_alike() -> None:
@@ -290,6 +324,12 @@ def test_a_factored_run_trains_center_and_class(tiny_root, tmp_path) -> None:
     weights = load_weights(tmp_path / "run" / WEIGHTS, dataset="tless")
     assert weights.model.spec.factored_centers and len(weights.channel_obj_ids) == weights.model.spec.center_channels
     assert weights.model.spec.name == "tless-lean+factored"  # --factored-centers on a variant without one
+    payload = torch.load(tmp_path / "run" / WEIGHTS, weights_only=True)
+    payload["channel_obj_ids"] = [i + 100 for i in payload["channel_obj_ids"]]  # the same network, other objects
+    torch.save(payload, tmp_path / "other_ids.pt")
+    with pytest.raises(ConfigError, match=r"--init-weights: its center channels are of object ids \[1\d\d"):
+        train(replace(config, epochs=1, init_weights=str(tmp_path / "other_ids.pt")), tmp_path / "run2",
+              cache_dir=tmp_path / "cache", progress=False)  # fmt: skip
     with pytest.raises(ConfigError, match="class-loss-weight"):
         _config(tiny_root, class_loss_weight=0.0)
     with pytest.raises(ConfigError, match="needs one center channel per object id"):  # DIMO: one shared channel

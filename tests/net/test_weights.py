@@ -70,6 +70,52 @@ def test_bad_weights_files_are_one_clear_error(tmp_path) -> None:
         load_weights(good, dataset="tless")
 
 
+def _edited(tmp_path: Path, good: Path, name: str, edit) -> Path:
+    payload = torch.load(good, weights_only=True)
+    edit(payload)
+    path = tmp_path / name
+    torch.save(payload, path)
+    return path
+
+
+def test_malformed_weights_contents_are_one_clear_error_naming_the_field(tmp_path) -> None:
+    """What loads as a dict but cannot be used: non-finite weights (a diverged training run), target settings of
+    the wrong type or range, channel ids that disagree with the network, an unknown dataset kind."""
+    good = tmp_path / "good.pt"
+    _save(good, UNetSpec.dimo_lean(width=0.5))
+    tless = tmp_path / "tless.pt"
+    _save(tless, UNetSpec.tless_lean(center_channels=3, width=0.5), "tless", (1, 2, 5))
+
+    def nan_weights(p):
+        next(v for v in p["state_dict"].values() if torch.is_floating_point(v))[0].fill_(float("nan"))
+
+    def inf_bias(p):
+        next(v for k, v in p["state_dict"].items() if k.endswith("bias"))[0] = float("inf")
+
+    cases = [
+        (good, "nan.pt", nan_weights, r"state_dict: non-finite values \(NaN or inf\) in e1\.body\.0\.weight"),
+        (good, "inf.pt", inf_bias, r"state_dict: non-finite values"),
+        (good, "s_e.pt", lambda p: p["targets"].update(s_e="x"), r"targets\.s_e: expected a number > 0, got 'x'"),
+        (good, "visib.pt", lambda p: p["targets"].update(min_visib_fract=2.0), r"targets\.min_visib_fract"),
+        (good, "flag.pt", lambda p: p["targets"].update(per_object_channels="no"), r"targets\.per_object_channels"),
+        (good, "ids.pt", lambda p: p.update(channel_obj_ids=[1, 2]), r"channel_obj_ids: dimo weights have one shared"),
+        (tless, "few.pt", lambda p: p.update(channel_obj_ids=[1, 2]), r"one object id per center channel \(3\), got 2"),
+        (tless, "none.pt", lambda p: p.update(channel_obj_ids=None), r"channel \(3\), got none"),
+        (tless, "dup.pt", lambda p: p.update(channel_obj_ids=[1, 1, 5]), r"distinct positive object ids"),
+        (good, "kind.pt", lambda p: p.update(dataset="foo"), r"dataset: expected one of dimo, tless, got 'foo'"),
+        (good, "nospec.pt", lambda p: p.pop("spec"), r"missing key 'spec'"),
+    ]
+    for source, name, edit, message in cases:
+        path = _edited(tmp_path, source, name, edit)
+        with pytest.raises(ConfigError, match="malformed weights file.*" + message) as info:
+            load_weights(path)
+        assert str(path) in info.value.format() and "\n" not in info.value.format()
+    empty = tmp_path / "empty.pt"
+    empty.write_bytes(b"")
+    with pytest.raises(ConfigError, match=r"truncated, or not written by torch\.save \(EOFError\)$"):
+        load_weights(empty)
+
+
 def test_the_predictor_gives_probabilities_of_every_view(tmp_path) -> None:
     root = method_data.build(tmp_path / "dimo")
     dataset = open_dimo(root, "real")
@@ -199,10 +245,11 @@ def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
         for source in ("net", "oracle", "oracle-centers", "oracle-curvature")
     }
     assert not torch.equal(maps["net"].center, maps["oracle"].center)
-    assert torch.equal(maps["oracle-centers"].center, maps["oracle"].center)
+    # two oracle renders may differ in the last bits (threaded scatter order): close, the network's are far
+    assert torch.allclose(maps["oracle-centers"].center, maps["oracle"].center, atol=1e-5)
     assert torch.equal(maps["oracle-centers"].curvature, maps["net"].curvature)
     assert torch.equal(maps["oracle-curvature"].center, maps["net"].center)
-    assert torch.equal(maps["oracle-curvature"].curvature, maps["oracle"].curvature)
+    assert torch.allclose(maps["oracle-curvature"].curvature, maps["oracle"].curvature, atol=1e-5)
     mixed = build_method(replace(request, heatmaps="oracle-curvature"), dataset).predictor
     assert isinstance(mixed, MixedPredictor) and mixed.last_seconds_per_view is None
     mixed.predict(scene)

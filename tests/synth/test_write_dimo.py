@@ -254,3 +254,13 @@ def test_a_hidden_instance_is_shaded_as_background_but_kept_in_depth_and_instanc
     assert np.abs(hidden.rgb.astype(float) - shown.rgb).mean() > 5  # the carrier's pixels are other
     flat = hidden.rgb.reshape(-1, 3)
     assert np.ptp(flat, axis=0).max() <= 1  # all background: one flat colour
+
+
+@pytest.mark.parametrize("flag, value", [("--variants", "99"), ("--carriers", "7"), ("--compositions", "99")])
+def test_synth_names_the_flag_of_a_value_out_of_range(tmp_path, capsys, flag, value) -> None:
+    from bop_cender.cli import main
+
+    out = tmp_path / "d"
+    assert main(["synth", "--layout", "dimo", "--out", str(out), "--scenes", "1", flag, value]) == 2
+    err = capsys.readouterr().err
+    assert f"({flag}) must be" in err and f"{value}" in err and "Traceback" not in err and not out.exists()
