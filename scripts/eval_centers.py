@@ -51,7 +51,7 @@ def main() -> None:
     args = ap.parse_args()
     try:
         settings = {text: _setting(text) for text in args.setting} or SETTINGS
-    except ValueError as e:
+    except (ValueError, BopCenderError) as e:
         ap.error(f"--setting: {e}")
     ds = open_with_demo(DatasetRequest("dimo", args.data_root, args.split))  # no data root: the demo, silently
     config = CenDerNetConfig.for_dataset("dimo")

@@ -90,13 +90,32 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
         if not 0 < args.peak_threshold < 1:
             raise ConfigError(f"expected a number in (0, 1), got {args.peak_threshold}", field="--peak-threshold")
         metrics_config = replace(metrics_config, peak_threshold=args.peak_threshold)
-    report = evaluate_heatmaps(
-        dataset, predictor, targets, meshes, source, keys, out / "png" if args.png else None, metrics_config,
-        progress=not args.no_progress,
-    )  # fmt: skip
+    png_dir = out / "png" if args.png else None
+    created = [d for d in (out, png_dir) if d is not None and not d.exists()]
+    earlier = set(png_dir.iterdir()) if png_dir is not None and png_dir.is_dir() else set()
+    try:
+        report = evaluate_heatmaps(
+            dataset, predictor, targets, meshes, source, keys, png_dir, metrics_config, progress=not args.no_progress,
+        )  # fmt: skip
+    except BaseException:  # a scene that fails midway leaves no PNGs of a run that wrote no report
+        _remove_new(png_dir, earlier, created)
+        raise
     json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(json_path, json.dumps(report.as_dict(), indent=2) + "\n")
     print(format_report(report))
     print(f"wrote {json_path}" + (f" and {len(report.pngs)} PNGs under {out / 'png'}" if report.pngs else ""))
     return 0
+
+
+def _remove_new(png_dir, earlier: set, created: list) -> None:
+    """Remove the PNGs a failed run wrote (not those of an earlier run) and the folders it created, if empty."""
+    import contextlib
+
+    if png_dir is not None and png_dir.is_dir():
+        for path in set(png_dir.iterdir()) - earlier:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    for folder in reversed(created):
+        with contextlib.suppress(OSError):
+            folder.rmdir()

@@ -46,7 +46,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         " search ran slower on CUDA than on 2 CPU cores (its small Nelder-Mead batches are bound by kernel launches;"
         " results/bench/run_*nvidia-h200.md)",
     )
-    p.add_argument("--out", default=None, help="results CSV (default: cendernet-<heatmaps>_<dataset>-<split>.csv here)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="results CSV, named for the run's dataset and split (default: cendernet-<heatmaps>_<dataset>-<split>.csv here; split train_pbr: -train-pbr)",
+    )
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")
     p.add_argument(
         "--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K scenes of the split"

@@ -256,6 +256,12 @@ def _load_model_sets(
     eval_dir = root / layout.eval_models_dir
     if eval_dir.is_dir() and eval_dir != models_dir:
         eval_models = load_models(eval_dir)
+        missing = sorted(set(models) - set(eval_models))
+        if missing:  # every object a scene may show is scored on its evaluation model
+            raise DatasetError(
+                f"object(s) {missing} of {layout.models_dir}/ have no evaluation model (every model needs one)",
+                file=eval_dir / "models_info.json",
+            )
         notes.append(f"models: {layout.models_dir}/; evaluation models: {layout.eval_models_dir}/")
     else:
         eval_models = models

@@ -114,10 +114,14 @@ def choose_data(
     if sidecar is not None:
         origin.append(f"run sidecar {csv_path.with_suffix('.json').name}")
     root = data_root if data_root is not None else (sidecar or {}).get("data_root")
-    split_type = parsed.split_type if parsed is not None else None
     chosen_split = split or (sidecar or {}).get("split") or (parsed.split if parsed else None)
+    # the name's split type completes the name's split only (a sidecar's split is already the folder: test_primesense)
+    split_type = parsed.split_type if parsed is not None and chosen_split == parsed.split else None
     selection: dict[str, Any] = (sidecar or {}).get("selection", {})
     views = n_views if n_views is not None else selection.get("n_views")
+    if n_views is None and views is not None and (isinstance(views, bool) or not isinstance(views, int) or views < 1):
+        raise ResultsError(f"selection.n_views: expected a positive integer or null, got {views!r}",
+                           file=sidecar_path(csv_path))  # fmt: skip
     seed_value = seed if seed is not None else int((sidecar or {}).get("seed", 0))
     request = DatasetRequest(
         dataset=name, root=None if root is None else Path(root), split=chosen_split or None,

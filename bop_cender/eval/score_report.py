@@ -214,8 +214,10 @@ def read_scores_json(path: str | Path) -> dict[str, Any]:
         raise ResultsError(f"not a scores file: missing {', '.join(missing)}", file=path)
     for key in SCORE_KEYS:
         value = data[key]
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
-            raise ResultsError(f"expected a number or null, got {value!r}", file=path, field=key)
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0  # NaN too
+        ):
+            raise ResultsError(f"expected a recall in [0, 1] or null, got {value!r}", file=path, field=key)
     meta = data.get("metadata")
     if meta is not None and not isinstance(meta, dict):
         raise ResultsError(f"expected an object, got {type(meta).__name__}", file=path, field="metadata")

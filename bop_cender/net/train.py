@@ -509,7 +509,8 @@ def _diverged(config: TrainConfig, epoch: int, batches: int, batch: int, what: s
     kept = f"epoch {epoch}'s checkpoint stands" if epoch else "no checkpoint was written"
     return ConfigError(
         f"training diverged: {what} at epoch {epoch + 1}, batch {batch} of {batches}; nothing of this epoch was"
-        f" written ({kept}). Try a smaller --lr (this run: {config.lr:g})",
+        f" written ({kept}). Train again into another --out with a smaller --lr (this run: {config.lr:g}),"
+        " from --init-weights RUN/weights.pt to keep the epochs done",
         field="--lr",
     )
 
@@ -518,7 +519,7 @@ def random_crop(
     image: torch.Tensor, center: torch.Tensor, curvature: torch.Tensor, size: tuple[int, int], gen: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One random ``size`` window per sample, the same for the image and both targets (no crop where the image
-    is not larger). image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
+    is not larger; ``train`` refuses a crop larger than its images). image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
     B, _, H, W = image.shape
     h, w = min(size[0], H), min(size[1], W)
     top = torch.randint(0, H - h + 1, (B,), generator=gen).tolist()

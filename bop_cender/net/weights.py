@@ -138,7 +138,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
         # torch's own text (a paragraph on weights_only, "[Errno 22]") helps nobody: say what the file is
         raise ConfigError(
-            f"not a readable weights file: truncated, or not written by torch.save ({type(exc).__name__})", file=path
+            f"not a readable weights file: {_load_failure(exc)} ({type(exc).__name__})", file=path
         ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
@@ -237,6 +237,15 @@ def _check_finite(path: Path, state: Mapping[str, torch.Tensor]) -> None:
             " the training run that wrote it diverged)",
             file=path,
         )
+
+
+def _load_failure(exc: BaseException) -> str:
+    """What a failed ``torch.load(weights_only=True)`` most likely means, in a few words."""
+    if isinstance(exc, PermissionError):
+        return "permission denied"
+    if type(exc).__name__ == "UnpicklingError" and "weights_only" in str(exc).lower().replace(" ", "_"):
+        return "it holds objects other than tensors and plain values (not written by bop-cender)"
+    return "truncated, or not written by torch.save"
 
 
 def _first_line(exc: BaseException, lines: int = 1, limit: int = 200) -> str:

@@ -293,7 +293,7 @@ _POSE_BOUNDS = {
     "seed": Bound(0, integer=True),
     "edge_segment_mm": POSITIVE,
     "candidate_segments": COUNT,
-    "rerank": COUNT,
+    "rerank": COUNT_OR_ZERO,
     "start_separation_rad": NON_NEGATIVE,
     "polish_maxfev": COUNT_OR_ZERO,
     "coverage_weight": NON_NEGATIVE,

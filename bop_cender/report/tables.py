@@ -229,16 +229,23 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
         raise ConfigError(
             "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
         )
-    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.startswith("#")]
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
     records = []
     for n, rec in enumerate(csv.DictReader(lines), start=2):
         try:
-            float(rec["value"])
-            if not all(isinstance(rec[k], str) for k in ("dataset", "split", "method", "source", "metric")):
-                raise TypeError
+            if not 0.0 <= float(rec["value"]) <= 1.0:  # a recall; NaN too
+                raise ValueError
+            if None in rec or not all(
+                isinstance(rec[k], str) for k in ("dataset", "split", "method", "source", "metric")
+            ):
+                raise TypeError  # a missing column, or more columns than the header (csv keys them None)
         except (KeyError, TypeError, ValueError):
             raise ConfigError(
-                f"expected dataset,split,method,source,metric,value; bad row {n}", field=str(path)
+                f"expected dataset,split,method,source,metric,value (a recall in [0, 1]); bad row {n}", field=str(path)
             ) from None
         if rec["metric"] not in SCORE_KEYS:
             raise ConfigError(

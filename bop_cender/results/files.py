@@ -94,7 +94,11 @@ def name_contradiction(name: ResultName, dataset: str, split: str) -> str | None
     """
     if dataset != "bop" and name.dataset != dataset:
         return f"the file name says dataset {name.dataset!r}, the results are of {dataset!r}"
-    named = {name.split} if name.split_type is None else {name.split, f"{name.split}_{name.split_type}"}
+    # a split type names the folder {split}_{type}; an optional id after a split may be the rest of an underscore
+    # split (the default names before BOP's naming: cendernet-net_tless-train_pbr.csv)
+    named = {f"{name.split}_{name.split_type}"} if name.split_type else {name.split}
+    if name.split_type is None and name.optional_id:
+        named.add(f"{name.split}_{name.optional_id}")
     if split not in named:
         shown = name.split + (f"-{name.split_type}" if name.split_type else "")
         return f"the file name says split {shown!r}, the results are of {split!r}"

@@ -82,6 +82,17 @@ def test_models_folder_choice(tmp_path):
     assert any("no separate models_eval/" in n for n in ds.selection)
 
 
+def test_a_model_without_an_evaluation_model_is_refused(tmp_path):
+    """Scoring reads every shown object's evaluation model (diameter, symmetries): one missing is one error naming
+    models_eval/models_info.json when the dataset opens, not a KeyError in the middle of `score`."""
+    root = build_bop(tmp_path / "d", SMALL).root
+    info = json.loads((root / "models_eval" / "models_info.json").read_text())
+    del info["2"]
+    (root / "models_eval" / "models_info.json").write_text(json.dumps(info))
+    with pytest.raises(DatasetError, match=r"models_eval/models_info.json: object\(s\) \[2\] of models/ have no"):
+        open_bop(root, "test")
+
+
 def test_registry_opens_bop(built):
     ds = open_dataset(DatasetRequest("bop", built.root, "test"))
     assert ds.scene_keys == open_bop(built.root, "test").scene_keys

@@ -95,3 +95,20 @@ def test_run_with_network_weights_estimates_every_scene(root, weights, tmp_path,
     assert out.is_file() and f"next: bop-cender score {out.name}" in captured.out
     sidecar = json.loads(next(tmp_path.glob("*.json")).read_text())
     assert sidecar["extra"]["weights"] == str(weights) and sidecar["extra"]["heatmaps"] == "net"
+
+
+def test_a_failing_scene_leaves_no_pngs_behind(tmp_path, capsys) -> None:
+    """Scene 000001 has an image that does not decode: the error names it, and the PNGs of scene 000000 written
+    before it are removed (those of an earlier run in the same folder stay)."""
+    root = method_data.build(tmp_path / "dimo", n_scenes=2)
+    broken = sorted((root / "real_jaigo" / "000001" / "rgb").glob("*.png"))[0]
+    broken.write_bytes(broken.read_bytes()[:200])
+    argv = ["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", "oracle",
+            "--png", "--no-progress"]  # fmt: skip
+    assert main([*argv, "--out", str(tmp_path / "new")]) == 2
+    assert f"{broken}: cannot decode image" in capsys.readouterr().err and not (tmp_path / "new").exists()
+    old = tmp_path / "old" / "png" / "earlier.png"
+    old.parent.mkdir(parents=True)
+    old.write_bytes(b"x")
+    assert main([*argv, "--out", str(tmp_path / "old")]) == 2
+    assert sorted(p.name for p in old.parent.iterdir()) == ["earlier.png"]

@@ -104,7 +104,10 @@ def test_compare_rejects_other_inputs(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        ('{"AR": "x"}', "AR: expected a number or null"),
+        ('{"AR": "x"}', "AR: expected a recall in \\[0, 1\\] or null"),
+        ('{"AR_MSSD": NaN}', "AR_MSSD: expected a recall in \\[0, 1\\] or null, got nan"),
+        ('{"AR": 5.0}', "AR: expected a recall"),
+        ('{"AR": -0.3}', "AR: expected a recall"),
         ('{"metadata": [1]}', "metadata: expected an object"),
         ('{"metadata": {"method": 5}}', "metadata.method: expected a string"),
         ("{not json", "malformed JSON"),
@@ -164,6 +167,14 @@ def test_compare_checks_everything_before_writing_anything(small_fixture, result
     (results_dir / "ref.csv").write_text("dataset,split,method,source,metric,value\ntless,test,x,y,AR,high\n")
     assert main(["compare", str(good), "--reference", str(results_dir / "ref.csv"), *args]) == 2
     assert "bad row 2" in capsys.readouterr().err and not out.exists()
+    for bad_reference in (b"dataset,split,method,source,metric,value\ntless,test,x,y,AR,nan\n",  # not a recall
+                          b"dataset,split,method,source,metric,value\ntless,test,x,y,AR,7\n",
+                          b"dataset,split,method,source,metric,value\ntless,test,x,y,AR,0.5,extra\n",
+                          b"dataset,split,method,source,metric,value\ntless,test,x\xff,y,AR,0.5\n"):  # fmt: skip
+        (results_dir / "ref.csv").write_bytes(bad_reference)
+        assert main(["compare", str(good), "--reference", str(results_dir / "ref.csv"), *args]) == 2
+        err = capsys.readouterr().err
+        assert ("bad row 2" in err or "not UTF-8" in err) and "Traceback" not in err and not out.exists()
     (results_dir / "a_file").write_text("x")
     assert main(["compare", str(good), *args[:2], "--out", str(results_dir / "a_file")]) == 2
     assert "a_file: --out: exists and is not a directory" in capsys.readouterr().err
