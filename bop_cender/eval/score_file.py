@@ -95,6 +95,15 @@ def choose_data(
     parsed = _parse_name(csv_path)
     sidecar = read_run_sidecar(csv_path)
     origin = []
+    if dataset is not None and dataset != "bop" and parsed is not None and parsed.dataset != dataset:
+        said = (sidecar or {}).get("dataset")
+        if said in (None, parsed.dataset):  # the name (and the sidecar) say otherwise: a typo scores other data
+            raise ConfigError(
+                f"the file name{' and its run sidecar' if said else ''} say dataset {parsed.dataset!r}, not"
+                f" {dataset!r}: results of one dataset are not scored on another (rename the file if it is"
+                f" {dataset!r}'s)",
+                field="--dataset",
+            )
     if sidecar is not None and parsed is not None and dataset is None and split is None:
         contradiction = name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
         if contradiction is not None:  # renamed after the run: which data the rows belong to is not known

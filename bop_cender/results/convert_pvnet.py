@@ -82,6 +82,8 @@ def convert_pvnet(
         bad = sorted({r.obj_id for r in rows} - known)
         if bad:
             raise ResultsError(f"unknown object id(s) {bad}; known: {sorted(known)}", file=source, field="obj_id")
+    if not rows:  # a header-only CSV that `score` would refuse later: say it now, and write nothing
+        raise ResultsError("no estimates in it: nothing to convert", file=source)
     check_units(rows, source, diameters)
     write_bop_results(out_csv, rows)
     return rows

@@ -377,3 +377,17 @@ def test_perfect_results_need_no_explanation(small_fixture, results_dir, capsys)
     write_bop_results(csv_path, gt_rows(small_fixture))
     assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 0
     assert "why not 1" not in capsys.readouterr().out
+
+
+def test_score_refuses_a_dataset_option_that_contradicts_the_name(small_fixture, results_dir, capsys) -> None:
+    """`--dataset dimoo` (a typo) would open the folder with the generic BOP loader and print a meaningless score."""
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:1])
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0)
+    with pytest.raises(
+        ConfigError, match="--dataset: the file name and its run sidecar say dataset 'tless', not 'tlesss'"
+    ):
+        choose_data(csv_path, dataset="tlesss")
+    assert main(["score", str(csv_path), "--dataset", "lmo", "--no-progress"]) == 2
+    assert "say dataset 'tless', not 'lmo'" in capsys.readouterr().err
+    assert choose_data(csv_path, dataset="tless").request.dataset == "tless"

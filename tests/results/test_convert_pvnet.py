@@ -126,3 +126,15 @@ def test_a_non_finite_object_id_is_one_error(tmp_path: Path) -> None:
     src.write_text(f'{{"000001/3": [{entry}]}}')
     with pytest.raises(ResultsError, match=r"obj_id: expected a non-negative integer, got inf"):
         read_pvnet_json(src)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"), [("{}", "no estimates in it"), ("[]", "expected an object mapping image keys")]
+)
+def test_an_input_without_estimates_writes_nothing(tmp_path: Path, capsys, content: str, message: str) -> None:
+    """A header-only CSV would be refused by `score` later: the conversion refuses it now, naming the input."""
+    source = tmp_path / "empty.json"
+    source.write_text(content)
+    out = tmp_path / "pvnet_tless-test.csv"
+    assert main(["convert-pvnet", str(source), "--out", str(out)]) == 2
+    assert f"empty.json: {message}" in capsys.readouterr().err and not out.exists()
