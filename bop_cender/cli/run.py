@@ -108,7 +108,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bop_cender.data.registry import DEFAULT_SPLIT
-    from bop_cender.errors import ConfigError
     from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
     from bop_cender.results.files import default_result_filename
@@ -122,10 +121,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     device = str(resolve_device(args.device))
     pose_device = device if args.pose_device == "same" else str(resolve_device(args.pose_device, "--pose-device"))
     overrides = {}
-    for name, flag, value in (("n_candidates", "--candidates", args.candidates), ("top_k", "--top-k", args.top_k)):
+    for name, value in (("n_candidates", args.candidates), ("top_k", args.top_k)):  # count() refused < 1
         if value is not None:
-            if value < 1:
-                raise ConfigError(f"expected a positive number, got {value}", field=flag)
             overrides[name] = value
     if args.no_occlusion:
         overrides["occlusion"] = False

@@ -203,6 +203,11 @@ def write_score_files(scores_path: str | Path, errors_path: str | Path, report: 
     write_texts_atomic({errors_path: errors_csv_text(report), scores_path: scores_json_text(report)})
 
 
+def is_recall(value: object) -> bool:
+    """Whether ``value`` can be one of :data:`SCORE_KEYS`: a number in [0, 1] (every BOP score is a recall)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and 0.0 <= value <= 1.0  # NaN fails
+
+
 def read_scores_json(path: str | Path) -> dict[str, Any]:
     """A scores JSON written by :func:`write_scores_json`: the six score keys (numbers or null) and string metadata."""
     from bop_cender.errors import ResultsError
@@ -214,9 +219,7 @@ def read_scores_json(path: str | Path) -> dict[str, Any]:
         raise ResultsError(f"not a scores file: missing {', '.join(missing)}", file=path)
     for key in SCORE_KEYS:
         value = data[key]
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0  # NaN too
-        ):
+        if value is not None and not is_recall(value):
             raise ResultsError(f"expected a recall in [0, 1] or null, got {value!r}", file=path, field=key)
     meta = data.get("metadata")
     if meta is not None and not isinstance(meta, dict):

@@ -518,8 +518,10 @@ def _diverged(config: TrainConfig, epoch: int, batches: int, batch: int, what: s
 def random_crop(
     image: torch.Tensor, center: torch.Tensor, curvature: torch.Tensor, size: tuple[int, int], gen: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One random ``size`` window per sample, the same for the image and both targets (no crop where the image
-    is not larger; ``train`` refuses a crop larger than its images). image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
+    """One random ``size`` window per sample, the same for the image and both targets (no crop where the image is
+    not larger; ``train`` refuses a crop larger than its images).
+
+    image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
     B, _, H, W = image.shape
     h, w = min(size[0], H), min(size[1], W)
     top = torch.randint(0, H - h + 1, (B,), generator=gen).tolist()

@@ -29,6 +29,8 @@ FORMAT_VERSION = 1
 CURVATURE_THRESHOLD = "curvature_threshold"
 #: Key of the thresholds calibrated on the views of one split (camera / domain), by split name (optional).
 CURVATURE_THRESHOLD_BY_SPLIT = "curvature_threshold_by_split"
+#: Dataset kinds a weights file is trained for: one shared center channel (DIMO) or one per object id (T-LESS, BOP).
+KINDS = ("dimo", "tless")
 #: Shipped weights, by dataset: files in ``bop_cender/net/weights/`` (with a ``.json`` card beside each).
 SHIPPED = {"dimo": "dimo.pt", "tless": "tless.pt"}
 
@@ -203,8 +205,8 @@ def _check_channels(path: Path, spec: UNetSpec, kind: str, channel_obj_ids: tupl
     Raises:
         ConfigError: they do not (``malformed weights file``, naming the field).
     """
-    if kind not in SHIPPED:
-        raise ConfigError(f"malformed weights file (dataset: expected one of {', '.join(SHIPPED)}, got {kind!r})",
+    if kind not in KINDS:
+        raise ConfigError(f"malformed weights file (dataset: expected one of {', '.join(KINDS)}, got {kind!r})",
                           file=path)  # fmt: skip
     if kind == "dimo":
         problem = None if channel_obj_ids is None and spec.center_channels == 1 else (
@@ -233,8 +235,8 @@ def _check_finite(path: Path, state: Mapping[str, torch.Tensor]) -> None:
     if bad:
         more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
         raise ConfigError(
-            f"malformed weights file (state_dict: non-finite values (NaN or inf) in {bad[0]}{more};"
-            " the training run that wrote it diverged)",
+            f"malformed weights file (state_dict: non-finite values (NaN or inf) in {bad[0]}{more}:"
+            " was it written by a diverged training run?)",
             file=path,
         )
 

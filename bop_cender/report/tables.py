@@ -32,7 +32,7 @@ from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError
 from bop_cender.eval.score_file import ScoredFile, choose_data, method_name, score_file, write_scored
-from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
+from bop_cender.eval.score_report import SCORE_KEYS, is_recall, read_scores_json
 
 #: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
 #: installed package finds them (a copy of results/reference/paper_tables.csv, kept equal by a test).
@@ -237,7 +237,7 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
     records = []
     for n, rec in enumerate(csv.DictReader(lines), start=2):
         try:
-            if not 0.0 <= float(rec["value"]) <= 1.0:  # a recall; NaN too
+            if not is_recall(float(rec["value"])):
                 raise ValueError
             if None in rec or not all(
                 isinstance(rec[k], str) for k in ("dataset", "split", "method", "source", "metric")
