@@ -82,6 +82,14 @@ def test_a_directory_given_as_a_results_file_is_named_as_such(workdir: Path, cap
     assert err.startswith("error: x_dimo-real.csv: is a directory, expected a ") and err.count("\n") == 1, err
 
 
+def test_crosscheck_says_a_malformed_results_file_before_looking_for_the_toolkit(workdir: Path, capsys) -> None:
+    (workdir / "x_dimo-real.csv").write_text("scene_id,im_id,obj_id,score,R,t,time\n0,0,1,0.5,1 0 0,0 0 1,-1\n")
+    assert main(["crosscheck", "x_dimo-real.csv", "--toolkit", str(workdir / "no_toolkit")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: x_dimo-real.csv: 1 bad line(s)") and "line 2: R: expected 9 number(s)" in err
+    assert "crosscheck not run" not in err
+
+
 @pytest.mark.parametrize("flag", ["--device", "--pose-device"])
 def test_cuda_asked_for_without_a_cuda_device_is_one_clear_error(workdir: Path, capsys, flag: str) -> None:
     import torch

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -250,6 +251,16 @@ def test_a_failed_scene_is_reported_recorded_and_redone_by_resume(mini_root, ref
     with pytest.warns(ResultsWarning, match=r"the run failed on 1 scene\(s\) \(000001; see its sidecar\)"):
         scored = score_file(out, progress=False, write=False, render_process=False)
     assert any("count as misses" in n for n in scored.report.notes) and scored.report.metadata.counts.target_images == 8
+    from bop_cender.errors import ResultsError
+
+    for failed, message in (({"000009": "x"}, "names 1 scene(s) that are not among the 2 scored: 000009"),
+                            ({"000000": "x"}, "says the run failed on scene 000000, but cendernet-oracle_dimo-real.csv"
+                                              " has rows for")):  # fmt: skip
+        edited = {**sidecar, "extra": {**sidecar["extra"], "failed_scenes": failed}}
+        out.with_suffix(".json").write_text(json.dumps(edited))
+        with pytest.raises(ResultsError, match=re.escape("real.json: extra.failed_scenes: " + message)):
+            score_file(out, progress=False, write=False, render_process=False)
+    out.with_suffix(".json").write_text(json.dumps(sidecar))
     seen.clear()
     monkeypatch.setattr(method_module.CenDerNet, "run_scene", lambda self, scene: seen.append(scene.key)
                         or real_run_scene(self, scene))  # fmt: skip

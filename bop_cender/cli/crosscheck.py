@@ -41,8 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cmd_crosscheck(args: argparse.Namespace) -> int:
     from bop_cender.data.bop_io import check_output_dir, require_file
     from bop_cender.errors import ResultsError
+    from bop_cender.results.bop_csv import read_bop_results
 
-    require_file(args.results, "results file", ResultsError)  # said before whether the toolkit is there
+    require_file(args.results, "results file", ResultsError)
+    read_bop_results(args.results)  # a malformed file is said first, with or without the toolkit
     from bop_toolkit_adapters.crosscheck import (
         ToolkitUnavailable,
         crosscheck_file,

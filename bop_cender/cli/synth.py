@@ -49,13 +49,22 @@ def register(sub) -> None:
         default=None,
         help="dimo: viewpoints per scene (default 13); tless: images per test scene (default 10)",
     )
+    # The options of one layout default to None, so that one given with the other layout is refused, not ignored.
     p.add_argument(
-        "--variants", default="0,3,17,40", help="dimo: sim variant suffixes to write (0..70), comma-separated"
+        "--variants",
+        default=None,
+        help="dimo: sim variant suffixes to write (0..70), comma-separated (default 0,3,17,40)",
     )
-    p.add_argument("--carriers", default="2", help="dimo: carrier ids cycled over scenes (0..2)")
-    p.add_argument("--compositions", default="1,2,4", help="dimo: composition ids cycled over scenes (0..4)")
-    p.add_argument("--pbr-scenes", type=count("--pbr-scenes", 0), default=1, help="tless: train_pbr scenes")
-    p.add_argument("--pbr-images", type=count("--pbr-images"), default=4, help="tless: images per train_pbr scene")
+    p.add_argument("--carriers", default=None, help="dimo: carrier ids cycled over scenes (0..2; default 2)")
+    p.add_argument(
+        "--compositions", default=None, help="dimo: composition ids cycled over scenes (0..4; default 1,2,4)"
+    )
+    p.add_argument(
+        "--pbr-scenes", type=count("--pbr-scenes", 0), default=None, help="tless: train_pbr scenes (default 1)"
+    )
+    p.add_argument(
+        "--pbr-images", type=count("--pbr-images"), default=None, help="tless: images per train_pbr scene (default 4)"
+    )
     p.add_argument(
         "--seed", type=count("--seed", 0), default=0, help="draws the scenes, poses, light and materials (default 0)"
     )
@@ -91,6 +100,43 @@ def _ints(text: str, option: str) -> tuple[int, ...]:
     return values
 
 
+#: Each layout's own options (their ``args`` names) with their defaults.
+LAYOUT_OPTIONS = {
+    "dimo": {"variants": "0,3,17,40", "carriers": "2", "compositions": "1,2,4"},
+    "tless": {"pbr_scenes": 1, "pbr_images": 4},
+}
+
+
+def _layout_defaults(args: argparse.Namespace) -> None:
+    """Fill in the defaults of ``args.layout``'s own options; refuse an option of the other layout.
+
+    Raises:
+        ConfigError: e.g. ``--pbr-scenes`` with ``--layout dimo`` (``field``: the option).
+    """
+    for layout, options in LAYOUT_OPTIONS.items():
+        for name, default in options.items():
+            value = getattr(args, name)
+            if layout != args.layout and value is not None:
+                flag = "--" + name.replace("_", "-")
+                raise ConfigError(
+                    f"is a {layout} option; --layout {args.layout} does not use it (got {flag} {value})", field=flag
+                )
+            if layout == args.layout and value is None:
+                setattr(args, name, default)
+
+
+def _dimo_views_note(n_viewpoints: int) -> str:
+    """What ``--views`` other than DIMO's 13 means for the commands that read the set (the paper's selection)."""
+    from bop_cender.data.dimo import PAPER_SELECTION
+
+    kept = [v for v in PAPER_SELECTION.viewpoints if v < n_viewpoints]
+    return (
+        f"--views {n_viewpoints}: run, train and heatmaps read the paper's viewpoints "
+        f"{', '.join(map(str, PAPER_SELECTION.viewpoints))} of a DIMO scene, so they will use {len(kept)} of the "
+        f"{n_viewpoints} written per folder"
+    )
+
+
 def cmd_synth(args: argparse.Namespace) -> int:
     from bop_cender.synth.generate import generate
     from bop_cender.synth.record import check_output_folder
@@ -99,12 +145,15 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
     # Each number is checked as the command line is read (options.count); what is left needs several.
     if args.models_only:
-        if args.scenes:
-            raise ConfigError(f"--models-only writes no scene; got --scenes {args.scenes}", field="--scenes")
-        args.scenes, args.pbr_scenes = 0, 0
-    elif args.scenes is None:
+        for flag, value in (("--scenes", args.scenes), ("--pbr-scenes", args.pbr_scenes)):
+            if value:
+                raise ConfigError(f"--models-only writes no scene; got {flag} {value}", field=flag)
+        args.scenes = 0
+        args.pbr_scenes = 0 if args.layout == "tless" else None
+    _layout_defaults(args)
+    if args.scenes is None:
         raise ConfigError("required: the number of scenes (--models-only for the models alone)", field="--scenes")
-    elif args.scenes + (args.pbr_scenes if args.layout == "tless" else 0) < 1:
+    if not args.models_only and args.scenes + (args.pbr_scenes if args.layout == "tless" else 0) < 1:
         other = " or --pbr-scenes N" if args.layout == "tless" else ""
         raise ConfigError(
             f"a dataset with no scene: give --scenes N{other} (N >= 1), or --models-only for the models alone",
@@ -140,6 +189,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise ConfigError(str(e)) from None
     report = generate(args.layout, args.out, spec, workers=args.workers, announce=announce)
+    if args.layout == "dimo" and spec.n_viewpoints != 13:
+        announce(_dimo_views_note(spec.n_viewpoints))
     print(
         f"{report.layout} dataset at {report.root}: {report.written} scene folders written, "
         f"{report.skipped} already complete"

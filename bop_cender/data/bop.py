@@ -38,6 +38,7 @@ from bop_cender.data.bop_scene import (
 from bop_cender.data.layout import SCENE_CAMERA, TARGETS_FILE
 from bop_cender.data.models import load_models
 from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.data.targets_file import check_not_repeated
 from bop_cender.data.types import Dataset, ObjectModel
 from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
 
@@ -311,12 +312,14 @@ def _read_targets(
         raise DatasetError(f"expected a non-empty list of targets, got {got}", file=path)
     folders = {scene_folder_to_int(sid): sid for sid in index}
     selected: dict[str, set[int]] = {}
+    first: dict[tuple[int, int, int], int] = {}
     for i, entry in enumerate(entries):
         where = f"[{i}]"
         require_keys(entry, ("scene_id", "im_id", "obj_id"), path, where)
         scene_int = as_int(entry["scene_id"], path, f"{where}.scene_id")
         im_id = as_int(entry["im_id"], path, f"{where}.im_id")
         obj_id = as_int(entry["obj_id"], path, f"{where}.obj_id")
+        check_not_repeated(first, (scene_int, im_id, obj_id), i, path)
         if "inst_count" in entry and as_int(entry["inst_count"], path, f"{where}.inst_count") < 1:
             raise DatasetError(f"expected a positive inst_count, got {entry['inst_count']!r}", file=path, field=where)
         if scene_int not in folders:

@@ -102,15 +102,43 @@ def check_output_file(path: str | Path, field: str = "--out") -> Path:
 def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCenderError] = DatasetError) -> Any:
     """Load a JSON file; with ``keys_to_int`` turn digit keys of dicts into ints, as BOP does.
 
+    A key repeated in one object is refused: ``json`` would keep its last value and drop the others without a
+    word (two estimates of one image, a pose's ``score`` given twice). ``json.dump`` never writes one, so it
+    is always a hand edit or a broken writer. With ``keys_to_int``, ``"1"`` and ``"01"`` are the same key.
+
     Raises:
-        DatasetError (or ``error``): the file is missing, unreadable or not valid JSON (with line and column).
+        DatasetError (or ``error``): the file is missing, unreadable or not valid JSON (with line and column),
+            or an object repeats a key (``field``: the key).
     """
     text = read_text(path, error)
     try:
-        hook = _int_keys if keys_to_int else None
-        return json.loads(text, object_pairs_hook=hook)
+        return json.loads(text, object_pairs_hook=_int_keys if keys_to_int else _unique_keys)
     except json.JSONDecodeError as e:
         raise error(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=Path(path)) from None
+    except _RepeatedKey as e:
+        raise error(
+            f"a JSON object repeats the key {e.key!r} (only its last value would be read)",
+            file=Path(path),
+            field=str(e.key),
+        ) from None
+
+
+class _RepeatedKey(Exception):
+    def __init__(self, key: Any) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs: list[tuple[Any, Any]]) -> dict:
+    """A dict of ``pairs``, refusing a repeated key (:class:`_RepeatedKey`)."""
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen: set[Any] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise _RepeatedKey(key)
+            seen.add(key)
+    return out
 
 
 _INT_KEY = re.compile(r"-?[0-9]+")
@@ -118,8 +146,9 @@ _INT_KEY = re.compile(r"-?[0-9]+")
 
 def _int_keys(pairs: list[tuple[str, Any]]) -> dict:
     """Keys of ASCII digits (an optional minus) as ints; others (``"²"``, ``"--1"``, ``"٣"``) stay strings for the
-    caller to refuse by name (``str.isdigit`` takes ``"²"``, which ``int()`` refuses)."""
-    return {(int(k) if isinstance(k, str) and _INT_KEY.fullmatch(k) else k): v for k, v in pairs}
+    caller to refuse by name (``str.isdigit`` takes ``"²"``, which ``int()`` refuses). A key repeated (``"1"``
+    and ``"01"`` included) raises :class:`_RepeatedKey`."""
+    return _unique_keys([(int(k) if isinstance(k, str) and _INT_KEY.fullmatch(k) else k, v) for k, v in pairs])
 
 
 def _current_umask() -> int:

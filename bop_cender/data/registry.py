@@ -79,6 +79,7 @@ def open_dataset(request: DatasetRequest) -> Dataset:
     if loader == "dimo":
         from bop_cender.data.dimo import open_dimo
 
+        _refuse_bop_only_options(request)
         return open_dimo(root, split)
     if loader == "tless":
         from bop_cender.data.tless import open_tless
@@ -90,3 +91,23 @@ def open_dataset(request: DatasetRequest) -> Dataset:
         root, split, name=None if request.dataset == "bop" else request.dataset, n_views=request.n_views,
         seed=request.seed, model_type=request.model_type, split_type=request.split_type,
     )  # fmt: skip
+
+
+def _refuse_bop_only_options(request: DatasetRequest) -> None:
+    """DIMO has one models folder and its multi-view scenes are its folders' viewpoints: ``--model-type`` and
+    ``--n-views`` would be ignored there, and an ignored option is a run the user did not ask for.
+
+    Raises:
+        ConfigError: either is given (``field``: the option).
+    """
+    if request.model_type is not None:
+        raise ConfigError(
+            f"DIMO has one models folder (models/); --model-type {request.model_type} is for BOP layouts",
+            field="--model-type",
+        )
+    if request.n_views is not None:
+        raise ConfigError(
+            f"a DIMO scene is the viewpoints of its folder, not groups of --n-views {request.n_views} images; "
+            "--n-views is for BOP-layout test splits",
+            field="--n-views",
+        )

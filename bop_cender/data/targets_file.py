@@ -38,6 +38,7 @@ def read_targets(path: str | Path) -> list[Target]:
     if not isinstance(entries, list):
         raise DatasetError(f"expected a list of targets, got {type(entries).__name__}", file=path)
     targets = []
+    first: dict[tuple[int, int, int], int] = {}
     for i, entry in enumerate(entries):
         values = []
         for key in ("scene_id", "im_id", "obj_id", "inst_count"):
@@ -46,8 +47,29 @@ def read_targets(path: str | Path) -> list[Target]:
                 what = "a positive integer" if key == "inst_count" else "a non-negative integer"
                 raise DatasetError(f"expected {what}, got {value!r}", file=path, field=f"[{i}].{key}")
             values.append(value)
+        check_not_repeated(first, (values[0], values[1], values[2]), i, path)
         targets.append(Target(*values))
     return targets
+
+
+def check_not_repeated(
+    first: dict[tuple[int, int, int], int], key: tuple[int, int, int], index: int, path: Path
+) -> None:
+    """Refuse a second entry for one (scene, image, object): the toolkit's file has one, its ``inst_count`` the
+    number of instances; of two, one ``inst_count`` would be dropped without a word. ``first`` maps the keys
+    seen so far to their entry index (updated).
+
+    Raises:
+        DatasetError: ``field`` the repeated entry.
+    """
+    seen = first.setdefault(key, index)
+    if seen != index:
+        raise DatasetError(
+            f"repeats the target of scene {key[0]}, image {key[1]}, object {key[2]} (first at [{seen}]): one entry per"
+            " image and object, whose inst_count is its number of instances",
+            file=path,
+            field=f"[{index}]",
+        )
 
 
 def write_targets(path: str | Path, targets: Iterable[Target]) -> None:

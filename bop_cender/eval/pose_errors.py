@@ -275,9 +275,11 @@ def re(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
 
 
 def te(t_est: np.ndarray, t_gt: np.ndarray) -> np.ndarray:
-    """Translation error (mm) ``||t_g - t_e||``: ``(E, 3)`` -> ``(E,)``."""
+    """Translation error (mm) ``||t_g - t_e||``: ``(E, 3)`` -> ``(E,)``; inf for a translation so large (1e300 mm,
+    finite in a CSV) that its square overflows: the estimate is infinitely far, said without a NumPy warning."""
     d = np.asarray(t_gt, dtype=np.float64).reshape(-1, 3) - np.asarray(t_est, dtype=np.float64).reshape(-1, 3)
-    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    with np.errstate(over="ignore"):
+        return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
 
 
 def spheres_overlap(t_est: np.ndarray, t_gt: np.ndarray, diameter: float) -> np.ndarray:

@@ -28,6 +28,7 @@ from typing import Any
 
 from bop_cender.data.bop_io import check_output_dir, require_file
 from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 from bop_cender.eval.render_process import RenderProcess, render_process_useful
@@ -217,6 +218,7 @@ def score_file(
     report.timings.update(read_results=read - clock, open_dataset=opened - read)
     report = replace(report, metadata=replace(report.metadata, data_origin=choice.origin, method=method_name(csv_path)))
     check_matching(report, csv_path, choice)
+    check_failed_scenes(choice.failed_scenes, ds, rows, csv_path)
     if choice.failed_scenes:
         shown = ", ".join(choice.failed_scenes[:5]) + (" ..." if len(choice.failed_scenes) > 5 else "")
         message = (
@@ -273,6 +275,37 @@ def check_matching(report: ScoreReport, csv_path: Path, choice: DataChoice) -> N
     )
     report.notes.append(message)
     warnings.warn(f"{csv_path}: {message}", ResultsWarning, stacklevel=3)
+
+
+def check_failed_scenes(failed: tuple[str, ...], ds: Dataset, rows: list, csv_path: Path) -> None:
+    """Refuse a sidecar whose failed scenes do not belong to the file: scenes outside the scored split, or
+    scenes the CSV has rows for (a run writes none for a scene it failed on; the note that their targets
+    count as misses would then be false).
+
+    Raises:
+        ResultsError: naming the sidecar and ``extra.failed_scenes``.
+    """
+    if not failed:
+        return
+    where = {"file": sidecar_path(csv_path), "field": "extra.failed_scenes"}
+    unknown = [k for k in failed if k not in set(ds.scene_keys)]
+    if unknown:
+        raise ResultsError(
+            f"names {len(unknown)} scene(s) that are not among the {len(ds.scene_keys)} scored: "
+            f"{', '.join(unknown[:5])}",
+            **where,
+        )
+    images = {(r.scene_id, r.im_id) for r in rows}
+    for key in failed:
+        scene = ds.scene(key)
+        scene_int = scene_folder_to_int(scene.scene_id)
+        n = sum((scene_int, im) in images for im in scene.im_ids)
+        if n:
+            raise ResultsError(
+                f"says the run failed on scene {key}, but {csv_path.name} has rows for {n} of its images: "
+                "the sidecar is not this file's",
+                **where,
+            )
 
 
 def restrict_scenes(ds: Dataset, keys: tuple[str, ...] | None, csv_path: Path) -> Dataset:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bop_cender.data.layout import TARGETS_FILE
 from bop_cender.data.types import Dataset, ObjectModel
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
@@ -165,8 +166,9 @@ def gather(
     meshes = MeshCache(models)
     clock = time.perf_counter()
     targets = resolve_targets(
-        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress)
-    )
+        dataset.bop19_targets(), gt, dataset.target_obj_ids, lambda: rendered_visib_fracts(list(gt), meshes, progress),
+        targets_path=dataset.root / TARGETS_FILE,
+    )  # fmt: skip
     timings["targets"] = time.perf_counter() - clock
     return Gathered(gt, unselected, models, meshes, targets)
 

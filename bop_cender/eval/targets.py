@@ -15,9 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from bop_cender.data.layout import MIN_VISIB_FRACT, TARGETS_FILE
 from bop_cender.data.targets_file import Target
+from bop_cender.errors import DatasetError
 from bop_cender.eval.ground_truth import GroundTruth, ImageGt
 
 SOURCE_FILE = "file"
@@ -51,6 +53,7 @@ def resolve_targets(
     gt: GroundTruth,
     target_obj_ids: Iterable[int],
     render_visib: Callable[[], VisibFracts],
+    targets_path: Path | None = None,
 ) -> TargetSet:
     """Targets of the loaded images: from the targets file, else by the visibility rule (see module doc).
 
@@ -59,11 +62,16 @@ def resolve_targets(
         gt: the loaded images.
         target_obj_ids: objects that can be targets (DIMO carriers are not).
         render_visib: computes rendered visible fractions; called only when nothing else is available.
+        targets_path: the file ``file_targets`` came from (named in errors).
+
+    Raises:
+        DatasetError: a file target asks for more instances than its image's ground truth has.
     """
     targetable = set(target_obj_ids)
     stored = stored_visib(gt)
     if file_targets is not None:
         targets = [t for t in file_targets if (t.scene_id, t.im_id) in gt.images]
+        check_against_ground_truth(targets, gt, targets_path)
         visib = stored if stored is not None else render_visib()  # valid GTs are the most visible ones
         return TargetSet(targets, SOURCE_FILE, f"targets from {TARGETS_FILE}: {_count(targets)}", visib)
     if stored is not None:
@@ -78,6 +86,26 @@ def resolve_targets(
         f" the object rendered alone): {_count(targets)}"
     )
     return TargetSet(targets, SOURCE_RENDERED, note, visib)
+
+
+def check_against_ground_truth(targets: list[Target], gt: GroundTruth, path: Path | None) -> None:
+    """Refuse a target whose ``inst_count`` exceeds its object's GT instances in the image (the toolkit's rule
+    counts the instances with visib_fract >= 0.1, never more): the file is not this dataset's, or damaged, and
+    the top-``inst_count`` cut would keep estimates that no instance can match.
+
+    Raises:
+        DatasetError: naming the file and the target.
+    """
+    for t in targets:
+        image = gt.images[(int(t.scene_id), t.im_id)]
+        n = sum(g.obj_id == t.obj_id for g in image.instances)
+        if t.inst_count > n:
+            raise DatasetError(
+                f"the target of scene {t.scene_id}, image {t.im_id}, object {t.obj_id} has inst_count {t.inst_count},"
+                f" but the image's ground truth has {n} instance(s) of that object",
+                file=path if path is not None else TARGETS_FILE,
+                field="inst_count",
+            )
 
 
 def stored_visib(gt: GroundTruth) -> VisibFracts | None:

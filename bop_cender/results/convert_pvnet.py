@@ -45,6 +45,8 @@ METRES_TO_MM = 1000.0
 _FLAT = re.compile(r"^(?P<scene>\d+(?:_\d{2})?)_(?P<im>\d+)_(?P<obj>\d+)$")
 _IN_SCENE = re.compile(r"^(?P<im>\d+)_(?P<obj>\d+)$")
 _IMAGE_FOLDERS = {"rgb", "gray", "depth", "images", "image"}
+#: The fields of one estimate in the JSON form; any other (``Score``, ``scor``) is refused, not ignored.
+ENTRY_FIELDS = ("obj_id", "pose", "score", "time")
 
 
 def convert_pvnet(
@@ -174,6 +176,13 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             where = f"{key}[{i}]"
             if not isinstance(entry, dict) or "obj_id" not in entry or "pose" not in entry:
                 raise ResultsError("expected an object with obj_id and pose (3x4, t in metres)", file=path, field=where)
+            unknown = sorted(set(entry) - set(ENTRY_FIELDS))
+            if unknown:
+                raise ResultsError(
+                    f"unknown field(s) {', '.join(map(repr, unknown))}; an estimate has {', '.join(ENTRY_FIELDS)}",
+                    file=path,
+                    field=where,
+                )
             obj_id = _int(entry["obj_id"], path, f"{where}.obj_id")
             score = _number(entry.get("score", 1.0), path, f"{where}.score")
             time_s = _number(entry.get("time", -1.0), path, f"{where}.time")
@@ -216,6 +225,8 @@ def _scene(name: str, path: Path, field: str) -> int:
 
 def _poses(value: Any, path: Path, field: str) -> list[np.ndarray]:
     """``(3, 4)`` or ``(N, 3, 4)`` finite float64 poses (bools refused: NumPy would read them as 0 / 1)."""
+    if isinstance(value, np.ndarray) and np.iscomplexobj(value):  # NumPy would drop the imaginary parts, warning
+        raise ResultsError("expected real numbers in a 3x4 [R | t] pose, got complex ones", file=path, field=field)
     try:
         if has_bool(value):
             raise TypeError("a bool is not a number")

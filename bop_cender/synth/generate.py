@@ -32,6 +32,7 @@ from bop_cender.synth.models_info import model_folders_complete
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.record import check_or_write_record
+from bop_cender.synth.resume_check import FolderShape, check_done_folder
 
 
 class SynthLayout(Protocol):
@@ -58,6 +59,9 @@ class SynthLayout(Protocol):
 
     def job_folders(self, root: Path, spec: Any, job: Any) -> list[Path]:
         """The scene folders one job writes."""
+
+    def folder_shape(self, spec: Any, job: Any, folder: Path) -> FolderShape:
+        """What ``spec`` fixes about ``folder`` (one of the job's), checked against it when it is done."""
 
     def finish(self, root: Path, spec: Any) -> int | None:
         """Write what needs every scene (T-LESS: the BOP'19 targets); the number of targets, None if none."""
@@ -86,6 +90,11 @@ class DimoLayout:
     def job_folders(self, root: Path, spec: write_dimo.DimoSpec, job: int) -> list[Path]:
         return write_dimo.job_folders(root, spec, job)
 
+    def folder_shape(self, spec: write_dimo.DimoSpec, job: int, folder: Path) -> FolderShape:
+        carrier, composition = write_dimo.scene_carrier_and_composition(spec, job)
+        info = {"carrier": (carrier, "--carriers"), "parts": (composition, "--compositions")}
+        return FolderShape(spec.n_viewpoints, "--views", info)
+
     def finish(self, root: Path, spec: write_dimo.DimoSpec) -> int | None:
         return None  # DIMO has no targets file
 
@@ -112,6 +121,11 @@ class TlessLayout:
 
     def job_folders(self, root: Path, spec: write_tless.TlessSpec, job: tuple[str, int]) -> list[Path]:
         return write_tless.job_folders(root, job)
+
+    def folder_shape(self, spec: write_tless.TlessSpec, job: tuple[str, int], folder: Path) -> FolderShape:
+        if job[0] == "test":
+            return FolderShape(spec.n_views, "--views")
+        return FolderShape(spec.pbr_images, "--pbr-images")
 
     def finish(self, root: Path, spec: write_tless.TlessSpec) -> int | None:
         return write_tless.write_targets(root) if spec.n_scenes > 0 else None
@@ -197,7 +211,12 @@ def generate(
     root.mkdir(parents=True, exist_ok=True)
     check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
     jobs = impl.scene_jobs(spec)
-    pending = {i: sum(not scene_done(p) for p in impl.job_folders(root, spec, job)) for i, job in enumerate(jobs)}
+    pending = {}
+    for i, job in enumerate(jobs):
+        done = [p for p in impl.job_folders(root, spec, job) if scene_done(p)]
+        for folder in done:  # before anything is written, as the record's check
+            check_done_folder(folder, impl.folder_shape(spec, job, folder))
+        pending[i] = len(impl.job_folders(root, spec, job)) - len(done)
     todo = [jobs[i] for i, n in pending.items() if n]
     folders, to_write = sum(len(impl.job_folders(root, spec, job)) for job in jobs), sum(pending.values())
     if announce is not None and to_write < folders:

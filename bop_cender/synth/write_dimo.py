@@ -123,6 +123,11 @@ def scene_jobs(spec: DimoSpec) -> list[int]:
     return list(range(spec.n_scenes))
 
 
+def scene_carrier_and_composition(spec: DimoSpec, s: int) -> tuple[int, int]:
+    """The carrier id and composition id of scene number ``s``: ``spec.carriers`` and ``spec.compositions`` cycled."""
+    return spec.carriers[s % len(spec.carriers)], spec.compositions[s % len(spec.compositions)]
+
+
 def job_folders(root: Path, spec: DimoSpec, s: int) -> list[Path]:
     """The scene folders of scene number ``s``: ``real_jaigo/{s:06d}`` and ``sim_jaigo/{s:06d}_{v:02d}``."""
     real = [Path(root) / "real_jaigo" / f"{s:06d}"] if spec.write_real else []
@@ -143,8 +148,7 @@ def write_scene(
     about a second, more than rendering its views): a resumed run does no work for a finished folder.
     """
     rng = np.random.default_rng([spec.seed, s])
-    composition = spec.compositions[s % len(spec.compositions)]
-    carrier = spec.carriers[s % len(spec.carriers)]
+    carrier, composition = scene_carrier_and_composition(spec, s)
     light_id = int(rng.integers(0, N_LIGHT_SETUPS))
     part_ids = [i for i in models if i < CARRIER_MIN_ID]
     type_index = int(rng.integers(0, len(part_ids)))

@@ -51,6 +51,19 @@ def test_json_errors_name_file_and_position(tmp_path):
         load_json(tmp_path / "bad.json")
 
 
+@pytest.mark.parametrize(
+    ("text", "keys_to_int", "key"),
+    [('{"a": 1, "a": 2}', False, "a"), ('{"0": {"x": 1, "x": 1}}', True, "x"), ('{"1": [], "01": []}', True, "1")],
+)
+def test_a_repeated_json_key_is_refused_not_dropped(tmp_path, text, keys_to_int, key):
+    (tmp_path / "dup.json").write_text(text)
+    with pytest.raises(DatasetError, match=f"dup.json: {key}: a JSON object repeats the key") as info:
+        load_json(tmp_path / "dup.json", keys_to_int=keys_to_int)
+    assert info.value.field == key
+    (tmp_path / "ok.json").write_text('{"a": {"a": 1}, "b": {"a": 2}}')  # one key per object is fine
+    assert load_json(tmp_path / "ok.json") == {"a": {"a": 1}, "b": {"a": 2}}
+
+
 def test_atomic_path_leaves_nothing_on_error(tmp_path):
     target = tmp_path / "out.txt"
     with pytest.raises(RuntimeError), atomic_path(target) as tmp:

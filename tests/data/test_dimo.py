@@ -389,3 +389,11 @@ def test_missing_camera_folder(tmp_path):
     with pytest.raises(DatasetError) as exc:
         open_dimo(tmp_path, "sim")
     assert exc.value.file.endswith("sim_jaigo") and "camera folder not found" in str(exc.value)
+
+
+@pytest.mark.parametrize(("option", "value"), [("model_type", "eval"), ("n_views", 3)])
+def test_registry_refuses_bop_only_options_on_dimo(option, value):
+    with pytest.raises(ConfigError) as exc:
+        open_dataset(DatasetRequest("dimo", HAND, "real", **{option: value}))
+    assert exc.value.field == "--" + option.replace("_", "-")
+    assert "DIMO" in str(exc.value)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -200,3 +202,58 @@ def test_ground_truth_is_what_the_loader_read(small_dataset) -> None:
             for im, g in obj.gt_ids.items():
                 entry = stored[str(im)][g]
                 assert np.array_equal(obj.T_cam_model[im], pose_from_bop(entry["cam_R_m2c"], entry["cam_t_m2c"]))
+
+
+def test_a_targets_file_that_asks_for_more_instances_than_the_ground_truth_is_refused(small_fixture, tmp_path) -> None:
+    """inst_count above its object's GT instances in the image: not this dataset's targets (or damaged); the
+    top-n cut would keep estimates no instance can match. One error naming the file, at scoring."""
+    import shutil
+
+    from bop_cender.data.layout import TARGETS_FILE
+    from bop_cender.errors import DatasetError
+    from bop_cender.eval.score_file import score_file
+
+    root = tmp_path / "tless"
+    shutil.copytree(small_fixture.root, root)
+    targets = json.loads((root / TARGETS_FILE).read_text())
+    targets[0]["inst_count"] += 5
+    (root / TARGETS_FILE).write_text(json.dumps(targets))
+    csv = tmp_path / "m_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture))
+    with pytest.raises(DatasetError, match=f"{TARGETS_FILE}: inst_count: the target of scene") as info:
+        score_file(csv, data_root=root, progress=False, write=False, render_process=False)
+    assert "instance(s) of that object" in str(info.value)
+
+
+def test_a_repeated_target_is_refused_when_the_dataset_opens(small_fixture, tmp_path) -> None:
+    import shutil
+
+    from bop_cender.data.layout import TARGETS_FILE
+    from bop_cender.data.targets_file import read_targets
+    from bop_cender.errors import DatasetError
+
+    root = tmp_path / "tless"
+    shutil.copytree(small_fixture.root, root)
+    targets = json.loads((root / TARGETS_FILE).read_text())
+    (root / TARGETS_FILE).write_text(json.dumps([*targets, targets[0]]))
+    message = rf"{TARGETS_FILE}: \[{len(targets)}\]: repeats the target of scene .* \(first at \[0\]\)"
+    with pytest.raises(DatasetError, match=message):
+        open_dataset(DatasetRequest("tless", root, "test"))
+    with pytest.raises(DatasetError, match=message):
+        read_targets(root / TARGETS_FILE)
+
+
+@pytest.mark.parametrize("t", [1e300, -1e200, 1e154])
+def test_a_finite_but_absurd_translation_is_a_miss_without_numpy_warnings(small_fixture, small_dataset, t) -> None:
+    """t = 1e300 mm is a finite number in a CSV; every error of it is infinite (a miss), said without overflow
+    warnings leaking out of MSSD, MSPD or VSD."""
+    import warnings
+
+    base = gt_rows(small_fixture)
+    first = base[0]
+    absurd = row(first.scene_id, first.im_id, first.obj_id, 1.0, np.c_[first.R, np.full(3, t)], 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report = score_results([absurd, *base[1:]], small_dataset, progress=False)
+    assert report.mssd_recalls[-1] == pytest.approx((len(base) - 1) / len(base), abs=0)
+    assert report.vsd_recalls is not None and np.nanmax(report.vsd_recalls) < 1.0

@@ -61,6 +61,7 @@ def test_json_with_image_paths_scores_and_times(tmp_path: Path) -> None:
         ("000001_42.npy", pose([0, 0, 1]), "expected {scene}_{im_id}_{obj_id}.npy"),
         ("000001_000042_000005.npy", np.zeros((3, 3)), "expected a 3x4 pose"),
         ("000001_000042_000005.npy", np.concatenate([2 * R, np.zeros((3, 1))], 1), "not a rotation"),
+        ("000001_000042_000005.npy", pose([0, 0, 1]) + 1e-3j, "expected real numbers .* got complex ones"),
     ],
 )
 def test_bad_inputs_name_the_file(tmp_path: Path, name: str, content: np.ndarray, message: str) -> None:
@@ -138,3 +139,21 @@ def test_an_input_without_estimates_writes_nothing(tmp_path: Path, capsys, conte
     out = tmp_path / "pvnet_tless-test.csv"
     assert main(["convert-pvnet", str(source), "--out", str(out)]) == 2
     assert f"empty.json: {message}" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('{{"000001/3": [{e}], "000001/3": [{e}]}}', "repeats the key '000001/3'"),
+        ('{{"000001/3": [{{"obj_id": 5, "obj_id": 6, "pose": {p}}}]}}', "repeats the key 'obj_id'"),
+        ('{{"000001/3": [{{"obj_id": 5, "pose": {p}, "Score": 0.2}}]}}', r"000001/3\[0\]: unknown field\(s\) 'Score'"),
+    ],
+)
+def test_json_input_that_would_lose_a_value_is_refused(tmp_path: Path, text: str, message: str) -> None:
+    """A repeated key (json keeps the last value) or a misspelled field (score 1.0 in its place) is one error."""
+    p = json.dumps(pose([0, 0, 0.5]).tolist())
+    src = tmp_path / "pvnet.json"
+    src.write_text(text.format(e=json.dumps({"obj_id": 5, "pose": pose([0, 0, 0.5]).tolist()}), p=p))
+    with pytest.raises(ResultsError, match=message) as info:
+        read_pvnet_json(src)
+    assert "pvnet.json" in info.value.format()

@@ -77,6 +77,12 @@ def test_negative_seeds_are_refused(tmp_path: Path, capsys, flag: str) -> None:
         (["--layout", "tless", "--scenes", "1", "--workers", "0"], "--workers: must be >= 1, got 0"),
         (["--layout", "tless", "--scenes", "1", "--pbr-images", "-3"], "--pbr-images: must be >= 1, got -3"),
         (["--layout", "tless", "--scenes", "x"], "--scenes: expected an integer, got 'x'"),
+        (["--layout", "tless", "--models-only", "--pbr-scenes", "2"], "--pbr-scenes: --models-only writes no scene"),
+        (["--layout", "dimo", "--scenes", "1", "--pbr-scenes", "2"], "--pbr-scenes: is a tless option; --layout dimo"),
+        (["--layout", "dimo", "--scenes", "1", "--pbr-images", "2"], "--pbr-images: is a tless option; --layout dimo"),
+        (["--layout", "tless", "--scenes", "1", "--variants", "0"], "--variants: is a dimo option; --layout tless"),
+        (["--layout", "tless", "--scenes", "1", "--carriers", "1"], "--carriers: is a dimo option; --layout tless"),
+        (["--layout", "tless", "--scenes", "1", "--compositions", "1"], "--compositions: is a dimo option"),
     ],
 )
 def test_numbers_that_make_no_dataset_are_refused(tmp_path: Path, capsys, argv: list[str], message: str) -> None:
@@ -127,3 +133,42 @@ def test_appearance_choices_are_the_styles_appearances() -> None:
     synth = build_parser()._subparsers._group_actions[0].choices["synth"]
     action = next(a for a in synth._actions if a.dest == "appearance")
     assert tuple(action.choices) == APPEARANCES and action.default == APPEARANCES[0]
+
+
+def tiny(layout: str, out: Path, *extra: str) -> list[str]:
+    return ["synth", "--layout", layout, "--out", str(out), "--scenes", "1", "--no-contact-sheets", *extra]
+
+
+@pytest.mark.parametrize(
+    ("layout", "first", "resumed", "file", "field"),
+    [
+        ("tless", ["--views", "2", "--pbr-scenes", "0"], ["--views", "3", "--pbr-scenes", "0"], "scene_camera", "--views"),
+        ("dimo", ["--views", "2", "--variants", "0"], ["--views", "3", "--variants", "0"], "scene_camera", "--views"),
+        ("dimo", ["--views", "1", "--variants", "0"], ["--views", "1", "--variants", "0", "--carriers", "1"],
+         "scene_info", "--carriers"),
+        ("dimo", ["--views", "1", "--variants", "0"], ["--views", "1", "--variants", "0", "--compositions", "0"],
+         "scene_info", "--compositions"),
+    ],
+)  # fmt: skip
+def test_a_resume_that_would_write_the_done_folders_otherwise_is_refused(
+    tmp_path: Path, capsys, layout, first, resumed, file, field
+) -> None:
+    """The done folders' own files are the check (no record field): another view count, carrier or
+    composition would mix two datasets, and nothing is written."""
+    out = tmp_path / "ds"
+    assert main(tiny(layout, out, *first)) == 0
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    capsys.readouterr()
+    assert main(tiny(layout, out, *resumed)) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"{file}.json: {field}: this done scene folder has" in err and "resuming would mix two datasets" in err
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+    assert main(tiny(layout, out, *first)) == 0  # the options it was made with resume it
+
+
+def test_dimo_views_other_than_13_say_what_the_readers_use(tmp_path: Path, capsys) -> None:
+    assert main(tiny("dimo", tmp_path / "ds", "--views", "5", "--variants", "0")) == 0
+    err = capsys.readouterr().err
+    assert "--views 5: run, train and heatmaps read the paper's viewpoints 0, 2, 4, 6, 8, 10, 12" in err
+    assert "they will use 3 of the 5 written per folder" in err
