@@ -8,7 +8,7 @@ its time, ``results/bench/``). Here the same arithmetic runs as one loop (numba,
 disk): per canvas, each edge's facing test, then the drawn edges' segments sampled, looked up and summed in
 registers, with nothing allocated per segment. With more than one torch thread the canvases are spread over
 them, each canvas summed by one thread in a fixed order: the same bits for any thread count
-(:mod:`bop_cender.pose.numba_loops`: why one thread runs a serial compilation).
+(:mod:`bop_cender.render.numba_loops`: why one thread runs a serial compilation).
 
 The arithmetic is that of the torch layouts (``edge_cost._canvas_costs`` and ``_segment_weights``, module
 docstring of :mod:`bop_cender.pose.edge_cost`), in float64 instead of float32: the costs agree to float32
@@ -28,7 +28,7 @@ import numba
 import numpy as np
 import torch
 
-from bop_cender.pose.numba_loops import as_numpy, canvas_loop
+from bop_cender.render.numba_loops import as_numpy, canvas_loop
 
 if TYPE_CHECKING:
     from bop_cender.pose.edge_cost import EdgeModel

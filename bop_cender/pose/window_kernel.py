@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from bop_cender.pose.cost import distance_map
-from bop_cender.pose.numba_loops import as_numpy as _np
-from bop_cender.pose.numba_loops import canvas_loop
+from bop_cender.render.numba_loops import as_numpy as _np
+from bop_cender.render.numba_loops import canvas_loop
 
 
 @canvas_loop

@@ -128,14 +128,8 @@ def rasterize(
     all_in_front = bool(z.amin() >= near)
     px, py = project_vertices(verts, K, near)
 
-    # 2. Cull: n . X0 = n . x0 + n . (R^T t) is the signed distance from the camera to the face's plane.
-    tau = torch.einsum("cimj,cim->cij", R, t)  # (C, I, 3): R^T t per instance
-    planes = mesh.face_planes
-    if face_instance is None:
-        facing = torch.addmm(planes[:, 3], tau[:, 0], planes[:, :3].T)  # (C, F)
-    else:
-        facing = (tau[:, face_instance] * planes[:, :3]).sum(-1) + planes[:, 3]
-    draw = facing < -_EDGE_ON
+    # 2. Cull back faces and faces seen edge-on.
+    draw = front_faces(mesh, R, t)
     if not all_in_front:
         behind = (z < near).reshape(-1)
         corner_behind = behind[(torch.arange(C, device=device)[:, None, None] * N + mesh.faces).reshape(-1)]
@@ -205,6 +199,20 @@ def rasterize(
         x,
         y,
     )
+
+
+def front_faces(mesh: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """``(C, F)`` bool: the faces drawn in each canvas, neither back faces nor seen edge-on (their plane closer than
+    ``_EDGE_ON`` mm to the camera centre). ``n . X0 = n . x0 + n . (R^T t)`` is the signed distance from the
+    camera to the face's plane. ``R (C, I, 3, 3)``, ``t (C, I, 3)`` as :func:`rasterize` takes them."""
+    tau = torch.einsum("cimj,cim->cij", R, t)  # (C, I, 3): R^T t per instance
+    planes = mesh.face_planes
+    face_instance = getattr(mesh, "face_instance", None)
+    if face_instance is None:
+        facing = torch.addmm(planes[:, 3], tau[:, 0], planes[:, :3].T)  # (C, F)
+    else:
+        facing = (tau[:, face_instance] * planes[:, :3]).sum(-1) + planes[:, 3]
+    return facing < -_EDGE_ON
 
 
 def camera_vertices(mesh: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:

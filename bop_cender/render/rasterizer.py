@@ -114,6 +114,7 @@ def render_scene(
     height: int,
     width: int,
     near: float = DEFAULT_NEAR,
+    compiled: bool | None = None,
 ) -> SceneRender:
     """Render M objects (each its own mesh) together in V views, with occlusion between them.
 
@@ -123,6 +124,9 @@ def render_scene(
         K: ``(V, 3, 3)`` intrinsics.
         height, width: image size.
         near: near plane (mm); nothing closer is drawn.
+        compiled: on the CPU, render with the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same
+            bits, without the torch pipeline's fixed cost of about 2,000 operators a call); None (default): on the
+            CPU, unless a vertex is behind the near plane (the torch pipeline cuts faces there).
 
     Returns:
         Depth, normals, instance and face maps ``(V, H, W, ...)``.
@@ -138,6 +142,14 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
+    if (compiled if compiled is not None else device.type == "cpu") and V > 0:
+        from bop_cender.render.compiled_raster import render_compiled  # numba: imported where it is used
+
+        maps = render_compiled(packed, R, t, Ks, height, width, near)
+        if maps is not None:
+            return SceneRender(*maps, packed.face_instance, packed.face_local)
+        if compiled:
+            raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
     chunks = _chunks(V, max(1, DEFAULT_CHUNK_PIXELS // (height * width)))
     # one chunk: its maps are the maps (no copy)
     merged = None if len(chunks) == 1 and V > 0 else _empty_maps(V, height, width, device)

@@ -1,4 +1,4 @@
-"""What stage 3's compiled CPU loops share: one loop compiled twice (serial and threaded), NumPy views of tensors.
+"""What the compiled CPU loops share (the renderer's and stage 3's): one loop compiled twice (serial and threaded), NumPy views of tensors.
 
 Why two compilations. A loop over canvases written with ``numba.prange`` can run on threads, but numba's OpenMP
 pool, once started, keeps its idle threads spinning between parallel regions; stage 3 calls its loops thousands
@@ -18,17 +18,22 @@ import numpy as np
 import torch
 
 
-def canvas_loop(py_func: Callable) -> Callable:
+def canvas_loop(py_func: Callable | None = None, *, error_model: str = "python") -> Callable:
     """``py_func`` (a loop over canvases with ``numba.prange``) compiled serial and threaded; the returned function
     runs the serial one where torch uses one thread, else the threaded one on torch's thread count (at most
     numba's). The serial version is cached on disk (numba's cache beside this package, or the user's cache
     folder where that is read-only; compiled in each process where neither is writable); the threaded one is compiled on first use in a process (not cached: the
-    cache's index does not tell the two compilations of one function apart)."""
+    cache's index does not tell the two compilations of one function apart).
+
+    ``error_model``: numba's (``"numpy"``: a float division by zero gives inf or NaN, as in torch, instead of
+    raising); used as ``@canvas_loop(error_model="numpy")``."""
+    if py_func is None:
+        return lambda func: canvas_loop(func, error_model=error_model)
     try:
-        serial = numba.njit(nogil=True, cache=True)(py_func)
+        serial = numba.njit(nogil=True, cache=True, error_model=error_model)(py_func)
     except RuntimeError:  # "cannot cache function ...: no locator available": no writable cache folder anywhere
-        serial = numba.njit(nogil=True)(py_func)  # compiled afresh in each process (4 s)
-    threaded = numba.njit(nogil=True, parallel=True)(py_func)
+        serial = numba.njit(nogil=True, error_model=error_model)(py_func)  # compiled afresh in each process (4 s)
+    threaded = numba.njit(nogil=True, parallel=True, error_model=error_model)(py_func)
 
     def run(*args):
         threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)

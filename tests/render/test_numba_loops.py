@@ -6,7 +6,7 @@ import numba
 import numpy as np
 import torch
 
-from bop_cender.pose import numba_loops
+from bop_cender.render import numba_loops
 
 
 def _squares(x, out):
