@@ -72,12 +72,16 @@ def _calls_per_second(call, device: torch.device, batch: int, seconds: float) ->
     return batch / per_call, per_call * 1000
 
 
-def cost_calls_per_second(device: torch.device, batch: int, seconds: float, workers: int = 1) -> tuple[float, float]:
-    """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads)."""
+def cost_calls_per_second(
+    device: torch.device, batch: int, seconds: float, workers: int = 1, compiled: bool | None = None
+) -> tuple[float, float]:
+    """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads of the torch
+    atlases; ``compiled``: the CPU's compiled loop, :mod:`bop_cender.pose.cost_kernel`, None: the device's default)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
 
     def call() -> None:
-        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers)
+        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers,
+                        compiled=compiled)  # fmt: skip
 
     return _calls_per_second(call, device, batch, seconds)
 
@@ -290,15 +294,23 @@ def main() -> None:
     threads = torch.get_num_threads()
     cores = bench_machine.usable_cores()
     for device in devices:
+        # (batch, torch threads, chunk threads, compiled): on the CPU the compiled loop (the default) with one thread
+        # (as `run` calls it) and with all, then the torch atlases for reference
         setups = (
-            [(2000, threads, 1), (2000, 1, cores), (1, threads, 1)]
+            [(2000, 1, 1, True), (2000, threads, 1, True), (2000, threads, 1, False), (2000, 1, cores, False),
+             (1, 1, 1, True), (1, threads, 1, False)]
             if device.type == "cpu"
-            else [(2000, threads, 1), (1, threads, 1)]
-        )
-        for batch, n_threads, workers in setups:
+            else [(2000, threads, 1, None), (1, threads, 1, None)]
+        )  # fmt: skip
+        for batch, n_threads, workers, compiled in setups:
             torch.set_num_threads(n_threads)
-            calls, ms = cost_calls_per_second(device, batch, args.seconds, workers)
-            how = f"{n_threads} torch thread(s), {workers} chunk thread(s)"
+            calls, ms = cost_calls_per_second(device, batch, args.seconds, workers, compiled)
+            how = (
+                f"compiled, {n_threads} thread(s)"
+                if compiled
+                else f"{'torch atlases, ' if compiled is False else ''}{n_threads} torch thread(s), {workers} chunk"
+                " thread(s)"
+            )
             cost_rows.append((device.type, batch, how, calls, ms))
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
     edge_rows = []

@@ -136,6 +136,7 @@ def candidate_costs(
     workers: int = 1,
     occluder_depth: ArrayLike | None = None,
     settings: RenderSettings | None = None,
+    compiled: bool | None = None,
 ) -> torch.Tensor:
     """Render, take curvature and cost B candidates end to end: ``T_cam_model (B, V, 4, 4)`` -> ``(B,)``.
 
@@ -161,6 +162,9 @@ def candidate_costs(
             pixels behind it draw no curvature (the paper's sequential occlusion). None: no occluders.
         settings: near plane and chunk sizes (:class:`~bop_cender.render.settings.RenderSettings`); when
             given, they replace ``near`` and the default ``chunk_pixels``.
+        compiled: on the CPU, one compiled loop per canvas (:mod:`bop_cender.pose.cost_kernel`: the same costs to
+            float32 rounding, without the atlases and their operators; ``chunk_pixels`` and ``workers`` then do not
+            apply, torch's thread count does); None (default): on the CPU, unless a vertex is behind the near plane.
 
     Returns:
         ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
@@ -185,6 +189,14 @@ def candidate_costs(
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
     occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
     batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels, occluder_depth=occ)
+    if compiled if compiled is not None else device.type == "cpu":
+        from bop_cender.pose.cost_kernel import compiled_candidate_costs  # numba: imported where it is used
+
+        costs = compiled_candidate_costs(batch, dist)
+        if costs is not None:
+            return (costs.view(B, V) * weights).sum(1)
+        if compiled:
+            raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
 
     def run(chunk: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor]:
         atlas = chunk_curvature(batch, chunk)

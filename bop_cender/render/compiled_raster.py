@@ -41,146 +41,160 @@ _HALF = np.float32(0.5)
 def _render_canvases(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, h, w, near,
                      face_bits, depth, normals, face_map):  # fmt: skip
     """Depth ``(C, h, w)``, normals ``(C, h, w, 3)`` (zeroed by the caller) and face ids ``(C, h, w)`` (-1 by the
-    caller) of a mesh or packed meshes in C canvases, from the camera-space vertices ``cam_all (C, N, 3)``, their
-    projections ``px_all, py_all (C, N)``, the faces to draw ``draw (C, F)`` and each face's instance (its
-    rotation ``R[c, instance]``). ``face_bits`` 0: exact keys (1/z, ties to the larger face id)."""
-    C = R.shape[0]
-    N = cam_all.shape[1]
+    caller) of a mesh or packed meshes in C full-frame canvases (:func:`raster_window` at the origin)."""
+    for c in numba.prange(R.shape[0]):
+        raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c], K_inv[c],
+                      0, 0, h, w, near, face_bits, depth[c], normals[c], face_map[c])  # fmt: skip
+    return 0
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_inv, v0, u0, h, w, near, face_bits,
+                  depth_out, normals_out, face_out):  # fmt: skip
+    """Render one canvas into its window: rows ``v0 .. v0 + h - 1`` and columns ``u0 .. u0 + w - 1`` of the image.
+
+    Args:
+        cam: ``(N, 3)`` float32 camera-space vertices; px, py: ``(N,)`` their projections
+            (:func:`~bop_cender.render.raster.project_vertices`).
+        draw: ``(F,)`` bool faces to draw (:func:`~bop_cender.render.raster.front_faces`).
+        faces: ``(F, 3)`` int64; face_instance: ``(F,)`` int64 (the rotation ``R[instance]`` of its normals);
+            corner_normals: ``(F, 3, 3)`` model frame.
+        R: ``(I, 3, 3)`` float32 rotations; K_inv: ``(9,)`` float32 inverse intrinsics, row-major.
+        face_bits: > 0: int32 keys of 1/z quantised over the canvas's depth range, face id in ``face_bits`` bits;
+            0: exact keys (1/z, ties to the larger face id).
+        depth_out, normals_out, face_out: ``(h, w)``, ``(h, w, 3)``, ``(h, w)`` written at the covered pixels only
+            (the caller fills the background: 0, 0, -1).
+    """
+    N = cam.shape[0]
     F = faces.shape[0]
     quantised = face_bits > 0
-    levels_i = (1 << (31 - face_bits)) - 1 if quantised else 0
-    levels = np.float32(levels_i)
-    for c in numba.prange(C):
-        cam = cam_all[c]
-        px = px_all[c]
-        py = py_all[c]
-        z_lo = np.float32(np.inf)
-        z_hi = np.float32(-np.inf)
-        for n in range(N):
-            z_lo = min(z_lo, cam[n, 2])
-            z_hi = max(z_hi, cam[n, 2])
-        # quantisation range of the int32 keys (KeyCodec.depth_planes)
-        w_lo = np.float32(1.0) / max(z_hi, near)
-        w_hi = np.float32(1.0) / max(z_lo, near)
-        span = w_hi - w_lo
-        scale = levels / max(span, np.float32(1e-30)) if span > 0 else np.float32(0.0)
-        best_key = np.full((h, w), -1, dtype=np.int64)  # int32 key (quantised) or face id (exact)
-        best_w = np.full((h, w), -np.inf, dtype=np.float32)  # exact 1/z plane value (not quantised)
-        table = np.zeros((F, 12), dtype=np.float32)
-        for f in range(F):
-            if not draw[c, f]:  # 2. culled (raster.front_faces)
-                continue
-            inst = face_instance[f]
-            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            # 3. shading row (raster._face_table), in scalars (no allocation per face)
-            a0, a1, a2 = cam[i0, 0], cam[i0, 1], cam[i0, 2]
-            b0, b1, b2 = cam[i1, 0], cam[i1, 1], cam[i1, 2]
-            d0, d1, d2 = cam[i2, 0], cam[i2, 1], cam[i2, 2]
-            e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
-            e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
-            nrm = _cross(e10, e11, e12, e20, e21, e22)
-            inv_det = np.float32(1.0) / _fma(a2, nrm[2], _fma(a1, nrm[1], a0 * nrm[0]))
-            s00 = K_inv[c, 0] * inv_det
-            s01 = K_inv[c, 1] * inv_det
-            s02 = K_inv[c, 2] * inv_det
-            s11 = K_inv[c, 4] * inv_det
-            s12 = K_inv[c, 5] * inv_det
-            p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det)
-            p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det)
-            p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det)
-            for a in range(3):
-                n0 = _rotate(R[c, inst], a, corner_normals[f, 0])
-                n1 = _rotate(R[c, inst], a, corner_normals[f, 1])
-                n2 = _rotate(R[c, inst], a, corner_normals[f, 2])
-                for k in range(3):
-                    table[f, 3 * a + k] = _fma(n2, p2[k], _fma(n1, p1[k], n0 * p0[k]))
-            pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det)
-            table[f, 9] = pz[0]
-            table[f, 10] = pz[1]
-            table[f, 11] = pz[2]
-            # the plane of the key's depth quantity (KeyCodec.depth_planes), the pixel-centre half folded in
-            if quantised:
-                qa = pz[0] * scale
-                qb = pz[1] * scale
-                qc = (pz[2] - w_lo) * scale
+    levels = np.float32((1 << (31 - face_bits)) - 1 if quantised else 0)
+    z_lo = np.float32(np.inf)
+    z_hi = np.float32(-np.inf)
+    for n in range(N):
+        z_lo = min(z_lo, cam[n, 2])
+        z_hi = max(z_hi, cam[n, 2])
+    # quantisation range of the int32 keys (KeyCodec.depth_planes)
+    w_lo = np.float32(1.0) / max(z_hi, near)
+    w_hi = np.float32(1.0) / max(z_lo, near)
+    span = w_hi - w_lo
+    scale = levels / max(span, np.float32(1e-30)) if span > 0 else np.float32(0.0)
+    best_key = np.full((h, w), -1, dtype=np.int64)  # int32 key (quantised) or face id (exact)
+    best_w = np.full((h, w), -np.inf, dtype=np.float32)  # exact 1/z plane value (not quantised)
+    table = np.zeros((F, 12), dtype=np.float32)
+    for f in range(F):
+        if not draw[f]:  # 2. culled (raster.front_faces)
+            continue
+        inst = face_instance[f]
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        # 3. shading row (raster._face_table), in scalars (no allocation per face)
+        a0, a1, a2 = cam[i0, 0], cam[i0, 1], cam[i0, 2]
+        b0, b1, b2 = cam[i1, 0], cam[i1, 1], cam[i1, 2]
+        d0, d1, d2 = cam[i2, 0], cam[i2, 1], cam[i2, 2]
+        e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
+        e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
+        nrm = _cross(e10, e11, e12, e20, e21, e22)
+        inv_det = np.float32(1.0) / _fma(a2, nrm[2], _fma(a1, nrm[1], a0 * nrm[0]))
+        s00 = K_inv[0] * inv_det
+        s01 = K_inv[1] * inv_det
+        s02 = K_inv[2] * inv_det
+        s11 = K_inv[4] * inv_det
+        s12 = K_inv[5] * inv_det
+        p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det)
+        p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det)
+        p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det)
+        for a in range(3):
+            n0 = _rotate(R[inst], a, corner_normals[f, 0])
+            n1 = _rotate(R[inst], a, corner_normals[f, 1])
+            n2 = _rotate(R[inst], a, corner_normals[f, 2])
+            for k in range(3):
+                table[f, 3 * a + k] = _fma(n2, p2[k], _fma(n1, p1[k], n0 * p0[k]))
+        pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det)
+        table[f, 9] = pz[0]
+        table[f, 10] = pz[1]
+        table[f, 11] = pz[2]
+        # the plane of the key's depth quantity (KeyCodec.depth_planes), the pixel-centre half folded in
+        if quantised:
+            qa = pz[0] * scale
+            qb = pz[1] * scale
+            qc = (pz[2] - w_lo) * scale
+        else:
+            qa, qb, qc = pz[0], pz[1], pz[2]
+        qc = qc + _HALF * (qa + qb)
+        # 4. scan (scanline.scan): corners sorted by y, ties in order (the same three compare-swaps)
+        y0, x0, id0 = py[i0], px[i0], i0
+        y1, x1, id1 = py[i1], px[i1], i1
+        y2, x2, id2 = py[i2], px[i2], i2
+        if y1 < y0:
+            y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
+        if y2 < y1:
+            y1, x1, id1, y2, x2, id2 = y2, x2, id2, y1, x1, id1
+        if y1 < y0:
+            y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
+        cross = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if cross == 0:
+            continue
+        long_left = cross > 0
+        long_edge = _edge(x0, y0, id0, x2, y2, id2)
+        for half in range(2):
+            if half == 0:
+                short = _edge(x0, y0, id0, x1, y1, id1)
+                y_top, y_bot = y0, y1
             else:
-                qa, qb, qc = pz[0], pz[1], pz[2]
-            qc = qc + _HALF * (qa + qb)
-            # 4. scan (scanline.scan): corners sorted by y, ties in order (the same three compare-swaps)
-            y0, x0, v0 = py[i0], px[i0], i0
-            y1, x1, v1 = py[i1], px[i1], i1
-            y2, x2, v2 = py[i2], px[i2], i2
-            if y1 < y0:
-                y0, x0, v0, y1, x1, v1 = y1, x1, v1, y0, x0, v0
-            if y2 < y1:
-                y1, x1, v1, y2, x2, v2 = y2, x2, v2, y1, x1, v1
-            if y1 < y0:
-                y0, x0, v0, y1, x1, v1 = y1, x1, v1, y0, x0, v0
-            cross = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-            if cross == 0:
-                continue
-            long_left = cross > 0
-            long_edge = _edge(x0, y0, v0, x2, y2, v2)
-            for half in range(2):
-                if half == 0:
-                    short = _edge(x0, y0, v0, x1, y1, v1)
-                    y_top, y_bot = y0, y1
-                else:
-                    short = _edge(x1, y1, v1, x2, y2, v2)
-                    y_top, y_bot = y1, y2
-                left = long_edge if long_left else short
-                right = short if long_left else long_edge
-                y_top = min(max(y_top, -_COORD_LIMIT), _COORD_LIMIT)
-                y_bot = min(max(y_bot, -_COORD_LIMIT), _COORD_LIMIT)
-                row_start = max(math.ceil(y_top - _HALF), 0)
-                row_end = min(math.ceil(y_bot - _HALF), h)
-                la_y, la_s, la_x = left[1] - _HALF, left[2], left[0] - _HALF
-                ra_y, ra_s, ra_x = right[1] - _HALF, right[2], right[0] - _HALF
-                for r in range(row_start, row_end):
-                    y = np.float32(r)
-                    x_left = (y - la_y) * la_s + la_x
-                    x_right = (y - ra_y) * ra_s + ra_x
-                    if not (x_left == x_left and x_right == x_right):  # NaN bounds: no pixel (as in torch)
-                        continue
-                    col_start = max(np.float32(math.ceil(min(max(x_left, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(0))
-                    col_end = min(np.float32(math.ceil(min(max(x_right, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(w))
-                    n_cols = int(col_end - col_start)
-                    if n_cols <= 0:
-                        continue
-                    q_start = _fma(qb, y, col_start * qa) + qc
-                    j0 = int(col_start)
-                    for k in range(n_cols):
-                        q = _fma(qa, np.float32(k), q_start)
-                        j = j0 + k
-                        if quantised:
-                            level = np.int64(min(max(q, np.float32(0.0)), levels))
-                            key = (level << face_bits) | f
-                            if key > best_key[r, j]:
-                                best_key[r, j] = key
-                        elif q >= 0 and (q > best_w[r, j] or (q == best_w[r, j] and f > best_key[r, j])):
-                            # (torch packs the float's bits: a negative or NaN 1/z never wins)
-                            best_w[r, j] = q
-                            best_key[r, j] = f
-        # 5. shade the covered pixels (resolve.shade)
-        mask = (1 << face_bits) - 1
-        for r in range(h):
-            y = np.float32(r) + _HALF
-            for j in range(w):
-                key = best_key[r, j]
-                if key < 0:
+                short = _edge(x1, y1, id1, x2, y2, id2)
+                y_top, y_bot = y1, y2
+            left = long_edge if long_left else short
+            right = short if long_left else long_edge
+            y_top = min(max(y_top, -_COORD_LIMIT), _COORD_LIMIT)
+            y_bot = min(max(y_bot, -_COORD_LIMIT), _COORD_LIMIT)
+            row_start = max(math.ceil(y_top - _HALF), v0)
+            row_end = min(math.ceil(y_bot - _HALF), v0 + h)
+            la_y, la_s, la_x = left[1] - _HALF, left[2], left[0] - _HALF
+            ra_y, ra_s, ra_x = right[1] - _HALF, right[2], right[0] - _HALF
+            for r in range(row_start, row_end):
+                y = np.float32(r)
+                x_left = (y - la_y) * la_s + la_x
+                x_right = (y - ra_y) * ra_s + ra_x
+                if not (x_left == x_left and x_right == x_right):  # NaN bounds: no pixel (as in torch)
                     continue
-                f = key & mask if quantised else key
-                face_map[c, r, j] = f
-                x = np.float32(j) + _HALF
-                depth[c, r, j] = np.float32(1.0) / _fma(table[f, 10], y, _fma(table[f, 9], x, table[f, 11]))
-                n0 = _fma(table[f, 1], y, _fma(table[f, 0], x, table[f, 2]))
-                n1 = _fma(table[f, 4], y, _fma(table[f, 3], x, table[f, 5]))
-                n2 = _fma(table[f, 7], y, _fma(table[f, 6], x, table[f, 8]))
-                inv = np.float32(1.0) / np.sqrt(max(_fma(n2, n2, _fma(n1, n1, n0 * n0)), np.float32(1e-30)))
-                normals[c, r, j, 0] = n0 * inv
-                normals[c, r, j, 1] = n1 * inv
-                normals[c, r, j, 2] = n2 * inv
-    return 0
+                col_start = max(np.float32(math.ceil(min(max(x_left, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0))
+                col_end = min(np.float32(math.ceil(min(max(x_right, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0 + w))
+                n_cols = int(col_end - col_start)
+                if n_cols <= 0:
+                    continue
+                q_start = _fma(qb, y, col_start * qa) + qc
+                j0 = int(col_start) - u0
+                for k in range(n_cols):
+                    q = _fma(qa, np.float32(k), q_start)
+                    j = j0 + k
+                    if quantised:
+                        level = np.int64(min(max(q, np.float32(0.0)), levels))
+                        key = (level << face_bits) | f
+                        if key > best_key[r - v0, j]:
+                            best_key[r - v0, j] = key
+                    elif q >= 0 and (q > best_w[r - v0, j] or (q == best_w[r - v0, j] and f > best_key[r - v0, j])):
+                        # (torch packs the float's bits: a negative or NaN 1/z never wins)
+                        best_w[r - v0, j] = q
+                        best_key[r - v0, j] = f
+    # 5. shade the covered pixels (resolve.shade), at their centres in image coordinates
+    mask = (1 << face_bits) - 1
+    for i in range(h):
+        y = np.float32(v0 + i) + _HALF
+        for j in range(w):
+            key = best_key[i, j]
+            if key < 0:
+                continue
+            f = key & mask if quantised else key
+            face_out[i, j] = f
+            x = np.float32(u0 + j) + _HALF
+            depth_out[i, j] = np.float32(1.0) / _fma(table[f, 10], y, _fma(table[f, 9], x, table[f, 11]))
+            n0 = _fma(table[f, 1], y, _fma(table[f, 0], x, table[f, 2]))
+            n1 = _fma(table[f, 4], y, _fma(table[f, 3], x, table[f, 5]))
+            n2 = _fma(table[f, 7], y, _fma(table[f, 6], x, table[f, 8]))
+            inv = np.float32(1.0) / np.sqrt(max(_fma(n2, n2, _fma(n1, n1, n0 * n0)), np.float32(1e-30)))
+            normals_out[i, j, 0] = n0 * inv
+            normals_out[i, j, 1] = n1 * inv
+            normals_out[i, j, 2] = n2 * inv
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")

@@ -1,0 +1,123 @@
+"""The render-and-compare cost of pose candidates as one compiled loop per canvas (CPU).
+
+Why. :func:`~bop_cender.pose.cost.candidate_costs` renders every (candidate, view) canvas in a tight window
+(:mod:`bop_cender.render.candidate_curvature`), takes the Prewitt curvature of its normals and sums it against
+the view's distance map: in torch, a few hundred operators per chunk of canvases, with the windows stacked
+into atlases so that the operators amortise. Here each canvas is rendered by the compiled rasteriser
+(:func:`bop_cender.render.compiled_raster.raster_window`, the torch pipeline's bits), hidden behind the placed
+objects, and its curvature and both sums are taken in the same pass, with no atlas and no operator overhead.
+
+Same windows (``prepare_candidates``), the same occlusion rule (:func:`~bop_cender.render.candidate_curvature.
+occluded`), the first and last window rows forced to background as in the atlas, the curvature of
+:func:`~bop_cender.render.curvature.curvature_valid` with torch's multiply-adds. The sums are float64 here (torch
+reduces float32 in its own order), so the costs agree with the torch path to float32 rounding, not bit for bit
+(``tests/pose/test_cost_kernel.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+
+from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM, CandidateBatch
+from bop_cender.render.compiled_raster import _fma, raster_window
+from bop_cender.render.numba_loops import as_numpy as _np
+from bop_cender.render.numba_loops import canvas_loop
+from bop_cender.render.raster import front_faces, project_vertices
+from bop_cender.render.scanline import KeyCodec
+
+
+@canvas_loop(error_model="numpy")
+def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv, lo, extent, near, face_bits, occ,
+                  margin, dist, out):  # fmt: skip
+    """Unweighted cost of each canvas ``c`` (view ``c % V``) into ``out[c]``."""
+    V, H, W = dist.shape
+    diagonal = np.float32(math.hypot(H, W))
+    has_occ = occ.shape[0] > 0
+    face_instance = np.zeros(faces.shape[0], dtype=np.int64)
+    for c in numba.prange(R.shape[0]):
+        v = c % V
+        top, left = lo[c, 0], lo[c, 1]
+        h, w = extent[c, 0], extent[c, 1]
+        depth = np.zeros((h, w), dtype=np.float32)
+        normals = np.zeros((h, w, 3), dtype=np.float32)
+        faces_hit = np.full((h, w), -1, dtype=np.int64)
+        raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c:c + 1],
+                      K_inv[c], top, left, h, w, near, face_bits, depth, normals, faces_hit)  # fmt: skip
+        if has_occ:  # candidate_curvature._hide_occluded: hidden pixels become background
+            for i in range(h):
+                r = top + i
+                if r < 0 or r >= H:
+                    continue
+                for j in range(w):
+                    s = left + j
+                    if s < 0 or s >= W:
+                        continue
+                    o = occ[v, r, s]
+                    d = depth[i, j]
+                    if o > 0 and d > 0 and d > o - margin:
+                        normals[i, j, 0] = 0.0
+                        normals[i, j, 1] = 0.0
+                        normals[i, j, 2] = 0.0
+        for j in range(w):  # the first and last rows of a window are background (the atlas rule)
+            for k in range(3):
+                normals[0, j, k] = 0.0
+                normals[h - 1, j, k] = 0.0
+        num = 0.0
+        den = 0.0
+        for i in range(1, h - 1):
+            r = top + i
+            if r < 0 or r >= H:
+                continue
+            for j in range(1, w - 1):
+                s = left + j
+                if s < 0 or s >= W:
+                    continue
+                total = np.float32(0.0)
+                for k in range(3):  # curvature_valid: Prewitt, then torch's multiply-adds
+                    gx = (normals[i - 1, j + 1, k] + normals[i, j + 1, k] + normals[i + 1, j + 1, k]) - (
+                        normals[i - 1, j - 1, k] + normals[i, j - 1, k] + normals[i + 1, j - 1, k]
+                    )
+                    gy = (normals[i + 1, j - 1, k] + normals[i + 1, j, k] + normals[i + 1, j + 1, k]) - (
+                        normals[i - 1, j - 1, k] + normals[i - 1, j, k] + normals[i - 1, j + 1, k]
+                    )
+                    total = gx * gx if k == 0 else _fma(gx, gx, total)
+                    total = _fma(gy, gy, total)
+                curv = np.sqrt(total)
+                num += np.float64(curv) * np.float64(dist[v, r, s])
+                den += np.float64(curv)
+        out[c] = np.float32(num / den) if den > 0.0 else diagonal
+    return 0
+
+
+def compiled_candidate_costs(batch: CandidateBatch, dist_maps: torch.Tensor) -> torch.Tensor | None:
+    """Unweighted costs ``(B * V,)`` float32 of a prepared CPU batch (canvas ``c`` = candidate ``c // V`` in view
+    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view; None when a vertex lies
+    behind the near plane (the torch pipeline cuts faces there: use it).
+
+    Args:
+        batch: :func:`~bop_cender.render.candidate_curvature.prepare_candidates`'s windows and vertices.
+        dist_maps: ``(V, H, W)`` float32 distance maps.
+    """
+    verts = batch.verts  # (3, C, N)
+    C = int(verts.shape[1])
+    if C == 0:
+        return torch.zeros(0, dtype=torch.float32)
+    if verts.numel() and float(verts[2].amin()) < batch.near:
+        return None
+    px, py = project_vertices(verts, batch.K, batch.near)
+    draw = front_faces(batch.mesh, batch.R[:, None], batch.t[:, None])
+    K_inv = _np(torch.linalg.inv(batch.K.double()).to(torch.float32).reshape(C, 9))
+    codec = KeyCodec.for_faces(batch.mesh.num_faces)
+    face_bits = codec.face_bits if codec.dtype == torch.int32 else 0
+    occ = np.zeros((0, 1, 1), dtype=np.float32) if batch.occluder_depth is None else _np(batch.occluder_depth.float())
+    out = np.empty(C, dtype=np.float32)
+    _canvas_costs(
+        _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(draw), _np(batch.mesh.faces).astype(np.int64, copy=False),
+        _np(batch.mesh.corner_normals), _np(batch.R), K_inv, _np(batch.lo), _np(batch.extent), np.float32(batch.near),
+        int(face_bits), occ, np.float32(OCCLUSION_MARGIN_MM), _np(dist_maps.float()), out,
+    )  # fmt: skip
+    return torch.from_numpy(out)
