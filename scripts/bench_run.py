@@ -173,7 +173,10 @@ def scene_timings(
     chunk_threads: int = 2,
     torch_threads: int = 1,
     settings: tuple[str, ...] = (),
+    pose_device: str | None = None,
 ) -> list[dict]:
+    """Seconds per scene by stage: heatmaps (the oracle) on ``device``, stage 3 on ``pose_device`` (default the
+    same; ``run`` keeps stage 3 on the CPU, its compiled loops on torch's thread count)."""
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
     from bop_cender.meshes import MeshCache
@@ -187,8 +190,10 @@ def scene_timings(
     # as a one-process `bop-cender run` does: one torch thread, the render search's chunks on the cores
     # (``--torch-threads`` to compare)
     # stage 3 on the timed device too (``run`` keeps it on the CPU unless --pose-device says otherwise)
-    method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads, pose_device=device)
+    method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads, pose_device=pose_device or device)
     torch.set_num_threads(torch_threads)
+    if torch_threads > 1 and ds.scene_keys:  # the threaded compiled loops compile on first use (not cached on disk)
+        method.estimate(ds.scene(ds.scene_keys[0]))
     out = []
     for key in ds.scene_keys[:n_scenes]:
         scene = ds.scene(key)
@@ -277,6 +282,11 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true",
                     help="also profile one cost call of 1 and of 8 poses, and an edge-proxy call in each layout, on each"
                          " device (torch.profiler)")  # fmt: skip
+    ap.add_argument("--pose-device", choices=("cpu", "cuda"), default=None,
+                    help="stage 3's device in the scene timing (default: the last of --devices); `run` keeps stage 3 on"
+                         " the CPU: --devices cuda --pose-device cpu --torch-threads N times a GPU host as run uses it")  # fmt: skip
+    ap.add_argument("--scenes-only", action="store_true",
+                    help="time the scenes alone (no cost calls, edge proxy or scene polish)")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a method setting for the scene timing, as run's --set (poses.search_cost=render: the paper's search)")  # fmt: skip
     args = ap.parse_args()
@@ -290,10 +300,10 @@ def main() -> None:
         devices = [torch.device(n) for n in names]
         if any(d.type == "cuda" for d in devices) and not torch.cuda.is_available():
             ap.error("--devices names cuda but no CUDA device is present")
-    cost_rows = []
+    cost_rows, edge_rows = [], []
     threads = torch.get_num_threads()
     cores = bench_machine.usable_cores()
-    for device in devices:
+    for device in [] if args.scenes_only else devices:
         # (batch, torch threads, chunk threads, compiled): on the CPU the compiled loop (the default) with one thread
         # (as `run` calls it) and with all, then the torch atlases for reference
         setups = (
@@ -313,9 +323,8 @@ def main() -> None:
             )
             cost_rows.append((device.type, batch, how, calls, ms))
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
-    edge_rows = []
     torch.set_num_threads(threads)
-    for device in devices:
+    for device in [] if args.scenes_only else devices:
         # each device's default layout, then the compacted torch one for reference; on the CPU the kernel with one
         # thread too (as `run` calls it: one torch thread per process)
         layouts = [("dense", threads), ("compacted", threads)]
@@ -337,9 +346,11 @@ def main() -> None:
                 flush=True,
             )
     torch.set_num_threads(threads)
-    profile_rows = [(d.type, *row) for d in devices for row in cost_call_profile(d)] if args.profile else []
-    edge_profile_rows = [(d.type, *row) for d in devices for row in edge_call_profile(d)] if args.profile else []
-    polish_rows = scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
+    profiled = args.profile and not args.scenes_only
+    profile_rows = [(d.type, *row) for d in devices for row in cost_call_profile(d)] if profiled else []
+    edge_profile_rows = [(d.type, *row) for d in devices for row in edge_call_profile(d)] if profiled else []
+    polish_rows = [] if args.scenes_only else scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
+    pose_device = args.pose_device or devices[-1].type
     scenes = scene_timings(
         args.data_root,
         args.split,
@@ -348,20 +359,27 @@ def main() -> None:
         args.chunk_threads,
         args.torch_threads,
         tuple(args.set),
+        pose_device,
     )
     load_after = os.getloadavg()
     slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
-    path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"run_{slug}.md"
+    name = f"run_{slug}.md"
+    if args.scenes_only:  # beside the full benchmark's file, not over it
+        name = f"run_{slug}_scenes_heatmaps-{devices[-1].type}_poses-{pose_device}-{args.torch_threads}threads.md"
+    path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / name
     lines = ["# Method benchmark (`scripts/bench_run.py`)", "", f"Command: `python scripts/{Path(__file__).name} "
              + " ".join(sys.argv[1:]) + "`", ""]  # fmt: skip
     lines += bench_render.machine_description()
-    lines += [f"- load average before / after: {load_before[0]:.2f} / {load_after[0]:.2f}", "",
-              "## Cost calls per second (one call = one pose over six 320x256 views, reference bracket)", "",
-              "| device | batch | threads | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
-    lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in cost_rows]
-    lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)", "",
-              "| device | batch | model | layout, threads | calls/s | ms per call |", "|---|---:|---|---|---:|---:|"]  # fmt: skip
-    lines += [f"| {d} | {b} | {h} | {lay} | {c:,.0f} | {m:.2f} |" for d, b, h, lay, c, m in edge_rows]
+    lines += [f"- load average before / after: {load_before[0]:.2f} / {load_after[0]:.2f}"]
+    if cost_rows:
+        lines += ["", "## Cost calls per second (one call = one pose over six 320x256 views, reference bracket)", "",
+                  "| device | batch | threads | calls/s | ms per call |", "|---|---:|---|---:|---:|"]  # fmt: skip
+        lines += [f"| {d} | {b} | {h} | {c:,.0f} | {m:.2f} |" for d, b, h, c, m in cost_rows]
+    if edge_rows:
+        lines += ["", "## Edge-point proxy calls per second (the search cost of `search_cost=edges`, same workload)",
+                  "", "| device | batch | model | layout, threads | calls/s | ms per call |",
+                  "|---|---:|---|---|---:|---:|"]  # fmt: skip
+        lines += [f"| {d} | {b} | {h} | {lay} | {c:,.0f} | {m:.2f} |" for d, b, h, lay, c, m in edge_rows]
     if profile_rows:
         lines += ["", "## One cost call profiled (`--profile`: torch.profiler, one call after 3 warm-ups)", "",
                   "| device | batch | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
@@ -371,11 +389,14 @@ def main() -> None:
                   "| device | layout | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
                   "|---|---|---:|---:|---:|---:|"]  # fmt: skip
         lines += [f"| {d} | {lay} | {ms:.2f} | {o} | {k} | {s} |" for d, lay, ms, o, k, s in edge_profile_rows]
-    lines += ["", f"## Scene polish: the windowed scene cost against the full one (first scene, GT poses, {devices[-1].type}"
-              + (", 1 thread)" if devices[-1].type == "cpu" else ")"),
-              "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
-    lines += [f"| {w} | {b} | {c:,.0f} | {m:.2f} |" for w, b, c, m in polish_rows]
-    lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config, {devices[-1].type})", "",
+    if polish_rows:
+        lines += ["", f"## Scene polish: the windowed scene cost against the full one (first scene, GT poses, {devices[-1].type}"
+                  + (", 1 thread)" if devices[-1].type == "cpu" else ")"),
+                  "", "| cost | batch | poses/s | ms per call |", "|---|---:|---:|---:|"]  # fmt: skip
+        lines += [f"| {w} | {b} | {c:,.0f} | {m:.2f} |" for w, b, c, m in polish_rows]
+    where = devices[-1].type if pose_device == devices[-1].type else f"heatmaps {devices[-1].type}, poses {pose_device}"
+    lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config, {where},"
+              f" {args.torch_threads} torch thread(s))", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     lines += [f"| {s['scene']} | {s['views']} | {s['parts']} | {s['objects']} | {s['wall']:.1f} | {s['heatmaps']:.2f}"
