@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM, CandidateBatch
-from bop_cender.render.compiled_raster import _fma, raster_window
+from bop_cender.render.compiled_raster import ADDCMUL_FUSED, _fma, key_bits, raster_window
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
 from bop_cender.render.raster import front_faces, project_vertices
@@ -31,8 +31,8 @@ from bop_cender.render.scanline import KeyCodec
 
 
 @canvas_loop(error_model="numpy")
-def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv, lo, extent, near, face_bits, occ,
-                  margin, dist, out):  # fmt: skip
+def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv, lo, extent, near, face_bits,
+                  depth_bits, fused, occ, margin, dist, out):  # fmt: skip
     """Unweighted cost of each canvas ``c`` (view ``c % V``) into ``out[c]``."""
     V, H, W = dist.shape
     diagonal = np.float32(math.hypot(H, W))
@@ -46,7 +46,8 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv
         normals = np.zeros((h, w, 3), dtype=np.float32)
         faces_hit = np.full((h, w), -1, dtype=np.int64)
         raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c:c + 1],
-                      K_inv[c], top, left, h, w, near, face_bits, depth, normals, faces_hit)  # fmt: skip
+                      K_inv[c], top, left, h, w, near, face_bits, depth_bits, fused, depth, normals,
+                      faces_hit)  # fmt: skip
         if has_occ:  # candidate_curvature._hide_occluded: hidden pixels become background
             for i in range(h):
                 r = top + i
@@ -84,8 +85,8 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv
                     gy = (normals[i + 1, j - 1, k] + normals[i + 1, j, k] + normals[i + 1, j + 1, k]) - (
                         normals[i - 1, j - 1, k] + normals[i - 1, j, k] + normals[i - 1, j + 1, k]
                     )
-                    total = gx * gx if k == 0 else _fma(gx, gx, total)
-                    total = _fma(gy, gy, total)
+                    total = gx * gx if k == 0 else _fma(gx, gx, total, fused)
+                    total = _fma(gy, gy, total, fused)
                 curv = np.sqrt(total)
                 num += np.float64(curv) * np.float64(dist[v, r, s])
                 den += np.float64(curv)
@@ -111,13 +112,13 @@ def compiled_candidate_costs(batch: CandidateBatch, dist_maps: torch.Tensor) -> 
     px, py = project_vertices(verts, batch.K, batch.near)
     draw = front_faces(batch.mesh, batch.R[:, None], batch.t[:, None])
     K_inv = _np(torch.linalg.inv(batch.K.double()).to(torch.float32).reshape(C, 9))
-    codec = KeyCodec.for_faces(batch.mesh.num_faces)
-    face_bits = codec.face_bits if codec.dtype == torch.int32 else 0
+    face_bits, depth_bits = key_bits(KeyCodec.for_faces(batch.mesh.num_faces))
     occ = np.zeros((0, 1, 1), dtype=np.float32) if batch.occluder_depth is None else _np(batch.occluder_depth.float())
     out = np.empty(C, dtype=np.float32)
     _canvas_costs(
         _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(draw), _np(batch.mesh.faces).astype(np.int64, copy=False),
         _np(batch.mesh.corner_normals), _np(batch.R), K_inv, _np(batch.lo), _np(batch.extent), np.float32(batch.near),
-        int(face_bits), occ, np.float32(OCCLUSION_MARGIN_MM), _np(dist_maps.float()), out,
+        int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED), occ, np.float32(OCCLUSION_MARGIN_MM),
+        _np(dist_maps.float()), out,
     )  # fmt: skip
     return torch.from_numpy(out)

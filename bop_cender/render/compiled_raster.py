@@ -38,19 +38,20 @@ _HALF = np.float32(0.5)
 
 
 @canvas_loop(error_model="numpy")
-def _render_canvases(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, h, w, near,
-                     face_bits, depth, normals, face_map):  # fmt: skip
+def _render_canvases(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, offsets, h, w,
+                     near, face_bits, depth_bits, fused, depth, normals, face_map):  # fmt: skip
     """Depth ``(C, h, w)``, normals ``(C, h, w, 3)`` (zeroed by the caller) and face ids ``(C, h, w)`` (-1 by the
-    caller) of a mesh or packed meshes in C full-frame canvases (:func:`raster_window` at the origin)."""
+    caller) of a mesh or packed meshes in C canvases, each in its window at ``offsets[c]`` (row, column)."""
     for c in numba.prange(R.shape[0]):
         raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c], K_inv[c],
-                      0, 0, h, w, near, face_bits, depth[c], normals[c], face_map[c])  # fmt: skip
+                      offsets[c, 0], offsets[c, 1], h, w, near, face_bits, depth_bits, fused, depth[c], normals[c],
+                      face_map[c])  # fmt: skip
     return 0
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_inv, v0, u0, h, w, near, face_bits,
-                  depth_out, normals_out, face_out):  # fmt: skip
+                  depth_bits, fused, depth_out, normals_out, face_out):  # fmt: skip
     """Render one canvas into its window: rows ``v0 .. v0 + h - 1`` and columns ``u0 .. u0 + w - 1`` of the image.
 
     Args:
@@ -60,15 +61,17 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
         faces: ``(F, 3)`` int64; face_instance: ``(F,)`` int64 (the rotation ``R[instance]`` of its normals);
             corner_normals: ``(F, 3, 3)`` model frame.
         R: ``(I, 3, 3)`` float32 rotations; K_inv: ``(9,)`` float32 inverse intrinsics, row-major.
-        face_bits: > 0: int32 keys of 1/z quantised over the canvas's depth range, face id in ``face_bits`` bits;
-            0: exact keys (1/z, ties to the larger face id).
+        face_bits, depth_bits: > 0: int32 keys of 1/z quantised over the canvas's depth range into ``depth_bits``
+            bits, face id in ``face_bits`` bits (:class:`~bop_cender.render.scanline.KeyCodec`); 0: exact keys (1/z,
+            ties to the larger face id).
+        fused: torch's ``addcmul`` rounds once (a fused multiply-add: :data:`ADDCMUL_FUSED`).
         depth_out, normals_out, face_out: ``(h, w)``, ``(h, w, 3)``, ``(h, w)`` written at the covered pixels only
             (the caller fills the background: 0, 0, -1).
     """
     N = cam.shape[0]
     F = faces.shape[0]
     quantised = face_bits > 0
-    levels = np.float32((1 << (31 - face_bits)) - 1 if quantised else 0)
+    levels = np.float32((1 << depth_bits) - 1 if quantised else 0)
     z_lo = np.float32(np.inf)
     z_hi = np.float32(-np.inf)
     for n in range(N):
@@ -78,7 +81,8 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
     w_lo = np.float32(1.0) / max(z_hi, near)
     w_hi = np.float32(1.0) / max(z_lo, near)
     span = w_hi - w_lo
-    scale = levels / max(span, np.float32(1e-30)) if span > 0 else np.float32(0.0)
+    # torch's `levels / span` on a tensor is `span.reciprocal() * levels`: two roundings
+    scale = (np.float32(1.0) / max(span, np.float32(1e-30))) * levels if span > 0 else np.float32(0.0)
     best_key = np.full((h, w), -1, dtype=np.int64)  # int32 key (quantised) or face id (exact)
     best_w = np.full((h, w), -np.inf, dtype=np.float32)  # exact 1/z plane value (not quantised)
     table = np.zeros((F, 12), dtype=np.float32)
@@ -94,22 +98,22 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
         e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
         e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
         nrm = _cross(e10, e11, e12, e20, e21, e22)
-        inv_det = np.float32(1.0) / _fma(a2, nrm[2], _fma(a1, nrm[1], a0 * nrm[0]))
+        inv_det = np.float32(1.0) / _fma(a2, nrm[2], _fma(a1, nrm[1], a0 * nrm[0], fused), fused)
         s00 = K_inv[0] * inv_det
         s01 = K_inv[1] * inv_det
         s02 = K_inv[2] * inv_det
         s11 = K_inv[4] * inv_det
         s12 = K_inv[5] * inv_det
-        p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det)
-        p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det)
-        p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det)
+        p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det, fused)
+        p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det, fused)
+        p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det, fused)
         for a in range(3):
-            n0 = _rotate(R[inst], a, corner_normals[f, 0])
-            n1 = _rotate(R[inst], a, corner_normals[f, 1])
-            n2 = _rotate(R[inst], a, corner_normals[f, 2])
+            n0 = _rotate(R[inst], a, corner_normals[f, 0], fused)
+            n1 = _rotate(R[inst], a, corner_normals[f, 1], fused)
+            n2 = _rotate(R[inst], a, corner_normals[f, 2], fused)
             for k in range(3):
-                table[f, 3 * a + k] = _fma(n2, p2[k], _fma(n1, p1[k], n0 * p0[k]))
-        pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det)
+                table[f, 3 * a + k] = _fma(n2, p2[k], _fma(n1, p1[k], n0 * p0[k], fused), fused)
+        pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det, fused)
         table[f, 9] = pz[0]
         table[f, 10] = pz[1]
         table[f, 11] = pz[2]
@@ -162,10 +166,10 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
                 n_cols = int(col_end - col_start)
                 if n_cols <= 0:
                     continue
-                q_start = _fma(qb, y, col_start * qa) + qc
+                q_start = _fma(qb, y, col_start * qa, fused) + qc
                 j0 = int(col_start) - u0
                 for k in range(n_cols):
-                    q = _fma(qa, np.float32(k), q_start)
+                    q = _fma(qa, np.float32(k), q_start, fused)
                     j = j0 + k
                     if quantised:
                         level = np.int64(min(max(q, np.float32(0.0)), levels))
@@ -187,11 +191,11 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
             f = key & mask if quantised else key
             face_out[i, j] = f
             x = np.float32(u0 + j) + _HALF
-            depth_out[i, j] = np.float32(1.0) / _fma(table[f, 10], y, _fma(table[f, 9], x, table[f, 11]))
-            n0 = _fma(table[f, 1], y, _fma(table[f, 0], x, table[f, 2]))
-            n1 = _fma(table[f, 4], y, _fma(table[f, 3], x, table[f, 5]))
-            n2 = _fma(table[f, 7], y, _fma(table[f, 6], x, table[f, 8]))
-            inv = np.float32(1.0) / np.sqrt(max(_fma(n2, n2, _fma(n1, n1, n0 * n0)), np.float32(1e-30)))
+            depth_out[i, j] = np.float32(1.0) / _fma(table[f, 10], y, _fma(table[f, 9], x, table[f, 11], fused), fused)
+            n0 = _fma(table[f, 1], y, _fma(table[f, 0], x, table[f, 2], fused), fused)
+            n1 = _fma(table[f, 4], y, _fma(table[f, 3], x, table[f, 5], fused), fused)
+            n2 = _fma(table[f, 7], y, _fma(table[f, 6], x, table[f, 8], fused), fused)
+            inv = np.float32(1.0) / np.sqrt(max(_fma(n2, n2, _fma(n1, n1, n0 * n0, fused), fused), np.float32(1e-30)))
             normals_out[i, j, 0] = n0 * inv
             normals_out[i, j, 1] = n1 * inv
             normals_out[i, j, 2] = n2 * inv
@@ -203,22 +207,29 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _fma(a, b, c):
-    """``a * b + c`` rounded once to float32, as torch's CPU ``addcmul`` computes it (a fused multiply-add; the
-    float32 product is exact in float64)."""
-    return np.float32(np.float64(a) * np.float64(b) + np.float64(c))
+def _fma(a, b, c, fused):
+    """``a * b + c`` as torch's CPU ``addcmul`` computes it: with ``fused``, rounded once to float32 (a fused
+    multiply-add, as its AVX2 and AVX-512 kernels do; the float32 product is exact in float64), else the product
+    rounded, then the sum."""
+    if fused:
+        return np.float32(np.float64(a) * np.float64(b) + np.float64(c))
+    return np.float32(a * b) + c
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _rotate(R, a, n):
+def _rotate(R, a, n, fused):
     """Axis ``a`` of the model-frame normal ``n (3,)`` rotated by ``R (3, 3)`` (the torch order of operations)."""
-    return _fma(R[a, 2], n[2], _fma(R[a, 1], n[1], R[a, 0] * n[0]))
+    return _fma(R[a, 2], n[2], _fma(R[a, 1], n[1], R[a, 0] * n[0], fused), fused)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _plane(cv, s00, s01, s02, s11, s12, inv_det):
+def _plane(cv, s00, s01, s02, s11, s12, inv_det, fused):
     """``c K^-1 / det`` for the upper-triangular ``K^-1`` (raster._face_table's ``plane``)."""
-    return (cv[0] * s00, _fma(cv[1], s11, cv[0] * s01), _fma(cv[2], inv_det, _fma(cv[1], s12, cv[0] * s02)))
+    return (
+        cv[0] * s00,
+        _fma(cv[1], s11, cv[0] * s01, fused),
+        _fma(cv[2], inv_det, _fma(cv[1], s12, cv[0] * s02, fused), fused),
+    )
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -229,6 +240,33 @@ def _edge(xa, ya, ia, xb, yb, ib):
     return (xa, ya, (xb - xa) / (yb - ya))
 
 
+def _addcmul_is_fused() -> bool | None:
+    """Whether torch's CPU ``addcmul`` rounds once (True: AVX2 / AVX-512 kernels contract it into a fused
+    multiply-add), twice (False: e.g. ``ATEN_CPU_CAPABILITY=default``), or either depending on the element (None).
+    Probed on 67 elements (vectorised body and scalar tail): ``(1 + 2^-12)^2 - (1 + 2^-11)`` is 2^-24 fused, 0 not."""
+    a = torch.full((67,), 1.0 + 2.0**-12, dtype=torch.float32)
+    c = torch.full((67,), -(1.0 + 2.0**-11), dtype=torch.float32)
+    r = torch.addcmul(c, a, a)
+    if bool((r == 2.0**-24).all()):
+        return True
+    if bool((r == 0.0).all()):
+        return False
+    return None
+
+
+#: How torch's CPU ``addcmul`` rounds on this machine (probed once): the compiled loops repeat it. None (mixed): they
+#: cannot, and the CPU keeps the torch pipeline (:data:`AVAILABLE` False).
+ADDCMUL_FUSED = _addcmul_is_fused()
+#: Whether the compiled loops give the torch pipeline's bits here (``render_scene`` and ``candidate_costs`` use them
+#: by default on the CPU only then).
+AVAILABLE = ADDCMUL_FUSED is not None
+
+
+def key_bits(codec: KeyCodec) -> tuple[int, int]:
+    """``(face_bits, depth_bits)`` of an int32 codec, ``(0, 0)`` for exact int64 keys (the loops' convention)."""
+    return (codec.face_bits, codec.depth_bits) if codec.dtype == torch.int32 else (0, 0)
+
+
 def render_compiled(
     meshes: RenderMesh | PackedMeshes,
     R: torch.Tensor,
@@ -237,10 +275,12 @@ def render_compiled(
     height: int,
     width: int,
     near: float = DEFAULT_NEAR,
+    offsets: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
     """Depth ``(C, H, W)`` (z in mm, 0 on background), unit normals ``(C, H, W, 3)`` and face ids ``(C, H, W)``
-    (packed index, -1 on background) of a mesh or packed meshes in C full-frame canvases, bit for bit as the torch
-    renderer gives them.
+    (packed index, -1 on background) of a mesh or packed meshes in C canvases, bit for bit as the torch
+    pipeline (:func:`~bop_cender.render.raster.rasterize` and :func:`~bop_cender.render.resolve.resolve`) gives them:
+    int32 quantised keys for one :class:`RenderMesh` of few faces, exact keys for packed meshes.
 
     Args:
         meshes: a CPU :class:`~bop_cender.render.mesh.RenderMesh` or :class:`~bop_cender.render.mesh.PackedMeshes`.
@@ -248,11 +288,18 @@ def render_compiled(
         K: ``(C, 3, 3)`` float32 intrinsics, CPU.
         height, width: canvas size.
         near: near plane (mm).
+        offsets: ``(C, 2)`` int64 each canvas's window origin (row, column) in its image; None: the full frame.
 
     Returns:
         the maps; None where a vertex lies behind the near plane in some canvas (the torch renderer cuts the faces
         there: use it).
+
+    Raises:
+        RuntimeError: the loops cannot give torch's bits on this machine (:data:`AVAILABLE` False).
     """
+    if not AVAILABLE:
+        raise RuntimeError("torch's CPU addcmul rounds once for some elements and twice for others here: the "
+                           "compiled renderer cannot repeat it (use the torch pipeline)")  # fmt: skip
     C = int(R.shape[0])
     verts = camera_vertices(meshes, R, t)  # (3, C, N): the torch renderer's own vertices and projections
     if verts.numel() and float(verts[2].amin()) < near:
@@ -261,16 +308,16 @@ def render_compiled(
     draw = front_faces(meshes, R, t)
     K_inv = _np(torch.linalg.inv(K.double()).to(torch.float32).reshape(C, 9))
     face_instance = getattr(meshes, "face_instance", None)
-    codec = KeyCodec.for_faces(int(meshes.faces.shape[0]), exact=face_instance is not None)
-    face_bits = codec.face_bits if codec.dtype == torch.int32 else 0
+    face_bits, depth_bits = key_bits(KeyCodec.for_faces(int(meshes.faces.shape[0]), exact=face_instance is not None))
     if face_instance is None:
         face_instance = torch.zeros(int(meshes.faces.shape[0]), dtype=torch.int64)
+    origins = np.zeros((C, 2), dtype=np.int64) if offsets is None else _np(offsets.to(torch.int64))
     depth = np.zeros((C, height, width), dtype=np.float32)
     normals = np.zeros((C, height, width, 3), dtype=np.float32)
     faces = np.full((C, height, width), -1, dtype=np.int64)
     _render_canvases(
         _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(draw), _np(meshes.faces).astype(np.int64, copy=False),
-        _np(face_instance), _np(meshes.corner_normals), _np(R), K_inv, int(height), int(width), np.float32(near),
-        int(face_bits), depth, normals, faces,
+        _np(face_instance), _np(meshes.corner_normals), _np(R), K_inv, origins, int(height), int(width),
+        np.float32(near), int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED), depth, normals, faces,
     )  # fmt: skip
     return torch.from_numpy(depth), torch.from_numpy(normals), torch.from_numpy(faces)

@@ -126,7 +126,8 @@ def render_scene(
         near: near plane (mm); nothing closer is drawn.
         compiled: on the CPU, render with the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same
             bits, without the torch pipeline's fixed cost of about 2,000 operators a call); None (default): on the
-            CPU, unless a vertex is behind the near plane (the torch pipeline cuts faces there).
+            CPU where the loops can repeat torch's rounding (``compiled_raster.AVAILABLE``), unless a vertex is
+            behind the near plane (the torch pipeline cuts faces there).
 
     Returns:
         Depth, normals, instance and face maps ``(V, H, W, ...)``.
@@ -142,8 +143,13 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
-    if (compiled if compiled is not None else device.type == "cpu") and V > 0:
-        from bop_cender.render.compiled_raster import render_compiled  # numba: imported where it is used
+    if compiled and device.type != "cpu":
+        raise ValueError(f"compiled=True renders on the CPU; the inputs are on {device}")
+    use_compiled = compiled
+    if compiled is None and device.type == "cpu":
+        from bop_cender.render.compiled_raster import AVAILABLE as use_compiled  # numba: imported where it is used
+    if use_compiled and V > 0:
+        from bop_cender.render.compiled_raster import render_compiled
 
         maps = render_compiled(packed, R, t, Ks, height, width, near)
         if maps is not None:

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import torch
 
 _COORD_LIMIT = 1e7  # pixel coordinates are clamped to this before integer conversion
+#: Most bits of quantised depth in an int32 key: float32 holds every integer up to 2^24 exactly.
+MAX_DEPTH_BITS = 24
 _I32 = torch.int32
 
 
@@ -49,10 +51,14 @@ class KeyCodec:
 
     @staticmethod
     def for_faces(num_faces: int, exact: bool = False) -> KeyCodec:
-        """int32 keys if the face ids leave at least 16 bits of depth (and ``exact`` is not asked for)."""
+        """int32 keys if the face ids leave at least 16 bits of depth (and ``exact`` is not asked for).
+
+        At most :data:`MAX_DEPTH_BITS` of depth: the quantised depth is a float32 clamped to ``2^bits - 1`` before
+        the integer conversion, and above 2^24 that bound rounds up to ``2^bits``, whose shift overflows int32 (a
+        mesh of at most 64 faces lost every fragment near its nearest depth: holes)."""
         bits = max(1, (max(num_faces, 1) - 1).bit_length())
         if 31 - bits >= 16 and not exact:
-            return KeyCodec(torch.int32, bits, 31 - bits)
+            return KeyCodec(torch.int32, bits, min(31 - bits, MAX_DEPTH_BITS))
         return KeyCodec(torch.int64, 32, 0)
 
     def depth_planes(

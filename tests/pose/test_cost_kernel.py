@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from bop_cender.pose.cost import candidate_costs
 from bop_cender.render.mesh import prepare_mesh
@@ -37,7 +38,11 @@ def _candidates(n: int, seed: int) -> np.ndarray:
     return T_wm
 
 
-@pytest.mark.parametrize("make", [lambda: bracket(16), holed_plate], ids=["bracket", "holed plate"])
+@pytest.mark.parametrize(
+    "make",
+    [lambda: bracket(16), holed_plate, lambda: trimesh.creation.box((40.0, 30.0, 20.0))],
+    ids=["bracket", "holed plate", "12-face box (6 face bits)"],
+)
 def test_compiled_costs_agree_with_the_torch_atlases(make) -> None:
     mesh = prepare_mesh(make())
     T_cw, Ks = rig()

@@ -4,8 +4,11 @@ The torch pipeline (:mod:`bop_cender.render.raster`) is what CUDA runs and what 
 ``test_rasterizer.py`` check against ray casting; the CPU now renders with the compiled loop. Every map
 (depth, normals, packed face ids) must be the same bits, so that a run gives the same rows on either path
 (stage 3's edge thresholds sit exactly on the curvature of a clean silhouette step: one rounding apart flips
-edges). Cases: single meshes (int32 keys), packed scenes (exact int64 keys), a mesh too large for int32 keys,
-parts out of the frame, canvases of several poses, threads, and the near plane (the torch pipeline's alone).
+edges). Cases: meshes through ``render_scene`` (packed: exact int64 keys), one ``RenderMesh`` against
+``rasterize``/``resolve`` (int32 keys of quantised depth, as the candidate costs render: a 12-face box, coplanar
+faces that tie, windows at any origin), a mesh too large for int32 keys, parts out of the frame, canvases of
+several poses, threads, and the near plane (the torch pipeline's alone). The loops repeat torch's ``addcmul``
+rounding as probed on the machine (fused on AVX2 builds, not with ``ATEN_CPU_CAPABILITY=default``).
 """
 
 from __future__ import annotations
@@ -119,3 +122,67 @@ def test_nothing_in_view_is_background_everywhere() -> None:
     K_t = torch.as_tensor(np.tile(K, (2, 1, 1)), dtype=torch.float32)
     out = render_scene([mesh], T_t, K_t, H, W, compiled=True)
     assert not out.mask.any() and not out.depth.any() and (out.packed_face == -1).all()
+
+
+def _decal() -> trimesh.Trimesh:
+    """Two coplanar overlapping squares (every depth of the smaller one ties with the larger's) and a far triangle
+    repeated 600 times (21 bits of quantised depth, the face id in 10)."""
+
+    def quad(z: float, s: float) -> list[list[float]]:
+        return [[-s, -s, z], [s, -s, z], [s, s, z], [-s, s, z]]
+
+    vertices = np.array(quad(0.0, 20.0) + quad(0.0, 15.0) + [[0, 0, 60], [1, 0, 60], [0, 1, 60]], float)
+    faces = np.array([[0, 2, 1], [0, 3, 2], [4, 6, 5], [4, 7, 6], [8, 10, 9]] + [[8, 9, 10]] * 600)
+    return trimesh.Trimesh(vertices, faces, process=False, validate=False)
+
+
+@pytest.mark.parametrize(
+    "make",
+    [lambda: trimesh.creation.box((40.0, 30.0, 20.0)), _decal, lambda: bracket()],
+    ids=["12-face box", "coplanar decal", "bracket"],
+)
+def test_one_render_mesh_with_int32_keys_is_the_torch_pipeline_bit_for_bit(make) -> None:
+    """One RenderMesh (not packed): int32 keys of quantised depth, as the candidate costs render it, in windows at
+    negative and positive origins. The 12-face box has 6 face bits, where torch's keys overflowed int32 before
+    ``KeyCodec`` capped the depth bits at 24; the decal's coplanar faces tie on every pixel."""
+    from bop_cender.render.raster import rasterize
+    from bop_cender.render.resolve import resolve
+    from bop_cender.render.scanline import KeyCodec
+    from bop_cender.render.window import Windows
+
+    mesh = prepare_mesh(make(), crease_angle_deg=0.0)
+    assert KeyCodec.for_faces(mesh.num_faces).dtype == torch.int32
+    C, h, w = 40, 60, 70
+    T = torch.as_tensor(_poses(C, 1, seed=mesh.num_faces, spread=20.0), dtype=torch.float32)[:, 0]
+    K_t = torch.as_tensor(np.tile(K, (C, 1, 1)), dtype=torch.float32)
+    rng = np.random.default_rng(0)
+    offsets = torch.as_tensor(rng.integers(-30, 60, (C, 2)), dtype=torch.int64)
+    R, t = T[:, None, :3, :3], T[:, None, :3, 3]
+    reference = resolve(rasterize(mesh, R, t, K_t, Windows.uniform(offsets, h, w)))
+    depth, normals, faces = render_compiled(mesh, R, t, K_t, h, w, offsets=offsets)
+    assert reference.mask.sum() > 0.01 * reference.mask.numel()
+    assert torch.equal(reference.face, faces), f"{int((reference.face != faces).sum())} face ids differ"
+    assert torch.equal(reference.depth, depth) and torch.equal(reference.normals, normals)
+
+
+def test_the_rounding_of_addcmul_is_probed_not_assumed() -> None:
+    """The loops repeat torch's ``addcmul`` rounding as probed on this machine (fused on AVX2 builds)."""
+    from bop_cender.render import compiled_raster
+
+    a = torch.full((9,), 1.0 + 2.0**-12)
+    c = torch.full((9,), -(1.0 + 2.0**-11))
+    fused = bool((torch.addcmul(c, a, a) == 2.0**-24).all())
+    assert fused == compiled_raster.ADDCMUL_FUSED and compiled_raster.AVAILABLE
+    assert (
+        compiled_raster._fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), True) == 2**-24
+    )
+    assert compiled_raster._fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), False) == 0
+
+
+def test_compiled_true_on_cuda_inputs_is_refused(device) -> None:
+    if device.type == "cpu":
+        pytest.skip("the refusal is of non-CPU inputs")
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)), device=device)
+    T_t = torch.as_tensor(_poses(1, 1, seed=1), dtype=torch.float32, device=device)
+    with pytest.raises(ValueError, match="renders on the CPU"):
+        render_scene([mesh], T_t, torch.as_tensor(K[None], dtype=torch.float32, device=device), H, W, compiled=True)
