@@ -8,7 +8,10 @@ Public API:
 - :func:`curvature` (the paper's curvature map of rendered normals).
 
 The cost function's tight-window path is :mod:`bop_cender.render.candidate_curvature`, used by
-:func:`bop_cender.pose.cost.candidate_costs`.
+:func:`bop_cender.pose.cost.candidate_costs`. On the CPU, :func:`render_scene` renders through the compiled loop
+of :mod:`bop_cender.render.compiled_raster` (the torch pipeline's bits, without its per-call operators); the torch
+pipeline (:mod:`bop_cender.render.raster`, :mod:`bop_cender.render.scanline`, :mod:`bop_cender.render.resolve`) is
+CUDA's, and the CPU's where geometry crosses the near plane.
 """
 
 from bop_cender.render.curvature import curvature
