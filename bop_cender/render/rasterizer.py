@@ -263,10 +263,22 @@ def _render_windows(
     normals: bool = True,
     faces: bool = True,
 ) -> WindowMaps:
-    """One mesh in C canvases ``T (C, 4, 4)``, ``K (C, 3, 3)``, windows at ``offsets (C, 2)`` (None: 0)."""
+    """One mesh in C canvases ``T (C, 4, 4)``, ``K (C, 3, 3)``, windows at ``offsets (C, 2)`` (None: 0).
+
+    On the CPU through the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same bits) where it can."""
     C = int(T.shape[0])
     if offsets is None:
         offsets = torch.zeros((C, 2), dtype=torch.int64, device=T.device)
+    if T.device.type == "cpu" and C > 0:
+        from bop_cender.render import compiled_raster  # numba: imported where it is used
+
+        if compiled_raster.AVAILABLE:
+            maps = compiled_raster.render_compiled(
+                mesh, T[:, None, :3, :3], T[:, None, :3, 3], K, size[0], size[1], near, offsets
+            )
+            if maps is not None:
+                d, n, f = maps
+                return WindowMaps(f >= 0, f if faces else None, d if depth else None, n if normals else None)
     out = _empty_maps(C, size[0], size[1], T.device, depth, normals, faces)
     for rows in _chunks(C, max(1, DEFAULT_CHUNK_PIXELS // (size[0] * size[1]))):
         windows = Windows.uniform(offsets[rows], size[0], size[1])

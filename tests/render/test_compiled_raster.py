@@ -186,3 +186,20 @@ def test_compiled_true_on_cuda_inputs_is_refused(device) -> None:
     T_t = torch.as_tensor(_poses(1, 1, seed=1), dtype=torch.float32, device=device)
     with pytest.raises(ValueError, match="renders on the CPU"):
         render_scene([mesh], T_t, torch.as_tensor(K[None], dtype=torch.float32, device=device), H, W, compiled=True)
+
+
+def test_objects_alone_and_candidate_windows_are_the_torch_render_bit_for_bit(monkeypatch) -> None:
+    """``render_objects_separately`` and ``render_candidates`` render one mesh at a time (int32 keys) through the
+    compiled loop on the CPU; with it switched off they take the torch pipeline: the same maps."""
+    from bop_cender.render import compiled_raster
+    from bop_cender.render.rasterizer import render_candidates, render_objects_separately
+
+    meshes = [MESHES["bracket"](), MESHES["flat box"]()]
+    T_t = torch.as_tensor(_poses(3, 2, seed=21), dtype=torch.float32)
+    K_t = torch.as_tensor(np.tile(K, (3, 1, 1)), dtype=torch.float32)
+    compiled = (render_objects_separately(meshes, T_t, K_t, H, W), render_candidates(meshes[0], T_t, K_t[:2], H, W))
+    monkeypatch.setattr(compiled_raster, "AVAILABLE", False)
+    torch_maps = (render_objects_separately(meshes, T_t, K_t, H, W), render_candidates(meshes[0], T_t, K_t[:2], H, W))
+    assert compiled[0].depth.any() and torch.equal(compiled[0].depth, torch_maps[0].depth)
+    for name in ("depth", "normals", "mask", "offsets"):
+        assert torch.equal(getattr(compiled[1], name), getattr(torch_maps[1], name)), name
