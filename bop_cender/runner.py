@@ -70,6 +70,9 @@ class RunRequest:
         vis_dir: write a figure per scene there (:mod:`bop_cender.report.scene_figure`); None: no figures.
         max_views: estimate from the first K views of each scene only (an ablation); the rows are
             still written for every view, so the scores compare with a run on all views.
+        threads: threads of the compiled CPU loops (renderer, stage 3's costs) when one process runs the scenes;
+            the same rows whatever the count (each canvas is summed by one thread, torch keeps one). Not with
+            ``workers`` > 1.
     """
 
     dataset: str
@@ -90,6 +93,7 @@ class RunRequest:
     pose_device: str = "cpu"
     vis_dir: Path | None = None
     max_views: int | None = None
+    threads: int = 1
 
     def __post_init__(self) -> None:
         if self.config is None:
@@ -486,6 +490,14 @@ def _check_request(request: RunRequest) -> None:
     _check_source(request.heatmaps)
     if request.workers < 1:
         raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
+    if request.threads < 1:
+        raise ConfigError(f"expected at least 1 thread, got {request.threads}", field="--threads")
+    if request.threads > 1 and request.workers > 1:
+        raise ConfigError(
+            f"--threads {request.threads} is for one process; with --workers {request.workers} each process has one"
+            " thread (give one of the two)",
+            field="--threads",
+        )
     if request.max_views is not None and request.max_views < 1:
         raise ConfigError(f"expected a positive number of views, got {request.max_views}", field="--max-views")
     if request.limit_scenes is not None and request.limit_scenes < 1:
@@ -519,12 +531,15 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
         # search's candidate chunks still use the cores (cost_threads).
         import torch
 
+        from bop_cender.render.numba_loops import compiled_threads
+
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
             method = build_method(request, dataset, cost_threads=max(1, min(2, os.cpu_count() or 1)))
-            for key in keys:
-                yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
+            with compiled_threads(request.threads):
+                for key in keys:
+                    yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
         finally:
             torch.set_num_threads(threads)
         return

@@ -85,6 +85,34 @@ def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
     assert out.read_bytes() == reference_csv.read_bytes()
 
 
+def test_threads_of_the_compiled_loops_give_the_same_rows(mini_root, reference_csv, tmp_path, monkeypatch):
+    """``--threads 2`` runs the compiled loops threaded (each canvas summed by one thread, torch kept on one): the
+    same bytes."""
+    from bop_cender.render import numba_loops
+
+    seen = []
+    real = numba_loops.compiled_threads
+
+    def spy(threads):
+        seen.append(threads)
+        return real(threads)
+
+    monkeypatch.setattr(numba_loops, "compiled_threads", spy)
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    run(request(mini_root, out, threads=2))
+    assert seen == [2] and out.read_bytes() == reference_csv.read_bytes()
+
+
+@pytest.mark.parametrize(("kw", "message"), [({"threads": 0}, "at least 1 thread"),
+                                             ({"threads": 2, "workers": 2}, "--threads 2 is for one process")])  # fmt: skip
+def test_threads_out_of_place_are_refused(mini_root, tmp_path, kw, message):
+    from bop_cender.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message) as info:
+        run(request(mini_root, tmp_path / "cendernet-oracle_dimo-real.csv", **kw))
+    assert info.value.field == "--threads"
+
+
 def test_score_reads_the_run_with_no_flag(reference_csv, capsys):
     assert main(["score", str(reference_csv), "--no-progress"]) == 0
     out = capsys.readouterr().out

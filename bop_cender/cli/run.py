@@ -53,6 +53,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")
     p.add_argument(
+        "--threads",
+        type=count("--threads"),
+        default=1,
+        help="threads of the compiled CPU loops (renderer, stage 3's costs) with one process (default 1; a many-core "
+        "host running one scene at a time: its cores); the same rows whatever the count",
+    )
+    p.add_argument(
         "--limit-scenes", type=count("--limit-scenes"), default=None, help="only the first K scenes of the split"
     )
     p.add_argument("--resume", action="store_true", help="keep the finished scenes of an interrupted run")
@@ -136,7 +143,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
         deterministic_time=args.deterministic_time, device=device, pose_device=pose_device,
-        vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views,
+        vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views, threads=args.threads,
     )  # fmt: skip
     bar = None
 

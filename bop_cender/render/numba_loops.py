@@ -11,11 +11,26 @@ same bits.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numba
 import numpy as np
 import torch
+
+#: The compiled loops' thread count while :func:`compiled_threads` is in force (empty: torch's thread count).
+_THREADS: list[int] = []
+
+
+@contextmanager
+def compiled_threads(threads: int) -> Iterator[None]:
+    """Run the compiled loops on ``threads`` threads inside the block, whatever torch's thread count (``run
+    --threads``: one process keeps one torch thread, for torch's small operators, and gives the loops the cores)."""
+    _THREADS.append(int(threads))
+    try:
+        yield
+    finally:
+        _THREADS.pop()
 
 
 def canvas_loop(py_func: Callable | None = None, *, error_model: str = "python") -> Callable:
@@ -36,7 +51,8 @@ def canvas_loop(py_func: Callable | None = None, *, error_model: str = "python")
     threaded = numba.njit(nogil=True, parallel=True, error_model=error_model)(py_func)
 
     def run(*args):
-        threads = min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
+        torch_threads = torch.get_num_threads()
+        threads = min(_THREADS[-1] if _THREADS else torch_threads, numba.config.NUMBA_NUM_THREADS)
         if threads <= 1:
             return serial(*args)
         before = numba.get_num_threads()
@@ -45,6 +61,10 @@ def canvas_loop(py_func: Callable | None = None, *, error_model: str = "python")
             return threaded(*args)
         finally:
             numba.set_num_threads(before)  # numba's setting is per thread: leave it as found
+            # numba's OpenMP layer shares the runtime with torch: its parallel region leaves torch on its thread count
+            # (1 -> 2 measured), and torch's reductions then sum in another order (other bits) and fight for cores
+            if torch.get_num_threads() != torch_threads:
+                torch.set_num_threads(torch_threads)
 
     run.__doc__ = py_func.__doc__
     run.serial, run.threaded = serial, threaded
