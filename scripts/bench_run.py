@@ -174,14 +174,17 @@ def scene_timings(
     torch_threads: int = 1,
     settings: tuple[str, ...] = (),
     pose_device: str | None = None,
+    loop_threads: int | None = None,
 ) -> list[dict]:
     """Seconds per scene by stage: heatmaps (the oracle) on ``device``, stage 3 on ``pose_device`` (default the
-    same; ``run`` keeps stage 3 on the CPU, its compiled loops on torch's thread count)."""
+    same; ``run`` keeps stage 3 on the CPU, its compiled loops on torch's thread count, or ``loop_threads`` as
+    ``run --threads`` gives them)."""
     from bop_cender.data.registry import DatasetRequest
     from bop_cender.datasets import open_with_demo
     from bop_cender.meshes import MeshCache
     from bop_cender.method import CenDerNet, CenDerNetConfig
     from bop_cender.net.oracle import OraclePredictor
+    from bop_cender.render.numba_loops import compiled_threads
 
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))  # no data root: the embedded demo, silently
     config = CenDerNetConfig.for_dataset("dimo").with_settings(settings)
@@ -192,18 +195,19 @@ def scene_timings(
     # stage 3 on the timed device too (``run`` keeps it on the CPU unless --pose-device says otherwise)
     method = CenDerNet(ds.models, config, oracle, meshes, cost_threads=chunk_threads, pose_device=pose_device or device)
     torch.set_num_threads(torch_threads)
-    if torch_threads > 1 and ds.scene_keys:  # the threaded compiled loops compile on first use (not cached on disk)
-        method.estimate(ds.scene(ds.scene_keys[0]))
-    out = []
-    for key in ds.scene_keys[:n_scenes]:
-        scene = ds.scene(key)
-        t = time.perf_counter()
-        est = method.estimate(scene)
-        wall = time.perf_counter() - t
-        n_parts = sum(ds.models[g.obj_id].is_target for g in scene.gt)
-        out.append({"scene": key, "views": len(scene.views), "parts": n_parts, "objects": len(est.objects),
-                    "wall": wall, **est.timings})  # fmt: skip
-        print(f"scene {key}: {wall:.1f} s " + ", ".join(f"{k} {v:.1f}" for k, v in est.timings.items()), flush=True)
+    with compiled_threads(loop_threads or torch_threads):
+        if max(torch_threads, loop_threads or 1) > 1 and ds.scene_keys:  # threaded loops compile on first use
+            method.estimate(ds.scene(ds.scene_keys[0]))
+        out = []
+        for key in ds.scene_keys[:n_scenes]:
+            scene = ds.scene(key)
+            t = time.perf_counter()
+            est = method.estimate(scene)
+            wall = time.perf_counter() - t
+            n_parts = sum(ds.models[g.obj_id].is_target for g in scene.gt)
+            out.append({"scene": key, "views": len(scene.views), "parts": n_parts, "objects": len(est.objects),
+                        "wall": wall, **est.timings})  # fmt: skip
+            print(f"scene {key}: {wall:.1f} s " + ", ".join(f"{k} {v:.1f}" for k, v in est.timings.items()), flush=True)
     return out
 
 
@@ -285,6 +289,8 @@ def main() -> None:
     ap.add_argument("--pose-device", choices=("cpu", "cuda"), default=None,
                     help="stage 3's device in the scene timing (default: the last of --devices); `run` keeps stage 3 on"
                          " the CPU: --devices cuda --pose-device cpu --torch-threads N times a GPU host as run uses it")  # fmt: skip
+    ap.add_argument("--loop-threads", type=int, default=None,
+                    help="threads of the compiled loops in the scene timing (default: --torch-threads), as run --threads")  # fmt: skip
     ap.add_argument("--scenes-only", action="store_true",
                     help="time the scenes alone (no cost calls, edge proxy or scene polish)")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
@@ -360,12 +366,14 @@ def main() -> None:
         args.torch_threads,
         tuple(args.set),
         pose_device,
+        args.loop_threads,
     )
     load_after = os.getloadavg()
     slug = bench_machine.machine_slug(torch.cuda.get_device_name(0) if torch.cuda.is_available() else None)
     name = f"run_{slug}.md"
     if args.scenes_only:  # beside the full benchmark's file, not over it
-        name = f"run_{slug}_scenes_heatmaps-{devices[-1].type}_poses-{pose_device}-{args.torch_threads}threads.md"
+        loops = args.loop_threads or args.torch_threads
+        name = f"run_{slug}_scenes_heatmaps-{devices[-1].type}_poses-{pose_device}-{args.torch_threads}threads-{loops}loops.md"
     path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / name
     lines = ["# Method benchmark (`scripts/bench_run.py`)", "", f"Command: `python scripts/{Path(__file__).name} "
              + " ".join(sys.argv[1:]) + "`", ""]  # fmt: skip
@@ -396,7 +404,7 @@ def main() -> None:
         lines += [f"| {w} | {b} | {c:,.0f} | {m:.2f} |" for w, b, c, m in polish_rows]
     where = devices[-1].type if pose_device == devices[-1].type else f"heatmaps {devices[-1].type}, poses {pose_device}"
     lines += ["", f"## Seconds per scene (DIMO layout, split {args.split}, oracle heatmaps, default config, {where},"
-              f" {args.torch_threads} torch thread(s))", "",
+              f" {args.torch_threads} torch thread(s), compiled loops on {args.loop_threads or args.torch_threads})", "",
               "| scene | views | parts | estimated | wall s | heatmaps s | centers s | poses s |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     lines += [f"| {s['scene']} | {s['views']} | {s['parts']} | {s['objects']} | {s['wall']:.1f} | {s['heatmaps']:.2f}"

@@ -84,7 +84,7 @@ if [[ "$mode" == "check" ]]; then
   bundle
   # seconds per scene as `run` uses a GPU host: heatmaps on the GPU, stage 3 on the host's cores (compiled loops)
   stage bench_scenes_host 110 python3 scripts/bench_run.py --devices "$DEVICE" --pose-device cpu \
-    --torch-threads "$(nproc)" --scenes-only --scenes 3
+    --loop-threads "$(nproc)" --scenes-only --scenes 3
   bundle
   stage bench_net 90 python3 scripts/bench_net.py --devices "$DEVICE"
   bundle
