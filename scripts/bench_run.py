@@ -227,6 +227,7 @@ def scene_polish_costs(
     from bop_cender.pose.cost import distance_maps
     from bop_cender.pose.coverage import scene_cost
     from bop_cender.pose.scene_polish import scene_window
+    from bop_cender.render.rasterizer import render_scene
 
     device = torch.device("cpu") if device is None else device
     ds = open_with_demo(DatasetRequest("dimo", data_root, split))
@@ -262,6 +263,19 @@ def scene_polish_costs(
         T = parts[0].T_world_model[None]
         rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}, torch steps after the render", 1,
                      *_calls_per_second(lambda: window.costs(T, compiled=False), device, 1, seconds)))  # fmt: skip
+        # the renders alone, torch pipeline against the compiled loop (render_scene's CPU default; the same bits)
+        h, w = window.size
+        T_win = torch.as_tensor(np.einsum("vij,jk->vik", window.T_cam_world, parts[0].T_world_model)[:, None],
+                                dtype=torch.float32)  # fmt: skip
+        H, W = scene.views[0].height, scene.views[0].width
+        renders = {f"render alone, the part's {len(Ks)} windows {h}x{w}": lambda c: render_scene(
+                       [window.mesh], T_win, window.K, h, w, compiled=c),
+                   f"render alone, {len(Ks)} full frames of {len(parts)} parts": lambda c: render_scene(
+                       part_meshes, T_cm, K, H, W, compiled=c)}  # fmt: skip
+        for what, render in renders.items():
+            for compiled, how in ((False, "torch pipeline"), (True, "compiled")):
+                rows.append((f"{what}, {how}", 1,
+                             *_calls_per_second(lambda r=render, c=compiled: r(c), device, 1, seconds)))  # fmt: skip
     torch.set_num_threads(threads)
     for what, batch, calls, ms in rows:
         print(f"scene polish ({device.type}): {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)",

@@ -13,3 +13,21 @@ def device(request) -> torch.device:
     if request.param == "cuda" and not torch.cuda.is_available():
         pytest.skip("no CUDA device")
     return torch.device(request.param)
+
+
+@pytest.fixture()
+def on_one_and_two_threads():
+    """``run(call)`` -> ``(call() on one torch thread, call() on two)``, torch's count restored after: the compiled
+    loops run serial on one thread and threaded on more, and must give the same bits."""
+
+    def run(call):
+        before = torch.get_num_threads()
+        try:
+            torch.set_num_threads(1)
+            one = call()
+            torch.set_num_threads(2)
+            return one, call()
+        finally:
+            torch.set_num_threads(before)
+
+    return run

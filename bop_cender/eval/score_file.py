@@ -288,7 +288,8 @@ def check_failed_scenes(failed: tuple[str, ...], ds: Dataset, rows: list, csv_pa
     if not failed:
         return
     where = {"file": sidecar_path(csv_path), "field": "extra.failed_scenes"}
-    unknown = [k for k in failed if k not in set(ds.scene_keys)]
+    scored = set(ds.scene_keys)
+    unknown = [k for k in failed if k not in scored]
     if unknown:
         raise ResultsError(
             f"names {len(unknown)} scene(s) that are not among the {len(ds.scene_keys)} scored: "

@@ -189,19 +189,15 @@ def candidate_costs(
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
     occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
     batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels, occluder_depth=occ)
-    if compiled and device.type != "cpu":
-        raise ValueError(f"compiled=True costs on the CPU; the inputs are on {device}")
-    use_compiled = compiled
-    if compiled is None and device.type == "cpu":
-        from bop_cender.render.compiled_raster import AVAILABLE as use_compiled  # numba: imported where it is used
-    if use_compiled:
+    from bop_cender.render import compiled_raster  # numba: imported where it is used
+
+    if compiled_raster.use_compiled(compiled, device):
         from bop_cender.pose.cost_kernel import compiled_candidate_costs
 
         costs = compiled_candidate_costs(batch, dist)
         if costs is not None:
             return (costs.view(B, V) * weights).sum(1)
-        if compiled:
-            raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
+        compiled_raster.behind_near_plane(compiled)
 
     def run(chunk: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor]:
         atlas = chunk_curvature(batch, chunk)

@@ -23,21 +23,19 @@ import numpy as np
 import torch
 
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM, CandidateBatch
-from bop_cender.render.compiled_raster import ADDCMUL_FUSED, _fma, key_bits, raster_window
+from bop_cender.render.compiled_raster import loop_inputs, pixel_curvature, raster_window
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
-from bop_cender.render.raster import front_faces, project_vertices
-from bop_cender.render.scanline import KeyCodec
 
 
 @canvas_loop(error_model="numpy")
-def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv, lo, extent, near, face_bits,
-                  depth_bits, fused, occ, margin, dist, out):  # fmt: skip
-    """Unweighted cost of each canvas ``c`` (view ``c % V``) into ``out[c]``."""
+def _canvas_costs(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, face_bits,
+                  depth_bits, fused, lo, extent, near, occ, margin, dist, out):  # fmt: skip
+    """Unweighted cost of each canvas ``c`` (view ``c % V``) into ``out[c]`` (the first twelve arguments:
+    :func:`~bop_cender.render.compiled_raster.loop_inputs`)."""
     V, H, W = dist.shape
     diagonal = np.float32(math.hypot(H, W))
     has_occ = occ.shape[0] > 0
-    face_instance = np.zeros(faces.shape[0], dtype=np.int64)
     for c in numba.prange(R.shape[0]):
         v = c % V
         top, left = lo[c, 0], lo[c, 1]
@@ -45,9 +43,8 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv
         depth = np.zeros((h, w), dtype=np.float32)
         normals = np.zeros((h, w, 3), dtype=np.float32)
         faces_hit = np.full((h, w), -1, dtype=np.int64)
-        raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c:c + 1],
-                      K_inv[c], top, left, h, w, near, face_bits, depth_bits, fused, depth, normals,
-                      faces_hit)  # fmt: skip
+        raster_window(cam_all[c], px_all[c], py_all[c], draw[c], faces, face_instance, corner_normals, R[c], K_inv[c],
+                      top, left, h, w, near, face_bits, depth_bits, fused, depth, normals, faces_hit)  # fmt: skip
         if has_occ:  # candidate_curvature._hide_occluded: hidden pixels become background
             for i in range(h):
                 r = top + i
@@ -77,17 +74,7 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, corner_normals, R, K_inv
                 s = left + j
                 if s < 0 or s >= W:
                     continue
-                total = np.float32(0.0)
-                for k in range(3):  # curvature_valid: Prewitt, then torch's multiply-adds
-                    gx = (normals[i - 1, j + 1, k] + normals[i, j + 1, k] + normals[i + 1, j + 1, k]) - (
-                        normals[i - 1, j - 1, k] + normals[i, j - 1, k] + normals[i + 1, j - 1, k]
-                    )
-                    gy = (normals[i + 1, j - 1, k] + normals[i + 1, j, k] + normals[i + 1, j + 1, k]) - (
-                        normals[i - 1, j - 1, k] + normals[i - 1, j, k] + normals[i - 1, j + 1, k]
-                    )
-                    total = gx * gx if k == 0 else _fma(gx, gx, total, fused)
-                    total = _fma(gy, gy, total, fused)
-                curv = np.sqrt(total)
+                curv = pixel_curvature(normals, i - 1, i, i + 1, j - 1, j, j + 1, fused)  # curvature_valid
                 num += np.float64(curv) * np.float64(dist[v, r, s])
                 den += np.float64(curv)
         out[c] = np.float32(num / den) if den > 0.0 else diagonal
@@ -103,22 +90,14 @@ def compiled_candidate_costs(batch: CandidateBatch, dist_maps: torch.Tensor) -> 
         batch: :func:`~bop_cender.render.candidate_curvature.prepare_candidates`'s windows and vertices.
         dist_maps: ``(V, H, W)`` float32 distance maps.
     """
-    verts = batch.verts  # (3, C, N)
-    C = int(verts.shape[1])
+    C = int(batch.verts.shape[1])
     if C == 0:
         return torch.zeros(0, dtype=torch.float32)
-    if verts.numel() and float(verts[2].amin()) < batch.near:
+    inputs = loop_inputs(batch.mesh, batch.R[:, None], batch.t[:, None], batch.K, batch.near, verts=batch.verts)
+    if inputs is None:
         return None
-    px, py = project_vertices(verts, batch.K, batch.near)
-    draw = front_faces(batch.mesh, batch.R[:, None], batch.t[:, None])
-    K_inv = _np(torch.linalg.inv(batch.K.double()).to(torch.float32).reshape(C, 9))
-    face_bits, depth_bits = key_bits(KeyCodec.for_faces(batch.mesh.num_faces))
     occ = np.zeros((0, 1, 1), dtype=np.float32) if batch.occluder_depth is None else _np(batch.occluder_depth.float())
     out = np.empty(C, dtype=np.float32)
-    _canvas_costs(
-        _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(draw), _np(batch.mesh.faces).astype(np.int64, copy=False),
-        _np(batch.mesh.corner_normals), _np(batch.R), K_inv, _np(batch.lo), _np(batch.extent), np.float32(batch.near),
-        int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED), occ, np.float32(OCCLUSION_MARGIN_MM),
-        _np(dist_maps.float()), out,
-    )  # fmt: skip
+    _canvas_costs(*inputs, _np(batch.lo), _np(batch.extent), np.float32(batch.near), occ,
+                  np.float32(OCCLUSION_MARGIN_MM), _np(dist_maps.float()), out)  # fmt: skip
     return torch.from_numpy(out)

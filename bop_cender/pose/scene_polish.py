@@ -23,7 +23,7 @@ only where the full scene cost falls. On the CPU the steps after the render (com
 run as one compiled pass (:mod:`bop_cender.pose.window_kernel`; ``python scripts/bench_run.py``, section "Scene
 polish", times a call both ways), and the render itself is the compiled loop of
 :mod:`bop_cender.render.compiled_raster` (the torch pipeline's bits without its fixed cost of about 2,000
-operators a call: 15 -> 3 ms of a call, and a 9-part scene 20.7 -> 13.9 s under the profiler).
+operators a call: ``scripts/bench_run.py``, section "Scene polish", times both renders).
 
 Target edges within ``WINDOW_BORDER_PX`` of a window side that lies inside the image are left out of the
 backward term: they are mostly a neighbour's edges spilling across the side, which the windowed composite

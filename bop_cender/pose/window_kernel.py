@@ -9,8 +9,9 @@ about 40 operators over ``(V, h, w)`` arrays, 7 of 12 ms of a call on one CPU th
 forward sums and the binarised own edges are one pass over each canvas's pixels; the own edges' distance
 transform stays OpenCV's (:func:`~bop_cender.pose.cost.distance_map`), and the backward mean is taken from it.
 
-Same arithmetic as the torch steps, in float32 for the curvature (so the binarisation at the edge threshold
-sees the same values) and float64 for the sums: the costs agree to float32 rounding
+Same arithmetic as the torch steps, in float32 for the curvature (the renderer's
+:func:`~bop_cender.render.compiled_raster.pixel_curvature`, with torch's multiply-add rounding as probed, so the
+binarisation at the edge threshold sees the same values) and float64 for the sums: the costs agree to float32 rounding
 (``tests/pose/test_scene_polish.py``).
 """
 
@@ -23,12 +24,14 @@ import numpy as np
 import torch
 
 from bop_cender.pose.cost import distance_map
+from bop_cender.render.compiled_raster import ADDCMUL_FUSED, pixel_curvature
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
 
 
 @canvas_loop
-def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, threshold, forward, own_edges):
+def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, threshold, fused, forward,
+                     own_edges):  # fmt: skip
     """Per canvas c (view ``c % V``): the forward cost into ``forward[c]`` and the composite's own edges (1 where
     its curvature exceeds ``threshold``) into ``own_edges[c]``; returns the number of own-edge pixels per canvas."""
     N, h, w = depth.shape
@@ -56,23 +59,7 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
             i0, i2 = max(i - 1, 0), min(i + 1, h - 1)
             for j in range(w):
                 j0, j2 = max(j - 1, 0), min(j + 1, w - 1)
-                total = np.float32(0.0)
-                for k in range(3):
-                    gx = (comp[i0, j2, k] + comp[i, j2, k] + comp[i2, j2, k]) - (
-                        comp[i0, j0, k] + comp[i, j0, k] + comp[i2, j0, k]
-                    )
-                    gy = (comp[i2, j0, k] + comp[i2, j, k] + comp[i2, j2, k]) - (
-                        comp[i0, j0, k] + comp[i0, j, k] + comp[i0, j2, k]
-                    )
-                    # torch's order: gx0 * gx0, then fused multiply-adds (its CPU addcmul_), emulated in float64
-                    # (a float32 product is exact there); the rounding matters, as the edge threshold (3.0 by
-                    # default) is the curvature of a clean step from a unit normal to background
-                    if k == 0:
-                        total = gx * gx
-                    else:
-                        total = np.float32(np.float64(total) + np.float64(gx) * np.float64(gx))
-                    total = np.float32(np.float64(total) + np.float64(gy) * np.float64(gy))
-                curv = np.sqrt(total)
+                curv = pixel_curvature(comp, i0, i, i2, j0, j, j2, fused)  # curvature's replicated border
                 r, s = top + i, left + j
                 if 0 <= r < H and 0 <= s < W:
                     num += np.float64(curv) * np.float64(dist[v, r, s])
@@ -116,7 +103,15 @@ def window_costs(
     else:
         other = (_np(other_depth), _np(other_normals))
     counts = _composite_costs(
-        _np(depth), _np(normals), *other, _np(dist), _np(offsets), np.float32(edge_threshold), forward, own_edges
+        _np(depth),
+        _np(normals),
+        *other,
+        _np(dist),
+        _np(offsets),
+        np.float32(edge_threshold),
+        bool(ADDCMUL_FUSED),
+        forward,
+        own_edges,
     )
     targets = _np(target_edges).astype(bool, copy=False)  # a 0/1 mask of any dtype selects pixels, as in torch
     V = targets.shape[0]

@@ -1,22 +1,23 @@
-"""One mesh rendered into small canvases by one compiled loop per canvas (CPU): the scene polish's render.
+"""The torch rasteriser as one compiled loop per canvas (CPU): the same bits without its per-call operators.
 
-Why. The scene polish (:mod:`bop_cender.pose.scene_polish`) renders one moving part into its windows about 60
-times per part, one pose at a time (7 canvases of about 140 x 140 pixels). The torch renderer
-(:mod:`bop_cender.render.raster`, :mod:`bop_cender.render.scanline`, :mod:`bop_cender.render.resolve`) is
-written for large batches: a call costs about 2,000 operators whatever its size, 15 ms of the polish's 18 ms
-per call on one CPU thread, and half of a 9-part scene's wall time (``scripts/bench_run.py``, "Scene polish").
-Here the same pipeline runs as one loop over each canvas's faces and pixels.
+Why. The torch renderer (:mod:`bop_cender.render.raster`, :mod:`bop_cender.render.scanline`,
+:mod:`bop_cender.render.resolve`) is written for large batches: a call costs about 2,000 operators whatever its
+size. Stage 3 renders in thousands of small calls (the scene polish: one part into 7 windows of about 140 x 140
+pixels per Nelder-Mead step), where those operators were most of the time. Here the same pipeline runs as one
+loop over each canvas's faces and pixels; :func:`~bop_cender.render.rasterizer.render_scene` and the one-mesh
+window renders use it on the CPU by default.
 
-Same rules and the same float32 arithmetic as the torch renderer, step for step: back faces and faces seen
-edge-on culled from the model-frame face planes; each face's shading row (the perspective-correct normal
-``M @ (x, y, 1)`` and the ``1/z`` plane, :func:`bop_cender.render.raster._face_table`); corners sorted by y,
-edges anchored at their end point of lower vertex id, the top-left rule at pixel centres; int32 keys of ``1/z``
-quantised over the canvas's depth range with the face id in the low bits (larger key wins), or, for meshes of
-more than 2^15 faces, the exact ``1/z`` with ties to the larger face id; normals and depth at the centres of the
-covered pixels. The maps agree with :func:`bop_cender.render.rasterizer.render_scene` to float32 rounding
-(the torch operators may fuse multiply-adds where this loop rounds twice; ``tests/render/test_compiled_raster.py``
-bounds the differences). Canvases with a vertex behind the near plane (cut there by the torch renderer) are not
-rendered here: :func:`render_mesh_compiled` returns None for them and the caller uses the torch renderer.
+Same rules and the same float32 arithmetic as the torch renderer, step for step: the vertices, projections and
+culling are the torch functions' own (:func:`~bop_cender.render.raster.camera_vertices`,
+:func:`~bop_cender.render.raster.project_vertices`, :func:`~bop_cender.render.raster.front_faces`); each face's
+shading row (:func:`bop_cender.render.raster._face_table`) with torch's ``addcmul`` rounding (:func:`torch_fma`, as
+probed: :data:`ADDCMUL_FUSED`); corners sorted by y, edges anchored at their end point of lower vertex id, the
+top-left rule at pixel centres; int32 keys of ``1/z`` quantised over the canvas's depth range with the face id in
+the low bits (larger key wins), or exact ``1/z`` with ties to the larger face id (packed meshes, large meshes);
+normals and depth at the centres of the covered pixels. The maps are the torch pipeline's bit for bit
+(``tests/render/test_compiled_raster.py``): bits matter, as stage 3's edge threshold (3.0) is exactly the
+curvature of an axis-aligned silhouette step. Canvases with a vertex behind the near plane (cut there by the torch
+renderer) are not rendered here: :func:`render_compiled` returns None and the caller uses the torch renderer.
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
         e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
         e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
         nrm = _cross(e10, e11, e12, e20, e21, e22)
-        inv_det = np.float32(1.0) / _fma(a2, nrm[2], _fma(a1, nrm[1], a0 * nrm[0], fused), fused)
+        inv_det = np.float32(1.0) / torch_fma(a2, nrm[2], torch_fma(a1, nrm[1], a0 * nrm[0], fused), fused)
         s00 = K_inv[0] * inv_det
         s01 = K_inv[1] * inv_det
         s02 = K_inv[2] * inv_det
@@ -112,7 +113,7 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
             n1 = _rotate(R[inst], a, corner_normals[f, 1], fused)
             n2 = _rotate(R[inst], a, corner_normals[f, 2], fused)
             for k in range(3):
-                table[f, 3 * a + k] = _fma(n2, p2[k], _fma(n1, p1[k], n0 * p0[k], fused), fused)
+                table[f, 3 * a + k] = torch_fma(n2, p2[k], torch_fma(n1, p1[k], n0 * p0[k], fused), fused)
         pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det, fused)
         table[f, 9] = pz[0]
         table[f, 10] = pz[1]
@@ -166,10 +167,10 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
                 n_cols = int(col_end - col_start)
                 if n_cols <= 0:
                     continue
-                q_start = _fma(qb, y, col_start * qa, fused) + qc
+                q_start = torch_fma(qb, y, col_start * qa, fused) + qc
                 j0 = int(col_start) - u0
                 for k in range(n_cols):
-                    q = _fma(qa, np.float32(k), q_start, fused)
+                    q = torch_fma(qa, np.float32(k), q_start, fused)
                     j = j0 + k
                     if quantised:
                         level = np.int64(min(max(q, np.float32(0.0)), levels))
@@ -191,11 +192,15 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
             f = key & mask if quantised else key
             face_out[i, j] = f
             x = np.float32(u0 + j) + _HALF
-            depth_out[i, j] = np.float32(1.0) / _fma(table[f, 10], y, _fma(table[f, 9], x, table[f, 11], fused), fused)
-            n0 = _fma(table[f, 1], y, _fma(table[f, 0], x, table[f, 2], fused), fused)
-            n1 = _fma(table[f, 4], y, _fma(table[f, 3], x, table[f, 5], fused), fused)
-            n2 = _fma(table[f, 7], y, _fma(table[f, 6], x, table[f, 8], fused), fused)
-            inv = np.float32(1.0) / np.sqrt(max(_fma(n2, n2, _fma(n1, n1, n0 * n0, fused), fused), np.float32(1e-30)))
+            depth_out[i, j] = np.float32(1.0) / torch_fma(
+                table[f, 10], y, torch_fma(table[f, 9], x, table[f, 11], fused), fused
+            )
+            n0 = torch_fma(table[f, 1], y, torch_fma(table[f, 0], x, table[f, 2], fused), fused)
+            n1 = torch_fma(table[f, 4], y, torch_fma(table[f, 3], x, table[f, 5], fused), fused)
+            n2 = torch_fma(table[f, 7], y, torch_fma(table[f, 6], x, table[f, 8], fused), fused)
+            inv = np.float32(1.0) / np.sqrt(
+                max(torch_fma(n2, n2, torch_fma(n1, n1, n0 * n0, fused), fused), np.float32(1e-30))
+            )
             normals_out[i, j, 0] = n0 * inv
             normals_out[i, j, 1] = n1 * inv
             normals_out[i, j, 2] = n2 * inv
@@ -207,7 +212,7 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def _fma(a, b, c, fused):
+def torch_fma(a, b, c, fused):
     """``a * b + c`` as torch's CPU ``addcmul`` computes it: with ``fused``, rounded once to float32 (a fused
     multiply-add, as its AVX2 and AVX-512 kernels do; the float32 product is exact in float64), else the product
     rounded, then the sum."""
@@ -217,9 +222,29 @@ def _fma(a, b, c, fused):
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
+def pixel_curvature(normals, i0, i, i2, j0, j, j2, fused):
+    """The curvature at pixel ``(i, j)`` of normal maps ``(h, w, 3)`` from rows ``i0, i, i2`` and columns
+    ``j0, j, j2`` (the caller's border rule), as :func:`~bop_cender.render.curvature.curvature_valid` computes it:
+    the Prewitt sums in its order, ``gx0 * gx0``, then torch's multiply-adds (``fused``: :data:`ADDCMUL_FUSED`), the
+    square root. Float32, so a threshold on it sees torch's value (3.0, a clean step from a unit normal to
+    background, sits exactly on stage 3's edge threshold)."""
+    total = np.float32(0.0)
+    for k in range(3):
+        gx = (normals[i0, j2, k] + normals[i, j2, k] + normals[i2, j2, k]) - (
+            normals[i0, j0, k] + normals[i, j0, k] + normals[i2, j0, k]
+        )
+        gy = (normals[i2, j0, k] + normals[i2, j, k] + normals[i2, j2, k]) - (
+            normals[i0, j0, k] + normals[i0, j, k] + normals[i0, j2, k]
+        )
+        total = gx * gx if k == 0 else torch_fma(gx, gx, total, fused)
+        total = torch_fma(gy, gy, total, fused)
+    return np.sqrt(total)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
 def _rotate(R, a, n, fused):
     """Axis ``a`` of the model-frame normal ``n (3,)`` rotated by ``R (3, 3)`` (the torch order of operations)."""
-    return _fma(R[a, 2], n[2], _fma(R[a, 1], n[1], R[a, 0] * n[0], fused), fused)
+    return torch_fma(R[a, 2], n[2], torch_fma(R[a, 1], n[1], R[a, 0] * n[0], fused), fused)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -227,8 +252,8 @@ def _plane(cv, s00, s01, s02, s11, s12, inv_det, fused):
     """``c K^-1 / det`` for the upper-triangular ``K^-1`` (raster._face_table's ``plane``)."""
     return (
         cv[0] * s00,
-        _fma(cv[1], s11, cv[0] * s01, fused),
-        _fma(cv[2], inv_det, _fma(cv[1], s12, cv[0] * s02, fused), fused),
+        torch_fma(cv[1], s11, cv[0] * s01, fused),
+        torch_fma(cv[2], inv_det, torch_fma(cv[1], s12, cv[0] * s02, fused), fused),
     )
 
 
@@ -267,6 +292,63 @@ def key_bits(codec: KeyCodec) -> tuple[int, int]:
     return (codec.face_bits, codec.depth_bits) if codec.dtype == torch.int32 else (0, 0)
 
 
+def use_compiled(compiled: bool | None, device: torch.device) -> bool:
+    """Whether a renderer entry point takes the compiled loop: ``compiled`` as asked (True only on the CPU), or by
+    default on the CPU where the loops repeat torch's rounding (:data:`AVAILABLE`).
+
+    Raises:
+        ValueError: ``compiled=True`` for inputs on another device.
+    """
+    if compiled and device.type != "cpu":
+        raise ValueError(f"compiled=True runs on the CPU; the inputs are on {device}")
+    return AVAILABLE and device.type == "cpu" if compiled is None else bool(compiled)
+
+
+def behind_near_plane(compiled: bool | None) -> None:
+    """What a caller does when the loop declined (a vertex behind the near plane): the torch pipeline, which cuts the
+    faces there, unless ``compiled=True`` was asked for explicitly.
+
+    Raises:
+        ValueError: ``compiled`` is True.
+    """
+    if compiled:
+        raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
+
+
+def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float,
+                verts: torch.Tensor | None = None) -> tuple | None:  # fmt: skip
+    """The arrays :func:`raster_window` reads for C canvases, from the torch renderer's own functions: camera-space
+    vertices ``(C, N, 3)``, projections ``(C, N)`` twice, faces drawn ``(C, F)``, faces, face instances, corner
+    normals, rotations ``(C, I, 3, 3)``, inverse intrinsics ``(C, 9)``, face bits, depth bits and the ``addcmul``
+    rounding; None where a vertex lies behind the near plane.
+
+    Args:
+        R, t: ``(C, I, 3, 3)``, ``(C, I, 3)``; K: ``(C, 3, 3)``, all float32 on the CPU.
+        verts: ``(3, C, N)`` camera-space vertices if already computed.
+
+    Raises:
+        RuntimeError: the loops cannot give torch's bits on this machine (:data:`AVAILABLE` False).
+    """
+    if not AVAILABLE:
+        raise RuntimeError("torch's CPU addcmul rounds once for some elements and twice for others here: the "
+                           "compiled renderer cannot repeat it (use the torch pipeline)")  # fmt: skip
+    verts = camera_vertices(meshes, R, t) if verts is None else verts  # (3, C, N)
+    if verts.numel() and float(verts[2].amin()) < near:
+        return None
+    C, F = int(R.shape[0]), int(meshes.faces.shape[0])
+    px, py = project_vertices(verts, K, near)
+    face_instance = getattr(meshes, "face_instance", None)
+    face_bits, depth_bits = key_bits(KeyCodec.for_faces(F, exact=face_instance is not None))
+    if face_instance is None:
+        face_instance = torch.zeros(F, dtype=torch.int64)
+    K_inv = torch.linalg.inv(K.double()).to(torch.float32).reshape(C, 9)  # as rasterize inverts it
+    return (
+        _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(front_faces(meshes, R, t)),
+        _np(meshes.faces).astype(np.int64, copy=False), _np(face_instance), _np(meshes.corner_normals), _np(R),
+        _np(K_inv), int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED),
+    )  # fmt: skip
+
+
 def render_compiled(
     meshes: RenderMesh | PackedMeshes,
     R: torch.Tensor,
@@ -297,27 +379,15 @@ def render_compiled(
     Raises:
         RuntimeError: the loops cannot give torch's bits on this machine (:data:`AVAILABLE` False).
     """
-    if not AVAILABLE:
-        raise RuntimeError("torch's CPU addcmul rounds once for some elements and twice for others here: the "
-                           "compiled renderer cannot repeat it (use the torch pipeline)")  # fmt: skip
-    C = int(R.shape[0])
-    verts = camera_vertices(meshes, R, t)  # (3, C, N): the torch renderer's own vertices and projections
-    if verts.numel() and float(verts[2].amin()) < near:
+    inputs = loop_inputs(meshes, R, t, K, near)
+    if inputs is None:
         return None
-    px, py = project_vertices(verts, K, near)
-    draw = front_faces(meshes, R, t)
-    K_inv = _np(torch.linalg.inv(K.double()).to(torch.float32).reshape(C, 9))
-    face_instance = getattr(meshes, "face_instance", None)
-    face_bits, depth_bits = key_bits(KeyCodec.for_faces(int(meshes.faces.shape[0]), exact=face_instance is not None))
-    if face_instance is None:
-        face_instance = torch.zeros(int(meshes.faces.shape[0]), dtype=torch.int64)
+    cam, px, py, draw, faces, face_instance, corner_normals, rotations, K_inv, face_bits, depth_bits, fused = inputs
+    C = int(R.shape[0])
     origins = np.zeros((C, 2), dtype=np.int64) if offsets is None else _np(offsets.to(torch.int64))
     depth = np.zeros((C, height, width), dtype=np.float32)
     normals = np.zeros((C, height, width, 3), dtype=np.float32)
-    faces = np.full((C, height, width), -1, dtype=np.int64)
-    _render_canvases(
-        _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(draw), _np(meshes.faces).astype(np.int64, copy=False),
-        _np(face_instance), _np(meshes.corner_normals), _np(R), K_inv, origins, int(height), int(width),
-        np.float32(near), int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED), depth, normals, faces,
-    )  # fmt: skip
-    return torch.from_numpy(depth), torch.from_numpy(normals), torch.from_numpy(faces)
+    face_map = np.full((C, height, width), -1, dtype=np.int64)
+    _render_canvases(cam, px, py, draw, faces, face_instance, corner_normals, rotations, K_inv, origins, int(height),
+                     int(width), np.float32(near), face_bits, depth_bits, fused, depth, normals, face_map)  # fmt: skip
+    return torch.from_numpy(depth), torch.from_numpy(normals), torch.from_numpy(face_map)

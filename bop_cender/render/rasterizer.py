@@ -143,19 +143,13 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
-    if compiled and device.type != "cpu":
-        raise ValueError(f"compiled=True renders on the CPU; the inputs are on {device}")
-    use_compiled = compiled
-    if compiled is None and device.type == "cpu":
-        from bop_cender.render.compiled_raster import AVAILABLE as use_compiled  # numba: imported where it is used
-    if use_compiled and V > 0:
-        from bop_cender.render.compiled_raster import render_compiled
+    from bop_cender.render import compiled_raster  # numba: imported where it is used
 
-        maps = render_compiled(packed, R, t, Ks, height, width, near)
+    if compiled_raster.use_compiled(compiled, device) and V > 0:
+        maps = compiled_raster.render_compiled(packed, R, t, Ks, height, width, near)
         if maps is not None:
             return SceneRender(*maps, packed.face_instance, packed.face_local)
-        if compiled:
-            raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
+        compiled_raster.behind_near_plane(compiled)
     chunks = _chunks(V, max(1, DEFAULT_CHUNK_PIXELS // (height * width)))
     # one chunk: its maps are the maps (no copy)
     merged = None if len(chunks) == 1 and V > 0 else _empty_maps(V, height, width, device)
@@ -269,16 +263,13 @@ def _render_windows(
     C = int(T.shape[0])
     if offsets is None:
         offsets = torch.zeros((C, 2), dtype=torch.int64, device=T.device)
-    if T.device.type == "cpu" and C > 0:
-        from bop_cender.render import compiled_raster  # numba: imported where it is used
+    from bop_cender.render import compiled_raster  # numba: imported where it is used
 
-        if compiled_raster.AVAILABLE:
-            maps = compiled_raster.render_compiled(
-                mesh, T[:, None, :3, :3], T[:, None, :3, 3], K, size[0], size[1], near, offsets
-            )
-            if maps is not None:
-                d, n, f = maps
-                return WindowMaps(f >= 0, f if faces else None, d if depth else None, n if normals else None)
+    if compiled_raster.use_compiled(None, T.device) and C > 0:
+        maps = compiled_raster.render_compiled(mesh, T[:, None, :3, :3], T[:, None, :3, 3], K, *size, near, offsets)
+        if maps is not None:
+            d, n, f = maps
+            return WindowMaps(f >= 0, f if faces else None, d if depth else None, n if normals else None)
     out = _empty_maps(C, size[0], size[1], T.device, depth, normals, faces)
     for rows in _chunks(C, max(1, DEFAULT_CHUNK_PIXELS // (size[0] * size[1]))):
         windows = Windows.uniform(offsets[rows], size[0], size[1])

@@ -211,14 +211,16 @@ def generate(
     root.mkdir(parents=True, exist_ok=True)
     check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
     jobs = impl.scene_jobs(spec)
-    pending = {}
+    pending, folders = {}, 0
     for i, job in enumerate(jobs):
-        done = [p for p in impl.job_folders(root, spec, job) if scene_done(p)]
+        job_folders = impl.job_folders(root, spec, job)
+        done = [p for p in job_folders if scene_done(p)]
         for folder in done:  # before anything is written, as the record's check
             check_done_folder(folder, impl.folder_shape(spec, job, folder))
-        pending[i] = len(impl.job_folders(root, spec, job)) - len(done)
+        pending[i] = len(job_folders) - len(done)
+        folders += len(job_folders)
     todo = [jobs[i] for i, n in pending.items() if n]
-    folders, to_write = sum(len(impl.job_folders(root, spec, job)) for job in jobs), sum(pending.values())
+    to_write = sum(pending.values())
     if announce is not None and to_write < folders:
         announce(f"resuming: {folders - to_write} of {folders} scene folders done, {to_write} to go")
     if not impl.models_written(root):

@@ -63,19 +63,12 @@ def test_compiled_costs_agree_with_the_torch_atlases(make) -> None:
     )
 
 
-def test_threads_give_the_serial_costs() -> None:
+def test_threads_give_the_serial_costs(on_one_and_two_threads) -> None:
     mesh = prepare_mesh(bracket(16))
     T_cw, Ks = rig()
     dist = target(mesh, T_cw, Ks)
     T = torch.as_tensor(np.einsum("vij,bjk->bvik", T_cw, _candidates(9, seed=8)), dtype=torch.float32)
-    before = torch.get_num_threads()
-    try:
-        torch.set_num_threads(1)
-        serial = candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3))
-        torch.set_num_threads(2)
-        threaded = candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3))
-    finally:
-        torch.set_num_threads(before)
+    serial, threaded = on_one_and_two_threads(lambda: candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3)))
     assert torch.equal(serial, threaded)
 
 

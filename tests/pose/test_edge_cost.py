@@ -144,7 +144,7 @@ def test_every_layout_gives_the_compacted_costs(mini):
         )
 
 
-def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads(mini):
+def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads(mini, on_one_and_two_threads):
     """With no layout named, a CPU call runs the compiled loop; each canvas is summed by one thread in a fixed
     order, so 1 and 2 threads give the same bits. An unknown layout, or the kernel on a non-CPU device, is one
     clear error."""
@@ -153,14 +153,7 @@ def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads
     poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12), (3, 1), (9, 4))])
     T, K, w = _camera_poses(mini, poses)
     model = edge_model_of(meshes(3))
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(1)
-        one = edge_costs(model, T, K, dist, w)
-        torch.set_num_threads(2)
-        two = edge_costs(model, T, K, dist, w)
-    finally:
-        torch.set_num_threads(threads)
+    one, two = on_one_and_two_threads(lambda: edge_costs(model, T, K, dist, w))
     assert torch.equal(one, two) and torch.equal(one, edge_costs(model, T, K, dist, w, layout="kernel"))
     with pytest.raises(ValueError, match="unknown edge-cost layout 'sparse'"):
         edge_costs(model, T, K, dist, w, layout="sparse")

@@ -85,18 +85,11 @@ def test_a_mesh_whose_face_ids_need_more_than_15_bits_uses_exact_keys_alike() ->
     _assert_same([sphere], _poses(2, 1, seed=3), np.tile(K, (2, 1, 1)))
 
 
-def test_threads_give_the_serial_bits() -> None:
+def test_threads_give_the_serial_bits(on_one_and_two_threads) -> None:
     meshes = [MESHES["bracket"](), MESHES["icosphere"]()]
     T_t = torch.as_tensor(_poses(5, 2, seed=11), dtype=torch.float32)
     K_t = torch.as_tensor(np.tile(K, (5, 1, 1)), dtype=torch.float32)
-    before = torch.get_num_threads()
-    try:
-        torch.set_num_threads(1)
-        serial = render_scene(meshes, T_t, K_t, H, W)
-        torch.set_num_threads(2)
-        threaded = render_scene(meshes, T_t, K_t, H, W)
-    finally:
-        torch.set_num_threads(before)
+    serial, threaded = on_one_and_two_threads(lambda: render_scene(meshes, T_t, K_t, H, W))
     assert torch.equal(serial.depth, threaded.depth) and torch.equal(serial.normals, threaded.normals)
 
 
@@ -174,9 +167,12 @@ def test_the_rounding_of_addcmul_is_probed_not_assumed() -> None:
     fused = bool((torch.addcmul(c, a, a) == 2.0**-24).all())
     assert fused == compiled_raster.ADDCMUL_FUSED and compiled_raster.AVAILABLE
     assert (
-        compiled_raster._fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), True) == 2**-24
+        compiled_raster.torch_fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), True)
+        == 2**-24
     )
-    assert compiled_raster._fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), False) == 0
+    assert (
+        compiled_raster.torch_fma(np.float32(1 + 2**-12), np.float32(1 + 2**-12), np.float32(-(1 + 2**-11)), False) == 0
+    )
 
 
 def test_compiled_true_on_cuda_inputs_is_refused(device) -> None:
@@ -184,7 +180,7 @@ def test_compiled_true_on_cuda_inputs_is_refused(device) -> None:
         pytest.skip("the refusal is of non-CPU inputs")
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)), device=device)
     T_t = torch.as_tensor(_poses(1, 1, seed=1), dtype=torch.float32, device=device)
-    with pytest.raises(ValueError, match="renders on the CPU"):
+    with pytest.raises(ValueError, match="runs on the CPU"):
         render_scene([mesh], T_t, torch.as_tensor(K[None], dtype=torch.float32, device=device), H, W, compiled=True)
 
 
