@@ -72,146 +72,212 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
     N = cam.shape[0]
     F = faces.shape[0]
     quantised = face_bits > 0
-    levels = np.float32((1 << depth_bits) - 1 if quantised else 0)
+    levels = key_levels(depth_bits, quantised)
     z_lo = np.float32(np.inf)
     z_hi = np.float32(-np.inf)
     for n in range(N):
         z_lo = min(z_lo, cam[n, 2])
         z_hi = max(z_hi, cam[n, 2])
-    # quantisation range of the int32 keys (KeyCodec.depth_planes)
-    w_lo = np.float32(1.0) / max(z_hi, near)
-    w_hi = np.float32(1.0) / max(z_lo, near)
-    span = w_hi - w_lo
-    # torch's `levels / span` on a tensor is `span.reciprocal() * levels`: two roundings
-    scale = (np.float32(1.0) / max(span, np.float32(1e-30))) * levels if span > 0 else np.float32(0.0)
-    best_key = np.full((h, w), -1, dtype=np.int64)  # int32 key (quantised) or face id (exact)
-    best_w = np.full((h, w), -np.inf, dtype=np.float32)  # exact 1/z plane value (not quantised)
-    table = np.zeros((F, 12), dtype=np.float32)
+    w_lo, scale = key_scale(z_lo, z_hi, near, levels)
+    best_key = np.full(h * w, -1, dtype=np.int64)  # int32 key (quantised) or face id (exact), pixel i * w + j
+    best_w = np.full(h * w, -np.inf, dtype=np.float32)  # exact 1/z plane value (not quantised)
+    table = np.zeros((F, TABLE_WIDTH), dtype=np.float32)
     for f in range(F):
         if not draw[f]:  # 2. culled (raster.front_faces)
             continue
-        inst = face_instance[f]
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        # 3. shading row (raster._face_table), in scalars (no allocation per face)
-        a0, a1, a2 = cam[i0, 0], cam[i0, 1], cam[i0, 2]
-        b0, b1, b2 = cam[i1, 0], cam[i1, 1], cam[i1, 2]
-        d0, d1, d2 = cam[i2, 0], cam[i2, 1], cam[i2, 2]
-        e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
-        e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
-        nrm = _cross(e10, e11, e12, e20, e21, e22)
-        inv_det = np.float32(1.0) / torch_fma(a2, nrm[2], torch_fma(a1, nrm[1], a0 * nrm[0], fused), fused)
-        s00 = K_inv[0] * inv_det
-        s01 = K_inv[1] * inv_det
-        s02 = K_inv[2] * inv_det
-        s11 = K_inv[4] * inv_det
-        s12 = K_inv[5] * inv_det
-        p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det, fused)
-        p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det, fused)
-        p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det, fused)
-        for a in range(3):
-            n0 = _rotate(R[inst], a, corner_normals[f, 0], fused)
-            n1 = _rotate(R[inst], a, corner_normals[f, 1], fused)
-            n2 = _rotate(R[inst], a, corner_normals[f, 2], fused)
-            for k in range(3):
-                table[f, 3 * a + k] = torch_fma(n2, p2[k], torch_fma(n1, p1[k], n0 * p0[k], fused), fused)
-        pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det, fused)
-        table[f, 9] = pz[0]
-        table[f, 10] = pz[1]
-        table[f, 11] = pz[2]
-        # the plane of the key's depth quantity (KeyCodec.depth_planes), the pixel-centre half folded in
-        if quantised:
-            qa = pz[0] * scale
-            qb = pz[1] * scale
-            qc = (pz[2] - w_lo) * scale
-        else:
-            qa, qb, qc = pz[0], pz[1], pz[2]
-        qc = qc + _HALF * (qa + qb)
-        # 4. scan (scanline.scan): corners sorted by y, ties in order (the same three compare-swaps)
-        y0, x0, id0 = py[i0], px[i0], i0
-        y1, x1, id1 = py[i1], px[i1], i1
-        y2, x2, id2 = py[i2], px[i2], i2
-        if y1 < y0:
-            y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
-        if y2 < y1:
-            y1, x1, id1, y2, x2, id2 = y2, x2, id2, y1, x1, id1
-        if y1 < y0:
-            y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
-        cross = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        if cross == 0:
-            continue
-        long_left = cross > 0
-        long_edge = _edge(x0, y0, id0, x2, y2, id2)
-        for half in range(2):
-            if half == 0:
-                short = _edge(x0, y0, id0, x1, y1, id1)
-                y_top, y_bot = y0, y1
-            else:
-                short = _edge(x1, y1, id1, x2, y2, id2)
-                y_top, y_bot = y1, y2
-            left = long_edge if long_left else short
-            right = short if long_left else long_edge
-            y_top = min(max(y_top, -_COORD_LIMIT), _COORD_LIMIT)
-            y_bot = min(max(y_bot, -_COORD_LIMIT), _COORD_LIMIT)
-            row_start = max(math.ceil(y_top - _HALF), v0)
-            row_end = min(math.ceil(y_bot - _HALF), v0 + h)
-            la_y, la_s, la_x = left[1] - _HALF, left[2], left[0] - _HALF
-            ra_y, ra_s, ra_x = right[1] - _HALF, right[2], right[0] - _HALF
-            for r in range(row_start, row_end):
-                y = np.float32(r)
-                x_left = (y - la_y) * la_s + la_x
-                x_right = (y - ra_y) * ra_s + ra_x
-                if not (x_left == x_left and x_right == x_right):  # NaN bounds: no pixel (as in torch)
-                    continue
-                col_start = max(np.float32(math.ceil(min(max(x_left, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0))
-                col_end = min(np.float32(math.ceil(min(max(x_right, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0 + w))
-                n_cols = int(col_end - col_start)
-                if n_cols <= 0:
-                    continue
-                q_start = torch_fma(qb, y, col_start * qa, fused) + qc
-                j0 = int(col_start) - u0
-                for k in range(n_cols):
-                    q = torch_fma(qa, np.float32(k), q_start, fused)
-                    j = j0 + k
-                    if quantised:
-                        level = np.int64(min(max(q, np.float32(0.0)), levels))
-                        key = (level << face_bits) | f
-                        if key > best_key[r - v0, j]:
-                            best_key[r - v0, j] = key
-                    elif q >= 0 and (q > best_w[r - v0, j] or (q == best_w[r - v0, j] and f > best_key[r - v0, j])):
-                        # (torch packs the float's bits: a negative or NaN 1/z never wins)
-                        best_w[r - v0, j] = q
-                        best_key[r - v0, j] = f
+        face_row(cam, faces, face_instance, corner_normals, R, K_inv, f, fused, table[f])  # 3. shading row
+        qa, qb, qc = key_plane(table[f], quantised, scale, w_lo)
+        scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, v0, u0, h, w, quantised, levels,
+                  face_bits, fused, best_key, best_w)  # fmt: skip
     # 5. shade the covered pixels (resolve.shade), at their centres in image coordinates
     mask = (1 << face_bits) - 1
     for i in range(h):
         y = np.float32(v0 + i) + _HALF
         for j in range(w):
-            key = best_key[i, j]
+            key = best_key[i * w + j]
             if key < 0:
                 continue
             f = key & mask if quantised else key
             face_out[i, j] = f
-            x = np.float32(u0 + j) + _HALF
-            depth_out[i, j] = np.float32(1.0) / torch_fma(
-                table[f, 10], y, torch_fma(table[f, 9], x, table[f, 11], fused), fused
-            )
-            n0 = torch_fma(table[f, 1], y, torch_fma(table[f, 0], x, table[f, 2], fused), fused)
-            n1 = torch_fma(table[f, 4], y, torch_fma(table[f, 3], x, table[f, 5], fused), fused)
-            n2 = torch_fma(table[f, 7], y, torch_fma(table[f, 6], x, table[f, 8], fused), fused)
-            inv = np.float32(1.0) / np.sqrt(
-                max(torch_fma(n2, n2, torch_fma(n1, n1, n0 * n0, fused), fused), np.float32(1e-30))
-            )
-            normals_out[i, j, 0] = n0 * inv
-            normals_out[i, j, 1] = n1 * inv
-            normals_out[i, j, 2] = n2 * inv
+            depth, n0, n1, n2 = shade(table[f], np.float32(u0 + j) + _HALF, y, fused)
+            depth_out[i, j] = depth
+            normals_out[i, j, 0] = n0
+            normals_out[i, j, 1] = n1
+            normals_out[i, j, 2] = n2
+
+
+#: The plain Python functions of the rasteriser's per-face and per-pixel arithmetic, by name. They are compiled here
+#: for the CPU (numba.njit) and again for CUDA by :mod:`bop_cender.render.cuda_kernels`, with these names bound to
+#: their CUDA versions: one source for both targets. They allocate nothing and write only through their array
+#: arguments; :func:`keep_fragment`, the z-buffer's write, has a CPU version here and an atomic one on CUDA.
+SHARED_FUNCTIONS: dict[str, object] = {}
+
+#: Floats in a face's shading row (:func:`face_row`): the planes of the three normal components, then of 1/z.
+TABLE_WIDTH = 12
+
+
+def _shared(py_func):
+    """Compile ``py_func`` for the CPU and record its source function in :data:`SHARED_FUNCTIONS`."""
+    SHARED_FUNCTIONS[py_func.__name__] = py_func
+    return numba.njit(nogil=True, cache=True, error_model="numpy")(py_func)
+
+
+@_shared
+def key_levels(depth_bits, quantised):
+    """The largest quantised depth level of int32 keys (0 for exact keys)."""
+    return np.float32((1 << depth_bits) - 1 if quantised else 0)
+
+
+@_shared
+def key_scale(z_lo, z_hi, near, levels):
+    """``(w_lo, scale)``: the quantisation range of a canvas's int32 keys (KeyCodec.depth_planes) from its vertices'
+    depth range ``z_lo .. z_hi``: level = (1/z - w_lo) * scale."""
+    w_lo = np.float32(1.0) / max(z_hi, near)
+    w_hi = np.float32(1.0) / max(z_lo, near)
+    span = w_hi - w_lo
+    # torch's `levels / span` on a tensor is `span.reciprocal() * levels`: two roundings
+    scale = (np.float32(1.0) / max(span, np.float32(1e-30))) * levels if span > 0 else np.float32(0.0)
+    return w_lo, scale
+
+
+@_shared
+def face_row(cam, faces, face_instance, corner_normals, R, K_inv, f, fused, row):
+    """Face ``f``'s shading row (raster._face_table) into ``row[:12]``: for each normal component the plane (x, y, 1)
+    of its perspective-correct value, then the plane of 1/z, all at image coordinates. Scalars only: no allocation
+    per face."""
+    inst = face_instance[f]
+    i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+    a0, a1, a2 = cam[i0, 0], cam[i0, 1], cam[i0, 2]
+    b0, b1, b2 = cam[i1, 0], cam[i1, 1], cam[i1, 2]
+    d0, d1, d2 = cam[i2, 0], cam[i2, 1], cam[i2, 2]
+    e10, e11, e12 = b0 - a0, b1 - a1, b2 - a2
+    e20, e21, e22 = d0 - a0, d1 - a1, d2 - a2
+    nrm = _cross(e10, e11, e12, e20, e21, e22)
+    inv_det = np.float32(1.0) / torch_fma(a2, nrm[2], torch_fma(a1, nrm[1], a0 * nrm[0], fused), fused)
+    s00 = K_inv[0] * inv_det
+    s01 = K_inv[1] * inv_det
+    s02 = K_inv[2] * inv_det
+    s11 = K_inv[4] * inv_det
+    s12 = K_inv[5] * inv_det
+    p0 = _plane(_cross(b0, b1, b2, d0 - b0, d1 - b1, d2 - b2), s00, s01, s02, s11, s12, inv_det, fused)
+    p1 = _plane(_cross(e20, e21, e22, d0, d1, d2), s00, s01, s02, s11, s12, inv_det, fused)
+    p2 = _plane(_cross(a0, a1, a2, e10, e11, e12), s00, s01, s02, s11, s12, inv_det, fused)
+    for a in range(3):
+        n0 = _rotate(R[inst], a, corner_normals[f, 0], fused)
+        n1 = _rotate(R[inst], a, corner_normals[f, 1], fused)
+        n2 = _rotate(R[inst], a, corner_normals[f, 2], fused)
+        for k in range(3):
+            row[3 * a + k] = torch_fma(n2, p2[k], torch_fma(n1, p1[k], n0 * p0[k], fused), fused)
+    pz = _plane(nrm, s00, s01, s02, s11, s12, inv_det, fused)
+    row[9] = pz[0]
+    row[10] = pz[1]
+    row[11] = pz[2]
+
+
+@_shared
+def key_plane(row, quantised, scale, w_lo):
+    """The plane ``(qa, qb, qc)`` of the key's depth quantity (KeyCodec.depth_planes) of a shading row, the
+    pixel-centre half folded in: the quantity at pixel (column u, row v) is ``qa * u + qb * v + qc``."""
+    if quantised:
+        qa = row[9] * scale
+        qb = row[10] * scale
+        qc = (row[11] - w_lo) * scale
+    else:
+        qa, qb, qc = row[9], row[10], row[11]
+    qc = qc + _HALF * (qa + qb)
+    return qa, qb, qc
+
+
+@_shared
+def scan_face(px, py, i0, i1, i2, f, qa, qb, qc, v0, u0, h, w, quantised, levels, face_bits, fused, best_key,
+              best_w):  # fmt: skip
+    """Scan face ``f`` (corners ``i0, i1, i2``) into the window's z-buffer ``best_key, best_w`` (flat, pixel
+    ``i * w + j``) through :func:`keep_fragment` (scanline.scan): corners sorted by y, ties in order (the same three
+    compare-swaps), the top-left rule at pixel centres."""
+    y0, x0, id0 = py[i0], px[i0], i0
+    y1, x1, id1 = py[i1], px[i1], i1
+    y2, x2, id2 = py[i2], px[i2], i2
+    if y1 < y0:
+        y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
+    if y2 < y1:
+        y1, x1, id1, y2, x2, id2 = y2, x2, id2, y1, x1, id1
+    if y1 < y0:
+        y0, x0, id0, y1, x1, id1 = y1, x1, id1, y0, x0, id0
+    cross = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    if cross == 0:
+        return
+    long_left = cross > 0
+    long_edge = _edge(x0, y0, id0, x2, y2, id2)
+    for half in range(2):
+        if half == 0:
+            short = _edge(x0, y0, id0, x1, y1, id1)
+            y_top, y_bot = y0, y1
+        else:
+            short = _edge(x1, y1, id1, x2, y2, id2)
+            y_top, y_bot = y1, y2
+        left = long_edge if long_left else short
+        right = short if long_left else long_edge
+        y_top = min(max(y_top, -_COORD_LIMIT), _COORD_LIMIT)
+        y_bot = min(max(y_bot, -_COORD_LIMIT), _COORD_LIMIT)
+        row_start = max(math.ceil(y_top - _HALF), v0)
+        row_end = min(math.ceil(y_bot - _HALF), v0 + h)
+        la_y, la_s, la_x = left[1] - _HALF, left[2], left[0] - _HALF
+        ra_y, ra_s, ra_x = right[1] - _HALF, right[2], right[0] - _HALF
+        for r in range(row_start, row_end):
+            y = np.float32(r)
+            x_left = (y - la_y) * la_s + la_x
+            x_right = (y - ra_y) * ra_s + ra_x
+            if not (x_left == x_left and x_right == x_right):  # NaN bounds: no pixel (as in torch)
+                continue
+            col_start = max(np.float32(math.ceil(min(max(x_left, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0))
+            col_end = min(np.float32(math.ceil(min(max(x_right, -_COORD_LIMIT), _COORD_LIMIT))), np.float32(u0 + w))
+            n_cols = int(col_end - col_start)
+            if n_cols <= 0:
+                continue
+            q_start = torch_fma(qb, y, col_start * qa, fused) + qc
+            p0 = (r - v0) * w + int(col_start) - u0
+            for k in range(n_cols):
+                q = torch_fma(qa, np.float32(k), q_start, fused)
+                key = (np.int64(min(max(q, np.float32(0.0)), levels)) << face_bits) | f if quantised else np.int64(f)
+                keep_fragment(best_key, best_w, p0 + k, q, key, f, quantised)
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
+def keep_fragment(best_key, best_w, p, q, key, f, quantised):
+    """The z-buffer test at pixel ``p`` (CPU): the larger int32 key wins (quantised), or the larger exact 1/z ``q``,
+    ties to the larger face id (torch packs the float's bits: a negative or NaN 1/z never wins)."""
+    if quantised:
+        if key > best_key[p]:
+            best_key[p] = key
+    elif q >= 0 and (q > best_w[p] or (q == best_w[p] and f > best_key[p])):
+        best_w[p] = q
+        best_key[p] = f
+
+
+@_shared
+def shade(row, x, y, fused):
+    """``(depth, n0, n1, n2)``: z and the unit normal of a shading row at image point (x, y) (resolve.shade)."""
+    depth = np.float32(1.0) / torch_fma(row[10], y, torch_fma(row[9], x, row[11], fused), fused)
+    n0 = torch_fma(row[1], y, torch_fma(row[0], x, row[2], fused), fused)
+    n1 = torch_fma(row[4], y, torch_fma(row[3], x, row[5], fused), fused)
+    n2 = torch_fma(row[7], y, torch_fma(row[6], x, row[8], fused), fused)
+    inv = np.float32(1.0) / sqrt32(max(torch_fma(n2, n2, torch_fma(n1, n1, n0 * n0, fused), fused), np.float32(1e-30)))
+    return depth, n0 * inv, n1 * inv, n2 * inv
+
+
+@_shared
+def sqrt32(x):
+    """The float32 square root, correctly rounded (as torch's): the float64 root of a float32 rounded to float32 is
+    (a float64 carries more than twice float32's digits), and ``math.sqrt`` compiles on both targets."""
+    return np.float32(math.sqrt(x))
+
+
+@_shared
 def _cross(a0, a1, a2, b0, b1, b2):
     return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
+@_shared
 def torch_fma(a, b, c, fused):
     """``a * b + c`` as torch's CPU ``addcmul`` computes it: with ``fused``, rounded once to float32 (a fused
     multiply-add, as its AVX2 and AVX-512 kernels do; the float32 product is exact in float64), else the product
@@ -221,33 +287,34 @@ def torch_fma(a, b, c, fused):
     return np.float32(a * b) + c
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
-def pixel_curvature(normals, i0, i, i2, j0, j, j2, fused):
-    """The curvature at pixel ``(i, j)`` of normal maps ``(h, w, 3)`` from rows ``i0, i, i2`` and columns
-    ``j0, j, j2`` (the caller's border rule), as :func:`~bop_cender.render.curvature.curvature_valid` computes it:
-    the Prewitt sums in its order, ``gx0 * gx0``, then torch's multiply-adds (``fused``: :data:`ADDCMUL_FUSED`), the
-    square root. Float32, so a threshold on it sees torch's value (3.0, a clean step from a unit normal to
-    background, sits exactly on stage 3's edge threshold)."""
+@_shared
+def pixel_curvature(normals, w, i0, i, i2, j0, j, j2, fused):
+    """The curvature at pixel ``(i, j)`` of a normal map given flat, ``normals (h * w, 3)`` (pixel ``(i, j)`` at
+    ``i * w + j``), from rows ``i0, i, i2`` and columns ``j0, j, j2`` (the caller's border rule), as
+    :func:`~bop_cender.render.curvature.curvature_valid` computes it: the Prewitt sums in its order, ``gx0 * gx0``,
+    then torch's multiply-adds (``fused``: :data:`ADDCMUL_FUSED`), the square root. Float32, so a threshold on it sees
+    torch's value (3.0, a clean step from a unit normal to background, sits exactly on stage 3's edge threshold)."""
+    r0, r1, r2 = i0 * w, i * w, i2 * w
     total = np.float32(0.0)
     for k in range(3):
-        gx = (normals[i0, j2, k] + normals[i, j2, k] + normals[i2, j2, k]) - (
-            normals[i0, j0, k] + normals[i, j0, k] + normals[i2, j0, k]
+        gx = (normals[r0 + j2, k] + normals[r1 + j2, k] + normals[r2 + j2, k]) - (
+            normals[r0 + j0, k] + normals[r1 + j0, k] + normals[r2 + j0, k]
         )
-        gy = (normals[i2, j0, k] + normals[i2, j, k] + normals[i2, j2, k]) - (
-            normals[i0, j0, k] + normals[i0, j, k] + normals[i0, j2, k]
+        gy = (normals[r2 + j0, k] + normals[r2 + j, k] + normals[r2 + j2, k]) - (
+            normals[r0 + j0, k] + normals[r0 + j, k] + normals[r0 + j2, k]
         )
         total = gx * gx if k == 0 else torch_fma(gx, gx, total, fused)
         total = torch_fma(gy, gy, total, fused)
-    return np.sqrt(total)
+    return sqrt32(total)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
+@_shared
 def _rotate(R, a, n, fused):
     """Axis ``a`` of the model-frame normal ``n (3,)`` rotated by ``R (3, 3)`` (the torch order of operations)."""
     return torch_fma(R[a, 2], n[2], torch_fma(R[a, 1], n[1], R[a, 0] * n[0], fused), fused)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
+@_shared
 def _plane(cv, s00, s01, s02, s11, s12, inv_det, fused):
     """``c K^-1 / det`` for the upper-triangular ``K^-1`` (raster._face_table's ``plane``)."""
     return (
@@ -257,7 +324,7 @@ def _plane(cv, s00, s01, s02, s11, s12, inv_det, fused):
     )
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
+@_shared
 def _edge(xa, ya, ia, xb, yb, ib):
     """Edge a-b as (anchor x, anchor y, dx/dy), anchored at the end point of lower vertex id."""
     if ib < ia:
@@ -317,14 +384,8 @@ def behind_near_plane(compiled: bool | None) -> None:
 
 def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float,
                 verts: torch.Tensor | None = None) -> tuple | None:  # fmt: skip
-    """The arrays :func:`raster_window` reads for C canvases, from the torch renderer's own functions: camera-space
-    vertices ``(C, N, 3)``, projections ``(C, N)`` twice, faces drawn ``(C, F)``, faces, face instances, corner
-    normals, rotations ``(C, I, 3, 3)``, inverse intrinsics ``(C, 9)``, face bits, depth bits and the ``addcmul``
-    rounding; None where a vertex lies behind the near plane.
-
-    Args:
-        R, t: ``(C, I, 3, 3)``, ``(C, I, 3)``; K: ``(C, 3, 3)``, all float32 on the CPU.
-        verts: ``(3, C, N)`` camera-space vertices if already computed.
+    """The arrays :func:`raster_window` reads for C canvases (:func:`loop_tensors` as NumPy arrays), then the
+    ``addcmul`` rounding; None where a vertex lies behind the near plane.
 
     Raises:
         RuntimeError: the loops cannot give torch's bits on this machine (:data:`AVAILABLE` False).
@@ -332,6 +393,24 @@ def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Ten
     if not AVAILABLE:
         raise RuntimeError("torch's CPU addcmul rounds once for some elements and twice for others here: the "
                            "compiled renderer cannot repeat it (use the torch pipeline)")  # fmt: skip
+    tensors = loop_tensors(meshes, R, t, K, near, verts)
+    if tensors is None:
+        return None
+    return (*(_np(x) for x in tensors[:-2]), *tensors[-2:], bool(ADDCMUL_FUSED))
+
+
+def loop_tensors(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float,
+                 verts: torch.Tensor | None = None) -> tuple | None:  # fmt: skip
+    """What the per-canvas loops read for C canvases, from the torch renderer's own functions, as tensors on the
+    inputs' device: camera-space vertices ``(C, N, 3)``, projections ``(C, N)`` twice, faces drawn ``(C, F)``, faces
+    ``(F, 3)`` int64, face instances ``(F,)`` int64, corner normals ``(F, 3, 3)``, rotations ``(C, I, 3, 3)``, inverse
+    intrinsics ``(C, 9)``, then the key codec's face bits and depth bits (ints); None where a vertex lies behind the
+    near plane (one host synchronisation).
+
+    Args:
+        R, t: ``(C, I, 3, 3)``, ``(C, I, 3)``; K: ``(C, 3, 3)``, all float32 on one device.
+        verts: ``(3, C, N)`` camera-space vertices if already computed.
+    """
     verts = camera_vertices(meshes, R, t) if verts is None else verts  # (3, C, N)
     if verts.numel() and float(verts[2].amin()) < near:
         return None
@@ -340,12 +419,11 @@ def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Ten
     face_instance = getattr(meshes, "face_instance", None)
     face_bits, depth_bits = key_bits(KeyCodec.for_faces(F, exact=face_instance is not None))
     if face_instance is None:
-        face_instance = torch.zeros(F, dtype=torch.int64)
+        face_instance = torch.zeros(F, dtype=torch.int64, device=verts.device)
     K_inv = torch.linalg.inv(K.double()).to(torch.float32).reshape(C, 9)  # as rasterize inverts it
     return (
-        _np(verts.permute(1, 2, 0)), _np(px), _np(py), _np(front_faces(meshes, R, t)),
-        _np(meshes.faces).astype(np.int64, copy=False), _np(face_instance), _np(meshes.corner_normals), _np(R),
-        _np(K_inv), int(face_bits), int(depth_bits), bool(ADDCMUL_FUSED),
+        verts.permute(1, 2, 0).contiguous(), px, py, front_faces(meshes, R, t), meshes.faces.to(torch.int64),
+        face_instance, meshes.corner_normals, R, K_inv, int(face_bits), int(depth_bits),
     )  # fmt: skip
 
 
