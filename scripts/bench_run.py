@@ -86,6 +86,14 @@ def cost_calls_per_second(
     return _calls_per_second(call, device, batch, seconds)
 
 
+def _cuda_default_label() -> str:
+    """What ``candidate_costs`` runs on CUDA by default here: the kernel, or the torch atlases and why."""
+    from bop_cender.render.cuda_loops import cuda_unavailable_reason
+
+    reason = cuda_unavailable_reason()
+    return "CUDA kernel (numba, one launch)" if reason is None else f"torch atlases ({reason})"
+
+
 def edge_calls_per_second(
     device: torch.device, batch: int, seconds: float, max_segments: int | None, layout: str | None = None
 ) -> tuple[float, float]:
@@ -330,7 +338,7 @@ def main() -> None:
             [(2000, 1, 1, True), (2000, threads, 1, True), (2000, threads, 1, False), (2000, 1, cores, False),
              (1, 1, 1, True), (1, threads, 1, False)]
             if device.type == "cpu"
-            else [(2000, threads, 1, None), (1, threads, 1, None)]
+            else [(2000, threads, 1, None), (1, threads, 1, None), (2000, threads, 1, False), (1, threads, 1, False)]
         )  # fmt: skip
         for batch, n_threads, workers, compiled in setups:
             torch.set_num_threads(n_threads)
@@ -338,6 +346,8 @@ def main() -> None:
             how = (
                 f"compiled, {n_threads} thread(s)"
                 if compiled
+                else _cuda_default_label()
+                if device.type == "cuda" and compiled is None
                 else f"{'torch atlases, ' if compiled is False else ''}{n_threads} torch thread(s), {workers} chunk"
                 " thread(s)"
             )

@@ -13,7 +13,9 @@ both sums.
 
 from __future__ import annotations
 
+import functools
 import math
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
@@ -164,7 +166,9 @@ def candidate_costs(
             given, they replace ``near`` and the default ``chunk_pixels``.
         compiled: on the CPU, one compiled loop per canvas (:mod:`bop_cender.pose.cost_kernel`: the same costs to
             float32 rounding, without the atlases and their operators; ``chunk_pixels`` and ``workers`` then do not
-            apply, torch's thread count does); None (default): on the CPU, unless a vertex is behind the near plane.
+            apply, torch's thread count does); on CUDA, one kernel per call (:mod:`bop_cender.pose.cuda_cost`, numba's
+            CUDA target); None (default): either where it applies (on CUDA where numba's CUDA target is available,
+            for meshes of at most 2^15 faces), unless a vertex is behind the near plane; False: the torch atlases.
 
     Returns:
         ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
@@ -188,6 +192,16 @@ def candidate_costs(
     B, V = int(T.shape[0]), int(T.shape[1])
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
     occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
+    if device.type == "cuda" and _use_cuda_kernel(compiled):
+        from bop_cender.pose.cuda_cost import cuda_candidate_costs
+
+        costs = cuda_candidate_costs(mesh, T, Ks, height, width, near, dist, occ)
+        if costs is not None:
+            return (costs.view(B, V) * weights).sum(1)
+        if compiled:
+            raise ValueError("compiled=True, but the CUDA kernel does not apply here (a vertex behind the near plane, "
+                             f"or a mesh of more than 2^15 faces: {int(mesh.faces.shape[0])})")  # fmt: skip
+        compiled = False
     batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels, occluder_depth=occ)
     from bop_cender.render import compiled_raster  # numba: imported where it is used
 
@@ -211,6 +225,31 @@ def candidate_costs(
     for canvases, costs in results:
         per_view.index_copy_(0, canvases, costs)
     return (per_view.view(B, V) * weights).sum(1)
+
+
+def _use_cuda_kernel(compiled: bool | None) -> bool:
+    """Whether CUDA inputs take the kernel of :mod:`bop_cender.pose.cuda_cost`: as asked, or by default where numba's
+    CUDA target is available (a warning says once per process why it is not, and the torch atlases serve).
+
+    Raises:
+        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable.
+    """
+    if compiled is False:
+        return False
+    from bop_cender.render.cuda_loops import cuda_unavailable_reason
+
+    reason = cuda_unavailable_reason()
+    if reason is None:
+        return True
+    if compiled:
+        raise RuntimeError(f"compiled=True on CUDA needs numba's CUDA target: {reason} (pip install numba-cuda)")
+    _warn_once(f"the render cost runs on the torch atlases on CUDA: {reason} (pip install numba-cuda for its kernel)")
+    return False
+
+
+@functools.cache
+def _warn_once(message: str) -> None:
+    warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
 def _atlas_costs(atlas: CurvatureAtlas, dist_maps: torch.Tensor) -> torch.Tensor:

@@ -64,7 +64,6 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, face_instance, corner_no
             for k in range(3):
                 normals[0, j, k] = 0.0
                 normals[h - 1, j, k] = 0.0
-        flat = normals.reshape(h * w, 3)
         num = 0.0
         den = 0.0
         for i in range(1, h - 1):
@@ -75,7 +74,7 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, face_instance, corner_no
                 s = left + j
                 if s < 0 or s >= W:
                     continue
-                curv = pixel_curvature(flat, w, i - 1, i, i + 1, j - 1, j, j + 1, fused)  # curvature_valid
+                curv = pixel_curvature(normals, i - 1, i, i + 1, j - 1, j, j + 1, fused)  # curvature_valid
                 num += np.float64(curv) * np.float64(dist[v, r, s])
                 den += np.float64(curv)
         out[c] = np.float32(num / den) if den > 0.0 else diagonal

@@ -52,7 +52,6 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
                     else:
                         comp[i, j, k] = other_normals[v, i, j, k] if has_other else 0.0
         top, left = offsets[v, 0], offsets[v, 1]
-        flat = comp.reshape(h * w, 3)
         num = 0.0
         den = 0.0
         edges = 0
@@ -60,7 +59,7 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
             i0, i2 = max(i - 1, 0), min(i + 1, h - 1)
             for j in range(w):
                 j0, j2 = max(j - 1, 0), min(j + 1, w - 1)
-                curv = pixel_curvature(flat, w, i0, i, i2, j0, j, j2, fused)  # curvature's replicated border
+                curv = pixel_curvature(comp, i0, i, i2, j0, j, j2, fused)  # curvature's replicated border
                 r, s = top + i, left + j
                 if 0 <= r < H and 0 <= s < W:
                     num += np.float64(curv) * np.float64(dist[v, r, s])

@@ -138,7 +138,7 @@ def prepare_candidates(
     R, t = T[:, :3, :3], T[:, :3, 3]
     Kc = K.index_select(0, torch.arange(B * V, device=T.device) % V)
     verts = camera_vertices(mesh, R[:, None], t[:, None])  # (3, BV, N)
-    lo, hi = _bounds(verts, Kc, height, width)
+    lo, hi = window_bounds(verts, Kc, height, width)
     extent = hi - lo
     order = torch.argsort(extent[:, 1], stable=True)
     chunks = plan_atlas_chunks(extent.index_select(0, order).cpu().tolist(), chunk_pixels)
@@ -212,7 +212,7 @@ def _hide_occluded(
     normals.masked_fill_(hidden[None], 0.0)
 
 
-def _bounds(verts: torch.Tensor, K: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+def window_bounds(verts: torch.Tensor, K: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Window first pixel ``(C, 2)`` and one-past-last pixel ``(C, 2)`` (row, column), int64.
 
     From the projected vertices' bounding box, padded by ``_PAD`` and cut to 2 pixels beyond the image.

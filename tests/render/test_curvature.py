@@ -101,17 +101,17 @@ def test_torch_and_the_compiled_loops_give_the_same_curvature_bits() -> None:
     h, w = 40, 50
     normals = torch.from_numpy(np.random.default_rng(1).normal(size=(h, w, 3)).astype(np.float32))
     ours = curvature(normals).numpy()
-    flat = normals.numpy().reshape(h * w, 3)
+    maps = normals.numpy()
     loops = np.array(
         [
             [
                 pixel_curvature(
-                    flat, w, max(i - 1, 0), i, min(i + 1, h - 1), max(j - 1, 0), j, min(j + 1, w - 1), ADDCMUL_FUSED
+                    maps, max(i - 1, 0), i, min(i + 1, h - 1), max(j - 1, 0), j, min(j + 1, w - 1), ADDCMUL_FUSED
                 )
                 for j in range(w)
             ]
             for i in range(h)
-        ],  # fmt: skip
+        ],
         dtype=np.float32,
     )
     np.testing.assert_array_equal(ours, loops)

@@ -1,0 +1,194 @@
+"""The render-and-compare cost of pose candidates as one CUDA kernel: a thread block per (candidate, view) canvas.
+
+Why. The torch candidate path (:mod:`bop_cender.render.candidate_curvature`) was written for the CPU's few-large-op
+economy; on an H200 a cost call launched about 730 kernels and synchronised 77 times, so it cost 13-24 ms whatever
+its size, and 2,000 candidates ran 14,265 calls/s against issue 11's goal of 20,000
+(``results/bench/run_intel-r-xeon-r-processor-16cores-nvidia-h200.md``). Here one launch does what
+:mod:`bop_cender.pose.cost_kernel` does per canvas on the CPU, with the same source for the rasteriser's steps
+(:mod:`bop_cender.render.cuda_loops`):
+
+1. the canvas's window of int32 z-buffer keys set to empty;
+2. each thread scans its share of the faces into the keys (atomic maximum: the larger key wins, as on the CPU);
+3. each thread shades its share of the covered pixels (the face's shading row computed again from its vertices:
+   no table in memory), hides those behind placed objects, and writes their normals; the first and last window
+   rows stay background (the atlas rule);
+4. each thread takes the curvature and the two sums of its share of the interior pixels in float64, and the block
+   adds them up.
+
+The host synchronises once per call, to size the scratch (the windows' pixels, rows and widest row). Quantised int32 keys only (a
+mesh of at most 2^15 faces, :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind
+the near plane :func:`cuda_candidate_costs` returns None and the torch path runs.
+
+Rounding. On a GPU, NVVM contracts float32 multiply-adds into fused ones, as nvcc does for torch's CUDA kernels, so
+the costs agree with the torch path's to float32 rounding, not bit for bit. In numba's CUDA simulator (CPU, no
+contraction) the kernel repeats the CPU loops' arithmetic: the tests compare it with
+:func:`~bop_cender.pose.cost_kernel.compiled_candidate_costs` there.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import numpy as np
+import torch
+
+from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
+from bop_cender.render.compiled_raster import loop_tensors
+from bop_cender.render.cuda_loops import clone, device_namespace, simulator_enabled
+
+#: Threads per block (one block per canvas): the float64 reduction's shared arrays have this size.
+BLOCK_THREADS = 128
+
+
+def _costs_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, face_bits,
+                  depth_bits, fused, z_range, lo, extent, base, row_base, near, occ, margin, dist, keys, normals,
+                  out):  # fmt: skip
+    """Unweighted cost of canvas ``c = blockIdx.x`` (view ``c % V``) into ``out[c]`` (the first eleven arguments:
+    :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` its vertices' least and greatest z).
+    Scratch: ``keys (P,)`` int32, canvas c's ``h * w`` keys from ``base[c]``; ``normals (rows, widest, 3)`` float32,
+    its ``h`` rows from ``row_base[c]`` (3-D, so that the CPU's :func:`pixel_curvature` reads it as it is)."""
+    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
+    tid = cuda.threadIdx.x  # noqa: F821
+    threads = cuda.blockDim.x  # noqa: F821
+    V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
+    v = c % V
+    top, left, h, w = lo[c, 0], lo[c, 1], extent[c, 0], extent[c, 1]
+    n_pixels = h * w
+    key = keys[base[c] : base[c] + n_pixels]
+    nrm = normals[row_base[c] : row_base[c] + h]  # (h, widest window, 3): the window's normals in its first w
+    levels = key_levels(depth_bits, True)  # noqa: F821
+    w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
+    for p in range(tid, n_pixels, threads):
+        key[p] = -1
+    cuda.syncthreads()  # noqa: F821
+    row = cuda.local.array(12, numba.float32)  # noqa: F821
+    cam, px, py, Rc, Kc = cam_all[c], px_all[c], py_all[c], R[c], K_inv[c]
+    for f in range(tid, faces.shape[0], threads):
+        if draw[c, f]:
+            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)  # noqa: F821
+            qa, qb, qc = key_plane(row, True, scale, w_lo)  # noqa: F821
+            scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, top, left, h, w, True, levels,  # noqa: F821
+                      face_bits, fused, key, z_range[c])  # fmt: skip
+    cuda.syncthreads()  # noqa: F821
+    mask = (1 << face_bits) - 1
+    half = np.float32(0.5)
+    for p in range(tid, n_pixels, threads):
+        i = p // w
+        j = p - i * w
+        n0 = n1 = n2 = np.float32(0.0)
+        k = key[p]
+        if k >= 0 and 0 < i < h - 1:  # the first and last rows of a window are background (the atlas rule)
+            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, k & mask, fused, row)  # noqa: F821
+            depth, n0, n1, n2 = shade(row, np.float32(left + j) + half, np.float32(top + i) + half, fused)  # noqa: F821
+            r, s = top + i, left + j
+            if occ.shape[0] > 0 and 0 <= r < H and 0 <= s < W:  # candidate_curvature.occluded
+                o = occ[v, r, s]
+                if o > 0 and depth > 0 and depth > o - margin:
+                    n0 = n1 = n2 = np.float32(0.0)
+        nrm[i, j, 0] = n0
+        nrm[i, j, 1] = n1
+        nrm[i, j, 2] = n2
+    cuda.syncthreads()  # noqa: F821
+    num = 0.0
+    den = 0.0
+    for p in range(tid, n_pixels, threads):
+        i = p // w
+        j = p - i * w
+        r, s = top + i, left + j
+        if 0 < i < h - 1 and 0 < j < w - 1 and 0 <= r < H and 0 <= s < W:
+            curv = pixel_curvature(nrm, i - 1, i, i + 1, j - 1, j, j + 1, fused)  # noqa: F821
+            num += np.float64(curv) * np.float64(dist[v, r, s])
+            den += np.float64(curv)
+    sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
+    sums[0, tid] = num
+    sums[1, tid] = den
+    cuda.syncthreads()  # noqa: F821
+    step = threads // 2
+    while step > 0:
+        if tid < step:
+            sums[0, tid] += sums[0, tid + step]
+            sums[1, tid] += sums[1, tid + step]
+        cuda.syncthreads()  # noqa: F821
+        step //= 2
+    if tid == 0:
+        out[c] = (
+            np.float32(sums[0, 0] / sums[1, 0])
+            if sums[1, 0] > 0.0
+            else np.float32(math.hypot(np.float64(H), np.float64(W)))
+        )
+
+
+@cache
+def _kernel():
+    """The kernel compiled by numba's CUDA target (on first use: a few seconds)."""
+    namespace = device_namespace()
+    namespace.update(BLOCK_THREADS=BLOCK_THREADS, math=math)
+    return namespace["cuda"].jit(clone(_costs_kernel, namespace))
+
+
+def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
+                         dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None = None,
+                         threads: int = BLOCK_THREADS, fused: bool = True) -> torch.Tensor | None:  # fmt: skip
+    """Unweighted costs ``(B * V,)`` float32 of B candidates in V views (canvas ``c`` = candidate ``c // V`` in view
+    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view, by one CUDA kernel; None where
+    the kernel does not apply (exact keys, a vertex behind the near plane: use the torch path).
+
+    Args:
+        mesh: the object (:class:`~bop_cender.render.mesh.RenderMesh` on the inputs' device).
+        T_cam_model: ``(B, V, 4, 4)`` float32 candidate poses in each view's camera frame (mm), on a CUDA device (or
+            the CPU under numba's CUDA simulator).
+        K: ``(V, 3, 3)`` float32 intrinsics; height, width: image size; near: near plane (mm).
+        dist_maps: ``(V, H, W)`` float32 distance maps.
+        occluder_depth: ``(V, H, W)`` float32 depth of the objects already placed (0: none), or None.
+        threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
+            runs each thread as a Python thread).
+        fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
+    """
+    from bop_cender.render.candidate_curvature import window_bounds
+
+    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
+        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    device = T_cam_model.device
+    if device.type != "cuda" and not simulator_enabled():
+        raise ValueError(f"the CUDA cost kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
+    C = B * V
+    if C == 0:
+        return torch.zeros(0, dtype=torch.float32, device=device)
+    T = T_cam_model.reshape(C, 4, 4)
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    Kc = K.index_select(0, torch.arange(C, device=device) % V)
+    inputs = loop_tensors(mesh, R[:, None].contiguous(), t[:, None].contiguous(), Kc, near)
+    if inputs is None or inputs[-2] == 0:  # behind the near plane, or exact keys
+        return None
+    cam = inputs[0]
+    lo, hi = window_bounds(cam.permute(2, 0, 1), Kc, height, width)
+    extent = hi - lo
+    pixels = extent[:, 0] * extent[:, 1]
+    base = torch.cumsum(pixels, 0) - pixels
+    row_base = torch.cumsum(extent[:, 0], 0) - extent[:, 0]
+    total, rows, widest = torch.stack([pixels.sum(), extent[:, 0].sum(), extent[:, 1].amax()]).tolist()  # one sync
+    keys = torch.empty(total, dtype=torch.int32, device=device)
+    normals = torch.empty((rows, widest, 3), dtype=torch.float32, device=device)
+    z_range = torch.stack([cam[..., 2].amin(1), cam[..., 2].amax(1)], 1).contiguous()
+    occ = torch.zeros((0, 1, 1), dtype=torch.float32, device=device) if occluder_depth is None else occluder_depth
+    out = torch.empty(C, dtype=torch.float32, device=device)
+    arrays = [*inputs[:-2], z_range, lo.contiguous(), extent.contiguous(), base, row_base]
+    tail = [occ.float().contiguous(), dist_maps.float().contiguous(), keys, normals, out]
+    if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
+        convert = _as_numpy
+        launch = _kernel()[C, threads]
+    else:
+        from numba import cuda
+
+        convert = cuda.as_cuda_array
+        launch = _kernel()[C, threads, cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)]
+    launch(*map(convert, arrays[:9]), inputs[-2], inputs[-1], bool(fused), *map(convert, arrays[9:]), np.float32(near),
+           convert(tail[0]), np.float32(OCCLUSION_MARGIN_MM), *map(convert, tail[1:]))  # fmt: skip
+    return out
+
+
+def _as_numpy(x: torch.Tensor) -> np.ndarray:
+    """A CPU tensor's memory as a NumPy array (no copy: the simulated kernel writes through it)."""
+    return x.detach().numpy()

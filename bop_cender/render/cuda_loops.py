@@ -1,0 +1,93 @@
+"""The compiled renderer's arithmetic on CUDA: the same Python source as the CPU loops, compiled by numba's CUDA target.
+
+Why. On a GPU the torch renderer's candidate path launches about 730 kernels and synchronises 77 times per cost
+call (``results/bench/run_*nvidia-h200.md``), so a call costs 13-24 ms whatever its size. A kernel that renders a
+canvas, takes its curvature and sums its cost in one launch (:mod:`bop_cender.pose.cuda_cost`) needs the
+rasteriser's per-face and per-pixel steps as device functions. They are not written twice:
+:data:`~bop_cender.render.compiled_raster.SHARED_FUNCTIONS` holds the plain Python functions that the CPU loops
+compile, and :func:`device_namespace` compiles each again for CUDA with its global names bound to the CUDA versions
+(the z-buffer write, :func:`keep_fragment`, becomes an atomic maximum).
+
+numba's CUDA target is optional: it needs ``numba.cuda`` with a driver (``pip install numba-cuda``, present in
+the NVIDIA images we benchmark on) or numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``), where the kernels run as
+Python threads on the CPU: how the tests check them against the CPU loops on machines without a GPU.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from functools import cache
+
+import numpy as np
+
+
+def simulator_enabled() -> bool:
+    """Whether numba's CUDA simulator is on (``NUMBA_ENABLE_CUDASIM=1`` before numba was imported)."""
+    from numba import config
+
+    return bool(config.ENABLE_CUDASIM)
+
+
+@cache
+def cuda_unavailable_reason() -> str | None:
+    """Why numba's CUDA kernels cannot run here (None: they can, on a GPU or in the simulator)."""
+    try:
+        from numba import cuda
+    except Exception as error:  # an absent or broken numba-cuda: the torch path serves instead
+        return f"numba.cuda cannot be imported ({type(error).__name__}: {error})"
+    if simulator_enabled():
+        return None
+    try:
+        if not cuda.is_available():
+            return "numba.cuda finds no CUDA driver or device"
+    except Exception as error:  # the driver's own error, e.g. a version mismatch
+        return f"numba.cuda cannot reach the device ({type(error).__name__}: {error})"
+    return None
+
+
+def _keep_fragment_atomic(best_key, best_w, p, q, key, f, quantised):
+    """The z-buffer test at pixel ``p`` on CUDA: the larger int32 key wins, whichever thread writes first (the
+    kernels use quantised keys only; ``best_w``, ``q``, ``f`` and ``quantised`` keep the CPU version's signature)."""
+    cuda.atomic.max(best_key, p, np.int32(key))  # noqa: F821 (bound in device_namespace)
+
+
+def _sqrt32_device(x):
+    """The float32 square root on CUDA (IEEE's: numba compiles without fast maths); the simulator runs it on a NumPy
+    float32, whose root it rounds once to float32 as the CPU's ``np.sqrt`` does."""
+    return np.float32(math.sqrt(x))
+
+
+def clone(py_func: types.FunctionType, namespace: dict) -> types.FunctionType:
+    """``py_func`` with ``namespace`` as its globals: numba then resolves the names it calls there."""
+    return types.FunctionType(py_func.__code__, namespace, py_func.__name__, py_func.__defaults__, py_func.__closure__)
+
+
+@cache
+def device_namespace() -> dict:
+    """Globals in which the rasteriser's shared functions (and a kernel cloned into them) are numba CUDA device
+    functions: :data:`~bop_cender.render.compiled_raster.SHARED_FUNCTIONS` by name, ``keep_fragment`` atomic,
+    ``cuda`` and ``numba`` bound.
+
+    Raises:
+        RuntimeError: numba's CUDA target is unavailable (:func:`cuda_unavailable_reason`).
+    """
+    reason = cuda_unavailable_reason()
+    if reason is not None:
+        raise RuntimeError(reason)
+    import numba
+    from numba import cuda
+
+    from bop_cender.render import compiled_raster
+
+    # stage 3's Nelder-Mead steps launch a few blocks at a time by design: no occupancy warning per launch
+    numba.config.CUDA_LOW_OCCUPANCY_WARNINGS = False
+    namespace = dict(vars(compiled_raster))
+    namespace.update(cuda=cuda, numba=numba, np=np)
+    for name, py_func in {
+        **compiled_raster.SHARED_FUNCTIONS,
+        "keep_fragment": _keep_fragment_atomic,
+        "sqrt32": _sqrt32_device,
+    }.items():
+        namespace[name] = cuda.jit(device=True)(clone(py_func, namespace))
+    return namespace

@@ -1,0 +1,137 @@
+"""The CUDA cost kernel (``bop_cender.pose.cuda_cost``): the CPU loops' costs, one launch per call.
+
+Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
+thread a Python thread, no multiply-add contraction), where it must repeat the CPU's compiled loops bit for bit:
+candidates inside the images, cut by the border, out of every view, behind placed objects. On a GPU (``-m cuda``)
+``candidate_costs`` takes it by default and must give the torch atlases' costs to float32 rounding.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from bop_cender.pose.cost import candidate_costs
+from bop_cender.render.mesh import prepare_mesh
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: What the simulated run checks, printed line by line ("ok ...") for the test to read.
+_SIMULATED = textwrap.dedent(
+    """
+    import sys
+    sys.path[:0] = [{tests!r} + "/pose", {tests!r} + "/render"]
+    import numpy as np, torch, trimesh
+    from reference import pose
+    from test_cost import H, W, rig, target
+    from bop_cender.pose.cost_kernel import compiled_candidate_costs
+    from bop_cender.pose.cuda_cost import cuda_candidate_costs
+    from bop_cender.render.candidate_curvature import prepare_candidates
+    from bop_cender.render.compiled_raster import ADDCMUL_FUSED
+    from bop_cender.render.mesh import prepare_mesh
+
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    T_cw, Ks = rig()
+    dist = target(mesh, T_cw, Ks)
+    rng = np.random.default_rng(4)
+    T_wm = np.stack([pose(tuple(rng.uniform(-180, 180, 3)), tuple(rng.uniform(-12, 12, 3))) for _ in range(3)])
+    T_wm[1, :3, 3] += [-90, 40, 0]  # cut by an image border
+    T_wm[2, :3, 3] += [1500, 1500, 1500]  # in front of every camera, outside every image
+    T = torch.as_tensor(np.einsum("vij,bjk->bvik", T_cw, T_wm), dtype=torch.float32)
+    K = torch.as_tensor(Ks, dtype=torch.float32)
+    occ = torch.zeros((3, H, W))
+    occ[:, 30:70, 40:90] = 300.0  # a placed object's face through the middle of the views
+    occ[1, 40:60, 50:70] = 305.0
+    for name, occluder in (("free", None), ("occluded", occ)):
+        cpu = compiled_candidate_costs(prepare_candidates(mesh, T, K, H, W, occluder_depth=occluder), dist)
+        sim = cuda_candidate_costs(mesh, T, K, H, W, 1.0, dist, occluder, threads=8, fused=ADDCMUL_FUSED)
+        assert sim.dtype == torch.float32 and sim.shape == (9,), sim
+        assert torch.equal(sim, cpu), (name, sim, cpu)
+        print("ok", name, sim.tolist())
+    big = prepare_mesh(trimesh.creation.icosphere(subdivisions=6, radius=20.0))  # 81,920 faces: exact keys,
+    print("ok exact keys", cuda_candidate_costs(big, T[:1], K, H, W, 1.0, dist) is None)  # left to torch
+    T_near = T.clone()
+    T_near[0, 0, 2, 3] = 5.0  # a vertex behind the near plane
+    print("ok near plane", cuda_candidate_costs(mesh, T_near[:1], K, H, W, 1.0, dist) is None)
+    for threads in (0, 3, 256):
+        try:
+            cuda_candidate_costs(mesh, T[:1], K, H, W, 1.0, dist, threads=threads)
+        except ValueError as error:
+            print("ok threads", threads, error)
+    """
+)
+
+
+def test_the_kernel_repeats_the_cpu_loops_in_numbas_cuda_simulator() -> None:
+    script = _SIMULATED.format(tests=str(ROOT / "tests"))
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
+    assert [line.split()[1] for line in lines] == ["free", "occluded", "exact", "near", "threads", "threads", "threads"]
+    assert lines[2].endswith("True") and lines[3].endswith("True")
+    free, occluded = (np.array(eval(line.split(" ", 2)[2])) for line in lines[:2])  # noqa: S307 (our own output)
+    assert free[-3:] == pytest.approx(np.full(3, np.hypot(96, 128)), rel=1e-6)  # out of view: the image diagonal
+    assert (free[:3] < 20).all()  # the first candidate, near the part, in every view
+    assert not np.array_equal(free, occluded)  # the placed object hid something
+
+
+def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
+    from bop_cender.pose.cuda_cost import cuda_candidate_costs
+    from bop_cender.render.cuda_loops import simulator_enabled
+
+    if simulator_enabled():
+        pytest.skip("the simulator takes CPU tensors")
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    with pytest.raises(ValueError, match="CUDA tensors"):
+        cuda_candidate_costs(mesh, torch.eye(4).repeat(1, 1, 1, 1), torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8))
+
+
+def test_candidate_costs_on_the_cpu_never_reach_for_the_cuda_target() -> None:
+    """The CPU's default stays its compiled loop; ``compiled=False`` the atlases (no numba.cuda import needed)."""
+    from bop_cender.pose import cost
+
+    assert cost._use_cuda_kernel(False) is False
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_on_cuda_the_kernel_gives_the_atlases_costs() -> None:
+    try:
+        from tests.pose.test_cost import H, W, rig, target
+        from tests.pose.test_cost_kernel import _candidates
+        from tests.render.reference import bracket
+    except ImportError:
+        sys.path[:0] = [str(ROOT / "tests" / "pose"), str(ROOT / "tests" / "render")]
+        from reference import bracket
+        from test_cost import H, W, rig, target
+        from test_cost_kernel import _candidates
+    from bop_cender.render.cuda_loops import cuda_unavailable_reason
+
+    if cuda_unavailable_reason() is not None:
+        pytest.skip(cuda_unavailable_reason())
+    mesh = prepare_mesh(bracket(16))
+    T_cw, Ks = rig()
+    dist = target(mesh, T_cw, Ks)
+    weights = torch.tensor([1.0, 0.7, 1.3])
+    T = torch.as_tensor(np.einsum("vij,bjk->bvik", T_cw, _candidates(12, seed=4)), dtype=torch.float32)
+    occ = torch.zeros((3, H, W))
+    occ[:, 30:70, 40:90] = 300.0
+    for occluder in (None, occ):
+        cpu = candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder)
+        args = (mesh.to("cuda"), T.cuda(), torch.as_tensor(Ks).cuda(), H, W, dist.cuda(), weights.cuda())
+        occ_cuda = None if occluder is None else occluder.cuda()
+        kernel = candidate_costs(*args, occluder_depth=occ_cuda)
+        atlases = candidate_costs(*args, occluder_depth=occ_cuda, compiled=False)
+        assert kernel.device.type == "cuda"
+        assert torch.equal(kernel, candidate_costs(*args, occluder_depth=occ_cuda, compiled=True))
+        torch.testing.assert_close(kernel.cpu(), atlases.cpu(), rtol=1e-4, atol=1e-3)
+        torch.testing.assert_close(kernel.cpu(), cpu, rtol=1e-4, atol=1e-3)
