@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from bop_cender.render.mesh import PackedMeshes, RenderMesh
+from bop_cender.render.numba_cache import cached_njit
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
 from bop_cender.render.raster import DEFAULT_NEAR, camera_vertices, front_faces, project_vertices
@@ -50,7 +51,7 @@ def _render_canvases(cam_all, px_all, py_all, draw, faces, face_instance, corner
     return 0
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy")
+@cached_njit(nogil=True, error_model="numpy")
 def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_inv, v0, u0, h, w, near, face_bits,
                   depth_bits, fused, depth_out, normals_out, face_out):  # fmt: skip
     """Render one canvas into its window: rows ``v0 .. v0 + h - 1`` and columns ``u0 .. u0 + w - 1`` of the image.
@@ -121,7 +122,7 @@ TABLE_WIDTH = 12
 def _shared(py_func):
     """Compile ``py_func`` for the CPU and record its source function in :data:`SHARED_FUNCTIONS`."""
     SHARED_FUNCTIONS[py_func.__name__] = py_func
-    return numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")(py_func)
+    return cached_njit(nogil=True, error_model="numpy", inline="always")(py_func)
 
 
 @_shared
@@ -244,7 +245,7 @@ def scan_face(px, py, i0, i1, i2, f, qa, qb, qc, v0, u0, h, w, quantised, levels
                 keep_fragment(best_key, best_w, p0 + k, q, key, f, quantised)
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+@cached_njit(nogil=True, error_model="numpy", inline="always")
 def keep_fragment(best_key, best_w, p, q, key, f, quantised):
     """The z-buffer test at pixel ``p`` (CPU): the larger int32 key wins (quantised), or the larger exact 1/z ``q``,
     ties to the larger face id (torch packs the float's bits: a negative or NaN 1/z never wins)."""
@@ -267,7 +268,7 @@ def shade(row, x, y, fused):
     return depth, n0 * inv, n1 * inv, n2 * inv
 
 
-@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+@cached_njit(nogil=True, error_model="numpy", inline="always")
 def sqrt32(x):
     """The float32 square root, correctly rounded (IEEE's, as :func:`~bop_cender.render.curvature.
     correctly_rounded_sqrt_` takes torch's): NumPy's on the CPU; CUDA's ``math.sqrt`` of a float32 on the GPU

@@ -18,6 +18,8 @@ import numba
 import numpy as np
 import torch
 
+from bop_cender.render.numba_cache import cached_njit
+
 #: The compiled loops' thread count while :func:`compiled_threads` is in force (empty: torch's thread count).
 _THREADS: list[int] = []
 
@@ -36,18 +38,15 @@ def compiled_threads(threads: int) -> Iterator[None]:
 def canvas_loop(py_func: Callable | None = None, *, error_model: str = "python") -> Callable:
     """``py_func`` (a loop over canvases with ``numba.prange``) compiled serial and threaded; the returned function
     runs the serial one where torch uses one thread, else the threaded one on torch's thread count (at most
-    numba's). The serial version is cached on disk (numba's cache beside this package, or the user's cache
-    folder where that is read-only; compiled in each process where neither is writable); the threaded one is compiled on first use in a process (not cached: the
+    numba's). The serial version is cached on disk, in the folder of this version of the package's sources
+    (:mod:`bop_cender.render.numba_cache`); the threaded one is compiled on first use in a process (not cached: the
     cache's index does not tell the two compilations of one function apart).
 
     ``error_model``: numba's (``"numpy"``: a float division by zero gives inf or NaN, as in torch, instead of
     raising); used as ``@canvas_loop(error_model="numpy")``."""
     if py_func is None:
         return lambda func: canvas_loop(func, error_model=error_model)
-    try:
-        serial = numba.njit(nogil=True, cache=True, error_model=error_model)(py_func)
-    except RuntimeError:  # "cannot cache function ...: no locator available": no writable cache folder anywhere
-        serial = numba.njit(nogil=True, error_model=error_model)(py_func)  # compiled afresh in each process (4 s)
+    serial = cached_njit(py_func, nogil=True, error_model=error_model)  # the package version's cache (numba_cache)
     threaded = numba.njit(nogil=True, parallel=True, error_model=error_model)(py_func)
 
     def run(*args):
