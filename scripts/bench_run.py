@@ -117,17 +117,20 @@ _SYNC_EVENTS = ("aten::nonzero", "aten::item", "aten::_local_scalar_dense", "ate
 
 
 def cost_call_profile(
-    device: torch.device, batches: tuple[int, ...] = (1, 8)
-) -> list[tuple[int, float, int, int, int]]:
-    """One cost call of each batch size profiled (after 3 warm-ups): ``(batch, wall ms of an unprofiled call,
+    device: torch.device, batches: tuple[int, ...] = (1, 8), compiled: bool | None = None
+) -> list[tuple[str, float, int, int, int]]:
+    """One cost call of each batch size profiled (after 3 warm-ups): ``(batch and path, wall ms of an unprofiled call,
     aten operators, CUDA kernel launches, synchronising calls)`` (launches and syncs 0 on the CPU but ``nonzero`` and
-    ``item``, which only synchronise on a GPU)."""
+    ``item``, which only synchronise on a GPU); ``compiled`` as ``candidate_costs`` takes it (None: the device's
+    default: the compiled loop on the CPU, the kernel on CUDA; False: the torch atlases)."""
     rows = []
+    path = "torch atlases" if compiled is False else "default"
     for batch in batches:
         mesh, T, Ks, dist, w = _workload(device, batch)
-        call = partial(candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w)
-        rows.append((batch, *_profile(call, device)))
-        print(f"profile {device.type} batch {batch}: " + _profile_line(rows[-1][1:]), flush=True)
+        call = partial(candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w,
+                       compiled=compiled)  # fmt: skip
+        rows.append((f"{batch}, {path}", *_profile(call, device)))
+        print(f"profile {device.type} batch {batch} ({path}): " + _profile_line(rows[-1][1:]), flush=True)
     return rows
 
 
@@ -377,7 +380,12 @@ def main() -> None:
             )
     torch.set_num_threads(threads)
     profiled = args.profile and not args.scenes_only
-    profile_rows = [(d.type, *row) for d in devices for row in cost_call_profile(d)] if profiled else []
+    profile_rows = (
+        [(d.type, *row) for d in devices for c in (None, False)[: 1 + (d.type == "cuda")] for row in
+         cost_call_profile(d, compiled=c)]
+        if profiled
+        else []
+    )  # fmt: skip
     edge_profile_rows = [(d.type, *row) for d in devices for row in edge_call_profile(d)] if profiled else []
     polish_rows = [] if args.scenes_only else scene_polish_costs(args.data_root, args.split, args.seconds, devices[-1])
     pose_device = args.pose_device or devices[-1].type
@@ -414,8 +422,8 @@ def main() -> None:
         lines += [f"| {d} | {b} | {h} | {lay} | {c:,.0f} | {m:.2f} |" for d, b, h, lay, c, m in edge_rows]
     if profile_rows:
         lines += ["", "## One cost call profiled (`--profile`: torch.profiler, one call after 3 warm-ups)", "",
-                  "| device | batch | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
-                  "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+                  "| device | batch, path | ms per call | aten operators | CUDA kernel launches | synchronising calls |",
+                  "|---|---|---:|---:|---:|---:|"]  # fmt: skip
         lines += [f"| {d} | {b} | {ms:.2f} | {o} | {k} | {s} |" for d, b, ms, o, k, s in profile_rows]
         lines += ["", "One edge-proxy call profiled (full model, 3 poses: a Nelder-Mead step), in each layout:", "",
                   "| device | layout | ms per call | aten operators | CUDA kernel launches | synchronising calls |",

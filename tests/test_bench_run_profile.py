@@ -10,10 +10,14 @@ import bench_run  # noqa: E402
 
 
 def test_a_cost_call_is_profiled_into_time_operators_launches_and_syncs(device) -> None:
-    (row,) = bench_run.cost_call_profile(device, batches=(1,))
+    (row,) = bench_run.cost_call_profile(device, batches=(1,), compiled=False)
     batch, ms, ops, launches, syncs = row
-    assert batch == 1 and ms > 0 and ops > 100  # the candidate path runs many small operators per call
+    assert batch == "1, torch atlases" and ms > 0 and ops > 100  # the atlases run many small operators per call
     assert (launches > 0) == (device.type == "cuda") and syncs > 0  # nonzero compactions at least
+    (default,) = bench_run.cost_call_profile(device, batches=(1,))
+    assert default[0] == "1, default" and default[2] < ops  # the compiled loop (CPU) or kernel (CUDA): fewer operators
+    if device.type == "cuda":
+        assert default[4] < syncs  # the kernel waits for the device once per call
 
 
 def test_an_edge_call_is_profiled_in_every_layout_the_dense_one_never_synchronises_the_kernel_runs_no_operator(

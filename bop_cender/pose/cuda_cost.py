@@ -15,8 +15,8 @@ its size, and 2,000 candidates ran 14,265 calls/s against issue 11's goal of 20,
 4. each thread takes the curvature and the two sums of its share of the interior pixels in float64, and the block
    adds them up.
 
-The host synchronises once per call, to size the scratch (the windows' pixels, rows and widest row). Quantised int32 keys only (a
-mesh of at most 2^15 faces, :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind
+The host waits for the device once per call, to read the windows' sizes (the scratch's size and the launches'
+groups) and the nearest vertex. Quantised int32 keys only (a mesh of at most 2^15 faces, :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind
 the near plane :func:`cuda_candidate_costs` returns None and the torch path runs.
 
 Rounding. On a GPU, NVVM contracts float32 multiply-adds into fused ones, as nvcc does for torch's CUDA kernels, so
@@ -27,36 +27,44 @@ contraction) the kernel repeats the CPU loops' arithmetic: the tests compare it 
 
 from __future__ import annotations
 
+import contextlib
 import math
+from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
 import torch
 
+from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
 from bop_cender.render.compiled_raster import loop_tensors
 from bop_cender.render.cuda_loops import clone, device_namespace, simulator_enabled
+from bop_cender.render.scanline import KeyCodec
 
 #: Threads per block (one block per canvas): the float64 reduction's shared arrays have this size.
 BLOCK_THREADS = 128
+#: Bytes of normal-map scratch per launch (canvases beyond it go to the next launch of the call).
+SCRATCH_BYTES = 1 << 30
 
 
 def _costs_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, face_bits,
-                  depth_bits, fused, z_range, lo, extent, base, row_base, near, occ, margin, dist, keys, normals,
-                  out):  # fmt: skip
-    """Unweighted cost of canvas ``c = blockIdx.x`` (view ``c % V``) into ``out[c]`` (the first eleven arguments:
-    :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` its vertices' least and greatest z).
-    Scratch: ``keys (P,)`` int32, canvas c's ``h * w`` keys from ``base[c]``; ``normals (rows, widest, 3)`` float32,
-    its ``h`` rows from ``row_base[c]`` (3-D, so that the CPU's :func:`pixel_curvature` reads it as it is)."""
-    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
+                  depth_bits, fused, z_range, lo, extent, canvases, base, row_base, near, occ, margin, dist, keys,
+                  normals, out):  # fmt: skip
+    """Unweighted cost of canvas ``c = canvases[blockIdx.x]`` (view ``c % V``) into ``out[c]`` (the first eleven
+    arguments: :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` its vertices' least and
+    greatest z). Scratch of the launch's group of canvases: ``keys`` int32, block b's ``h * w`` keys from ``base[b]``;
+    ``normals (rows, widest, 3)`` float32, its ``h`` rows from ``row_base[b]`` (3-D, so that the CPU's
+    :func:`pixel_curvature` reads it as it is)."""
+    b = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
+    c = canvases[b]
     tid = cuda.threadIdx.x  # noqa: F821
     threads = cuda.blockDim.x  # noqa: F821
     V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
     v = c % V
     top, left, h, w = lo[c, 0], lo[c, 1], extent[c, 0], extent[c, 1]
     n_pixels = h * w
-    key = keys[base[c] : base[c] + n_pixels]
-    nrm = normals[row_base[c] : row_base[c] + h]  # (h, widest window, 3): the window's normals in its first w
+    key = keys[base[b] : base[b] + n_pixels]
+    nrm = normals[row_base[b] : row_base[b] + h]  # (h, widest, 3): the window's normals in its first w columns
     levels = key_levels(depth_bits, True)  # noqa: F821
     w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
     for p in range(tid, n_pixels, threads):
@@ -129,10 +137,16 @@ def _kernel():
 
 def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
                          dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None = None,
-                         threads: int = BLOCK_THREADS, fused: bool = True) -> torch.Tensor | None:  # fmt: skip
+                         threads: int = BLOCK_THREADS, fused: bool = True,
+                         scratch_bytes: int = SCRATCH_BYTES) -> torch.Tensor | None:  # fmt: skip
     """Unweighted costs ``(B * V,)`` float32 of B candidates in V views (canvas ``c`` = candidate ``c // V`` in view
-    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view, by one CUDA kernel; None where
-    the kernel does not apply (exact keys, a vertex behind the near plane: use the torch path).
+    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view, by the CUDA kernel; None where
+    it does not apply (a mesh of more than 2^15 faces, whose keys are exact; a vertex behind the near plane: use the
+    torch path).
+
+    The windows' sizes and the nearest vertex are read back once (the call's one wait for the device); canvases are
+    launched in groups, by window width, whose normal maps fit ``scratch_bytes`` (a batch of 2,000 candidates in six
+    320x256 views takes one or two launches).
 
     Args:
         mesh: the object (:class:`~bop_cender.render.mesh.RenderMesh` on the inputs' device).
@@ -144,6 +158,7 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
         threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
             runs each thread as a Python thread).
         fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
+        scratch_bytes: bytes of normal maps per launch (at least one canvas per launch).
     """
     from bop_cender.render.candidate_curvature import window_bounds
 
@@ -152,6 +167,13 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
     device = T_cam_model.device
     if device.type != "cuda" and not simulator_enabled():
         raise ValueError(f"the CUDA cost kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
+    check_shape(dist_maps, f"V {int(height)} {int(width)}", "dist_maps", sizes)
+    if occluder_depth is not None:
+        check_shape(occluder_depth, f"V {int(height)} {int(width)}", "occluder_depth", sizes)
+    if KeyCodec.for_faces(int(mesh.faces.shape[0])).dtype != torch.int32:
+        return None  # exact keys: the torch path
     B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
     C = B * V
     if C == 0:
@@ -159,34 +181,80 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
     T = T_cam_model.reshape(C, 4, 4)
     R, t = T[:, :3, :3], T[:, :3, 3]
     Kc = K.index_select(0, torch.arange(C, device=device) % V)
-    inputs = loop_tensors(mesh, R[:, None].contiguous(), t[:, None].contiguous(), Kc, near)
-    if inputs is None or inputs[-2] == 0:  # behind the near plane, or exact keys
-        return None
+    inputs = loop_tensors(mesh, R[:, None].contiguous(), t[:, None].contiguous(), Kc, near, check_near=False)
     cam = inputs[0]
     lo, hi = window_bounds(cam.permute(2, 0, 1), Kc, height, width)
     extent = hi - lo
-    pixels = extent[:, 0] * extent[:, 1]
-    base = torch.cumsum(pixels, 0) - pixels
-    row_base = torch.cumsum(extent[:, 0], 0) - extent[:, 0]
-    total, rows, widest = torch.stack([pixels.sum(), extent[:, 0].sum(), extent[:, 1].amax()]).tolist()  # one sync
-    keys = torch.empty(total, dtype=torch.int32, device=device)
-    normals = torch.empty((rows, widest, 3), dtype=torch.float32, device=device)
     z_range = torch.stack([cam[..., 2].amin(1), cam[..., 2].amax(1)], 1).contiguous()
+    read = torch.cat([extent.reshape(-1).double(), z_range[:, 0].amin().reshape(1).double()]).tolist()  # one wait
+    if read[-1] < near:
+        return None  # a vertex behind the near plane: the torch renderer clips it
+    groups = _launch_groups(np.asarray(read[:-1], dtype=np.int64).reshape(C, 2), scratch_bytes)
     occ = torch.zeros((0, 1, 1), dtype=torch.float32, device=device) if occluder_depth is None else occluder_depth
     out = torch.empty(C, dtype=torch.float32, device=device)
-    arrays = [*inputs[:-2], z_range, lo.contiguous(), extent.contiguous(), base, row_base]
-    tail = [occ.float().contiguous(), dist_maps.float().contiguous(), keys, normals, out]
+    keys = torch.empty(max(g.pixels for g in groups), dtype=torch.int32, device=device)
+    normals = torch.empty(max(g.rows * g.widest * 3 for g in groups), dtype=torch.float32, device=device)
+    shared = [*inputs[:-2], z_range, lo.contiguous(), extent.contiguous()]
+    tail = [occ.float().contiguous(), dist_maps.float().contiguous()]
     if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
-        convert = _as_numpy
-        launch = _kernel()[C, threads]
+        convert, stream, context = _as_numpy, None, contextlib.nullcontext()
     else:
         from numba import cuda
 
         convert = cuda.as_cuda_array
-        launch = _kernel()[C, threads, cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)]
-    launch(*map(convert, arrays[:9]), inputs[-2], inputs[-1], bool(fused), *map(convert, arrays[9:]), np.float32(near),
-           convert(tail[0]), np.float32(OCCLUSION_MARGIN_MM), *map(convert, tail[1:]))  # fmt: skip
+        stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
+        context = cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]
+    kernel = _kernel()
+    # every group's block table in one copy, before any launch (a copy from pageable memory waits for the stream)
+    tables = torch.from_numpy(np.concatenate([np.stack([g.canvases, g.base, g.row_base]) for g in groups], 1))
+    tables = tables.to(device)
+    with context:
+        first = 0
+        for group in groups:  # in stream order: each group reuses the scratch
+            per_block = tables[:, first : first + len(group.canvases)]
+            first += len(group.canvases)
+            scratch = normals[: group.rows * group.widest * 3].view(group.rows, group.widest, 3)
+            launch = (
+                kernel[len(group.canvases), threads] if stream is None else kernel[len(group.canvases), threads, stream]
+            )
+            launch(*map(convert, shared[:9]), inputs[-2], inputs[-1], bool(fused), *map(convert, shared[9:]),
+                   *map(convert, per_block), np.float32(near), convert(tail[0]), np.float32(OCCLUSION_MARGIN_MM),
+                   convert(tail[1]), convert(keys), convert(scratch), convert(out))  # fmt: skip
     return out
+
+
+@dataclass(frozen=True)
+class _Group:
+    """Canvases launched together: their ids, each one's first key and first normal-map row in the scratch."""
+
+    canvases: np.ndarray
+    base: np.ndarray
+    row_base: np.ndarray
+    pixels: int
+    rows: int
+    widest: int
+
+
+def _launch_groups(extent: np.ndarray, scratch_bytes: int) -> list[_Group]:
+    """Canvases by window width (``extent (C, 2)``: rows, columns), cut into groups whose normal maps (rows x the
+    group's widest row x 3 float32) fit ``scratch_bytes``, at least one canvas each."""
+    order = np.argsort(extent[:, 1], kind="stable")
+    groups, start, rows = [], 0, 0
+    for n, c in enumerate(order):
+        h, w = int(extent[c, 0]), int(extent[c, 1])
+        if n > start and (rows + h) * w * 12 > scratch_bytes:  # sorted by width: w is the widest so far
+            groups.append(_group(extent, order[start:n]))
+            start, rows = n, 0
+        rows += h
+    groups.append(_group(extent, order[start:]))
+    return groups
+
+
+def _group(extent: np.ndarray, canvases: np.ndarray) -> _Group:
+    heights = extent[canvases, 0]
+    pixels = heights * extent[canvases, 1]
+    return _Group(canvases.astype(np.int64), np.cumsum(pixels) - pixels, np.cumsum(heights) - heights,
+                  int(pixels.sum()), int(heights.sum()), int(extent[canvases, 1].max()))  # fmt: skip
 
 
 def _as_numpy(x: torch.Tensor) -> np.ndarray:

@@ -108,7 +108,7 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
 
 
 #: The plain Python functions of the rasteriser's per-face and per-pixel arithmetic, by name. They are compiled here
-#: for the CPU (numba.njit) and again for CUDA by :mod:`bop_cender.render.cuda_kernels`, with these names bound to
+#: for the CPU (numba.njit) and again for CUDA by :mod:`bop_cender.render.cuda_loops`, with these names bound to
 #: their CUDA versions: one source for both targets. They allocate nothing and write only through their array
 #: arguments. Two functions have a version per target: :func:`keep_fragment`, the z-buffer's write (atomic on
 #: CUDA), and :func:`sqrt32` (NumPy's root here, ``math.sqrt`` there). Inlined (``inline="always"``): as separate
@@ -403,19 +403,19 @@ def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Ten
 
 
 def loop_tensors(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float,
-                 verts: torch.Tensor | None = None) -> tuple | None:  # fmt: skip
+                 verts: torch.Tensor | None = None, check_near: bool = True) -> tuple | None:  # fmt: skip
     """What the per-canvas loops read for C canvases, from the torch renderer's own functions, as tensors on the
     inputs' device: camera-space vertices ``(C, N, 3)``, projections ``(C, N)`` twice, faces drawn ``(C, F)``, faces
     ``(F, 3)`` int64, face instances ``(F,)`` int64, corner normals ``(F, 3, 3)``, rotations ``(C, I, 3, 3)``, inverse
     intrinsics ``(C, 9)``, then the key codec's face bits and depth bits (ints); None where a vertex lies behind the
-    near plane (one host synchronisation).
+    near plane (with ``check_near``: one host synchronisation; without it the caller checks).
 
     Args:
         R, t: ``(C, I, 3, 3)``, ``(C, I, 3)``; K: ``(C, 3, 3)``, all float32 on one device.
         verts: ``(3, C, N)`` camera-space vertices if already computed.
     """
     verts = camera_vertices(meshes, R, t) if verts is None else verts  # (3, C, N)
-    if verts.numel() and float(verts[2].amin()) < near:
+    if check_near and verts.numel() and float(verts[2].amin()) < near:
         return None
     C, F = int(R.shape[0]), int(meshes.faces.shape[0])
     px, py = project_vertices(verts, K, near)
@@ -423,7 +423,7 @@ def loop_tensors(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Te
     face_bits, depth_bits = key_bits(KeyCodec.for_faces(F, exact=face_instance is not None))
     if face_instance is None:
         face_instance = torch.zeros(F, dtype=torch.int64, device=verts.device)
-    K_inv = torch.linalg.inv(K.double()).to(torch.float32).reshape(C, 9)  # as rasterize inverts it
+    K_inv = torch.linalg.inv_ex(K.double())[0].to(torch.float32).reshape(C, 9)  # inv's values, without its check's sync
     return (
         verts.permute(1, 2, 0).contiguous(), px, py, front_faces(meshes, R, t), meshes.faces.to(torch.int64),
         face_instance, meshes.corner_normals, R, K_inv, int(face_bits), int(depth_bits),
