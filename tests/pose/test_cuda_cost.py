@@ -183,3 +183,27 @@ def test_on_cuda_the_kernel_gives_the_atlases_costs() -> None:
         assert torch.equal(kernel, candidate_costs(*args, occluder_depth=occ_cuda, compiled=True))
         torch.testing.assert_close(kernel.cpu(), atlases.cpu(), rtol=1e-4, atol=1e-3)
         torch.testing.assert_close(kernel.cpu(), cpu, rtol=1e-4, atol=1e-3)
+
+
+def test_the_compile_check_records_a_real_calls_arguments_and_compiles_or_says_what_is_missing() -> None:
+    """``scripts/check_cuda_compile.py`` types the kernel from a real call's arguments (one per kernel parameter) and
+    compiles it for sm_90 where numba-cuda and NVVM are installed; elsewhere (CI) it says what is missing, exit 2."""
+    import importlib.util
+
+    from bop_cender.pose.cuda_cost import _costs_kernel
+
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import check_cuda_compile
+
+    arguments = check_cuda_compile._launch_arguments()
+    assert len(arguments) == _costs_kernel.__code__.co_argcount
+    assert all(isinstance(a, np.ndarray) or np.isscalar(a) for a in arguments)
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "check_cuda_compile.py")], capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
+    assert "Traceback" not in done.stderr
+    if importlib.util.find_spec("numba_cuda") is None:
+        assert done.returncode == 2 and "numba-cuda is not installed" in done.stderr
+    elif done.returncode == 2:
+        assert "NVVM or nvrtc not found" in done.stderr
+    else:
+        assert done.returncode == 0 and "0 local-memory lines, 0 calls" in done.stdout, done.stdout

@@ -1,0 +1,104 @@
+"""Compile the CUDA cost kernel to PTX without a GPU: does it still build for the device, and how lean is it?
+
+Why. Most sessions have no GPU, and numba's CUDA simulator (what the tests run) executes the kernel as plain Python:
+it accepts code the CUDA target refuses (a ``reshape`` that links to a CPU-only helper, a NumPy function the device
+lacks). This script types the kernel with the argument types of a real call (a small batch prepared on the CPU) and
+compiles it with numba-cuda's NVVM for a compute capability (sm_90, the H100/H200, by default), then prints the PTX's
+size, its fused multiply-adds, atomics, local-memory uses and calls (a lean kernel has neither of the last two).
+
+Needs numba-cuda and NVVM, no driver: ``pip install numba-cuda nvidia-cuda-nvcc-cu12 nvidia-cuda-nvrtc-cu12`` (and
+their ``cuda-bindings``, ``cuda-core``, ``cuda-pathfinder``), with the nvrtc library on ``LD_LIBRARY_PATH``. numba
+compiles device functions for the current device's compute capability; with no device there is none, so the script
+tells numba's dispatcher the capability asked for (``--cc``). Exit 0: compiled, no local memory, no call; 1: compiled
+but with either; 2: numba-cuda or NVVM missing (the message says what).
+
+    python scripts/check_cuda_compile.py [--cc 9.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _launch_arguments() -> list:
+    """The kernel's arguments of a small real call (a box in two views), as NumPy arrays and scalars."""
+    import torch
+    import trimesh
+
+    from bop_cender.pose import cuda_cost
+    from bop_cender.render.mesh import prepare_mesh
+
+    captured: list = []
+
+    class _Recorder:
+        def __getitem__(self, config):
+            return lambda *args: captured.append(list(args))
+
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    T = torch.eye(4).repeat(1, 2, 1, 1)
+    T[..., 2, 3] = 300.0
+    K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
+    saved = cuda_cost.simulator_enabled, cuda_cost._kernel
+    cuda_cost.simulator_enabled, cuda_cost._kernel = (lambda: True), (lambda: _Recorder())
+    try:
+        cuda_cost.cuda_candidate_costs(mesh, T, K, 96, 128, 1.0, torch.ones(2, 96, 128), torch.zeros(2, 96, 128))
+    finally:
+        cuda_cost.simulator_enabled, cuda_cost._kernel = saved
+    return captured[0]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cc", default="9.0", help="compute capability MAJOR.MINOR (default 9.0: H100/H200)")
+    args = ap.parse_args()
+    cc = tuple(int(x) for x in args.cc.split("."))
+    try:
+        import numba_cuda  # noqa: F401 (numba-cuda, not numba's own deprecated target)
+        from numba import cuda, typeof
+        from numba.cuda import dispatcher
+    except ImportError as error:
+        print(f"check_cuda_compile: numba-cuda is not installed ({error}); pip install numba-cuda", file=sys.stderr)
+        return 2
+
+    class _Capability:  # what numba asks the current device for, with no device present
+        compute_capability = cc
+
+    dispatcher.get_current_device = lambda: _Capability()
+    from bop_cender.pose import cuda_cost
+    from bop_cender.render import cuda_loops
+
+    cuda_loops.cuda_unavailable_reason = lambda: None  # no driver needed to compile
+    namespace = cuda_loops.device_namespace.__wrapped__()
+    namespace.update(BLOCK_THREADS=cuda_cost.BLOCK_THREADS, math=cuda_cost.math)
+    kernel = cuda_loops.clone(cuda_cost._costs_kernel, namespace)
+    signature = tuple(typeof(a) for a in _launch_arguments())
+    try:
+        ptx, _ = cuda.compile_ptx(kernel, signature, cc=cc)
+    except Exception as error:
+        if "nvvm" in str(error).lower() or "nvrtc" in str(error).lower():
+            print(f"check_cuda_compile: NVVM or nvrtc not found ({type(error).__name__}: {error})", file=sys.stderr)
+            return 2
+        raise
+    lines = ptx.splitlines()
+    local = sum(".local" in line for line in lines)
+    calls = [line.strip() for line in lines if line.strip().startswith("call")]
+    print(f"sm_{cc[0]}{cc[1]}: {len(ptx):,} bytes of PTX, {ptx.count('fma.rn.f32')} float32 and "
+          f"{ptx.count('fma.rn.f64')} float64 fused multiply-adds, {ptx.count('atom.')} atomics, "
+          f"{local} local-memory lines, {len(calls)} calls")  # fmt: skip
+    for line in calls[:5]:
+        print("  call:", line)
+    externs = [line.strip() for line in lines if line.startswith(".extern .func")]
+    for line in externs[:5]:
+        print("  extern:", line, "(links to a helper the device may not have)")
+    return 1 if local or calls or externs else 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())
