@@ -31,26 +31,16 @@ def _launch_arguments() -> list:
     import torch
     import trimesh
 
-    from bop_cender.pose import cuda_cost
+    from bop_cender.pose.cuda_cost import launch_plan
     from bop_cender.render.mesh import prepare_mesh
-
-    captured: list = []
-
-    class _Recorder:
-        def __getitem__(self, config):
-            return lambda *args: captured.append(list(args))
 
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
     T = torch.eye(4).repeat(1, 2, 1, 1)
     T[..., 2, 3] = 300.0
     K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
-    saved = cuda_cost.simulator_enabled, cuda_cost._kernel
-    cuda_cost.simulator_enabled, cuda_cost._kernel = (lambda: True), (lambda: _Recorder())
-    try:
-        cuda_cost.cuda_candidate_costs(mesh, T, K, 96, 128, 1.0, torch.ones(2, 96, 128), torch.zeros(2, 96, 128))
-    finally:
-        cuda_cost.simulator_enabled, cuda_cost._kernel = saved
-    return captured[0]
+    plan = launch_plan(mesh, T, K, 96, 128, 1.0, torch.ones(2, 96, 128), torch.zeros(2, 96, 128))
+    _, arguments = plan.launches[0]
+    return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
 
 
 def main() -> int:
@@ -70,13 +60,9 @@ def main() -> int:
         compute_capability = cc
 
     dispatcher.get_current_device = lambda: _Capability()
-    from bop_cender.pose import cuda_cost
-    from bop_cender.render import cuda_loops
+    from bop_cender.pose.cuda_cost import kernel_function
 
-    cuda_loops.cuda_unavailable_reason = lambda: None  # no driver needed to compile
-    namespace = cuda_loops.device_namespace.__wrapped__()
-    namespace.update(BLOCK_THREADS=cuda_cost.BLOCK_THREADS, math=cuda_cost.math)
-    kernel = cuda_loops.clone(cuda_cost._costs_kernel, namespace)
+    kernel = kernel_function()
     signature = tuple(typeof(a) for a in _launch_arguments())
     try:
         ptx, _ = cuda.compile_ptx(kernel, signature, cc=cc)

@@ -13,9 +13,7 @@ both sums.
 
 from __future__ import annotations
 
-import functools
 import math
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
@@ -192,8 +190,10 @@ def candidate_costs(
     B, V = int(T.shape[0]), int(T.shape[1])
     per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
     occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
-    if device.type == "cuda" and _use_cuda_kernel(compiled):
-        costs = _kernel_costs(mesh, T, Ks, height, width, near, dist, occ, compiled)
+    if device.type == "cuda" and compiled is not False:
+        from bop_cender.pose.cuda_cost import kernel_costs  # numba: imported where it is used
+
+        costs = kernel_costs(mesh, T, Ks, height, width, near, dist, occ, compiled)
         if costs is not None:
             return (costs.view(B, V) * weights).sum(1)
         compiled = False
@@ -220,60 +220,6 @@ def candidate_costs(
     for canvases, costs in results:
         per_view.index_copy_(0, canvases, costs)
     return (per_view.view(B, V) * weights).sum(1)
-
-
-def _use_cuda_kernel(compiled: bool | None) -> bool:
-    """Whether CUDA inputs take the kernel of :mod:`bop_cender.pose.cuda_cost`: as asked, or by default where numba's
-    CUDA target is available and the kernel has not failed in this process (a warning says once why not, and the
-    torch atlases serve).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable.
-    """
-    if compiled is False:
-        return False
-    from bop_cender.render.cuda_loops import cuda_unavailable_reason
-
-    reason = cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
-    if reason is None:
-        return True
-    if compiled:
-        raise RuntimeError(f"compiled=True on CUDA needs the CUDA cost kernel: {reason} (pip install numba-cuda)")
-    _warn_once(f"the render cost runs on the torch atlases on CUDA: {reason}")
-    return False
-
-
-#: Why the CUDA kernel failed in this process (compilation or launch), if it did: later calls take the torch atlases.
-_KERNEL_FAILED: list[str] = []
-
-
-def _kernel_costs(mesh: RenderMesh, T: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
-                  dist: torch.Tensor, occ: torch.Tensor | None, compiled: bool | None) -> torch.Tensor | None:  # fmt: skip
-    """The CUDA kernel's per-view costs, or None where it does not apply or failed (with ``compiled=None``).
-
-    Raises:
-        ValueError: ``compiled=True`` where the kernel does not apply (the message says why).
-    """
-    from bop_cender.pose.cuda_cost import cuda_candidate_costs
-
-    try:
-        costs = cuda_candidate_costs(mesh, T, K, height, width, near, dist, occ)
-    except Exception as error:  # numba's compilation, the driver or the launch: the torch path stays available
-        if compiled:
-            raise
-        _KERNEL_FAILED.append(f"the CUDA kernel failed ({type(error).__name__}: {error})")
-        _warn_once(f"the render cost runs on the torch atlases on CUDA: {_KERNEL_FAILED[0]}")
-        return None
-    if costs is None and compiled:
-        faces = int(mesh.faces.shape[0])
-        why = f"a mesh of {faces} faces (at most 2^15)" if faces > 1 << 15 else "a vertex behind the near plane"
-        raise ValueError(f"compiled=True, but the CUDA kernel does not apply here: {why} (compiled=None: torch)")
-    return costs
-
-
-@functools.cache
-def _warn_once(message: str) -> None:
-    warnings.warn(message, RuntimeWarning, stacklevel=4)
 
 
 def _atlas_costs(atlas: CurvatureAtlas, dist_maps: torch.Tensor) -> torch.Tensor:

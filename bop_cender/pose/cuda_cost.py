@@ -16,8 +16,11 @@ its size, and 2,000 candidates ran 14,265 calls/s against issue 11's goal of 20,
    adds them up.
 
 The host waits for the device once per call, to read the windows' sizes (the scratch's size and the launches'
-groups) and the nearest vertex. Quantised int32 keys only (a mesh of at most 2^15 faces, :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind
-the near plane :func:`cuda_candidate_costs` returns None and the torch path runs.
+groups) and the nearest vertex. Quantised int32 keys only (a mesh of at most 2^15 faces,
+:class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind the near plane
+:func:`cuda_candidate_costs` returns None and the torch path runs. :func:`kernel_costs` is what
+:func:`~bop_cender.pose.cost.candidate_costs` calls: the kernel where numba's CUDA target works, a warning and the
+torch path where it does not.
 
 Rounding. On a GPU, NVVM contracts float32 multiply-adds into fused ones, as nvcc does for torch's CUDA kernels, so
 the costs agree with the torch path's to float32 rounding, not bit for bit. In numba's CUDA simulator (CPU, no
@@ -28,7 +31,9 @@ contraction) the kernel repeats the CPU loops' arithmetic: the tests compare it 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
+import warnings
 from dataclasses import dataclass
 from functools import cache
 
@@ -38,7 +43,7 @@ import torch
 from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
 from bop_cender.render.compiled_raster import loop_tensors
-from bop_cender.render.cuda_loops import clone, device_namespace, simulator_enabled
+from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
 from bop_cender.render.scanline import KeyCodec
 
 #: Threads per block (one block per canvas): the float64 reduction's shared arrays have this size.
@@ -127,12 +132,59 @@ def _costs_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_no
         )
 
 
+def kernel_function():
+    """The kernel's Python function with the rasteriser's CUDA device functions as its globals (not compiled yet:
+    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
+    return clone(_costs_kernel, {**device_namespace(), "BLOCK_THREADS": BLOCK_THREADS})
+
+
 @cache
 def _kernel():
     """The kernel compiled by numba's CUDA target (on first use: a few seconds)."""
-    namespace = device_namespace()
-    namespace.update(BLOCK_THREADS=BLOCK_THREADS, math=math)
-    return namespace["cuda"].jit(clone(_costs_kernel, namespace))
+    from numba import cuda
+
+    return cuda.jit(kernel_function())
+
+
+#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch path.
+_KERNEL_FAILED: list[str] = []
+
+
+def kernel_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
+                 dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None,
+                 compiled: bool | None) -> torch.Tensor | None:  # fmt: skip
+    """:func:`cuda_candidate_costs` as :func:`~bop_cender.pose.cost.candidate_costs` takes it on CUDA: None where the
+    torch path is to run instead: the kernel does not apply, or (with ``compiled=None``) numba's CUDA target is
+    unavailable or the kernel failed to compile or launch in this process (a warning says why, once).
+
+    Raises:
+        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable, or the kernel failed.
+        ValueError: ``compiled=True`` where the kernel does not apply (the message says why).
+    """
+    reason = cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
+    if reason is not None:
+        if compiled:
+            raise RuntimeError(f"compiled=True on CUDA needs the CUDA cost kernel: {reason} (pip install numba-cuda)")
+        _warn_once(f"the render cost runs on the torch atlases on CUDA: {reason}")
+        return None
+    try:
+        costs = cuda_candidate_costs(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth)
+    except Exception as error:  # numba's compilation, the driver or the launch: the torch path stays available
+        if compiled:
+            raise
+        _KERNEL_FAILED.append(f"the CUDA kernel failed ({type(error).__name__}: {error})")
+        _warn_once(f"the render cost runs on the torch atlases on CUDA: {_KERNEL_FAILED[0]}")
+        return None
+    if costs is None and compiled:
+        faces = int(mesh.faces.shape[0])
+        why = f"a mesh of {faces} faces (at most 2^15)" if faces > 1 << 15 else "a vertex behind the near plane"
+        raise ValueError(f"compiled=True, but the CUDA kernel does not apply here: {why} (compiled=None: torch)")
+    return costs
+
+
+@functools.cache
+def _warn_once(message: str) -> None:
+    warnings.warn(message, RuntimeWarning, stacklevel=4)
 
 
 def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
@@ -144,58 +196,21 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
     it does not apply (a mesh of more than 2^15 faces, whose keys are exact; a vertex behind the near plane: use the
     torch path).
 
-    The windows' sizes and the nearest vertex are read back once (the call's one wait for the device); canvases are
-    launched in groups, by window width, whose normal maps fit ``scratch_bytes`` (a batch of 2,000 candidates in six
-    320x256 views takes one or two launches).
-
     Args:
-        mesh: the object (:class:`~bop_cender.render.mesh.RenderMesh` on the inputs' device).
-        T_cam_model: ``(B, V, 4, 4)`` float32 candidate poses in each view's camera frame (mm), on a CUDA device (or
-            the CPU under numba's CUDA simulator).
-        K: ``(V, 3, 3)`` float32 intrinsics; height, width: image size; near: near plane (mm).
-        dist_maps: ``(V, H, W)`` float32 distance maps.
-        occluder_depth: ``(V, H, W)`` float32 depth of the objects already placed (0: none), or None.
+        mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth, scratch_bytes: as :func:`launch_plan`,
+            the tensors on a CUDA device (or the CPU under numba's CUDA simulator).
         threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
             runs each thread as a Python thread).
         fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
-        scratch_bytes: bytes of normal maps per launch (at least one canvas per launch).
     """
-    from bop_cender.render.candidate_curvature import window_bounds
-
     if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
         raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
     device = T_cam_model.device
     if device.type != "cuda" and not simulator_enabled():
         raise ValueError(f"the CUDA cost kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
-    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
-    check_shape(K, "V 3 3", "K", sizes)
-    check_shape(dist_maps, f"V {int(height)} {int(width)}", "dist_maps", sizes)
-    if occluder_depth is not None:
-        check_shape(occluder_depth, f"V {int(height)} {int(width)}", "occluder_depth", sizes)
-    if KeyCodec.for_faces(int(mesh.faces.shape[0])).dtype != torch.int32:
-        return None  # exact keys: the torch path
-    B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
-    C = B * V
-    if C == 0:
-        return torch.zeros(0, dtype=torch.float32, device=device)
-    T = T_cam_model.reshape(C, 4, 4)
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    Kc = K.index_select(0, torch.arange(C, device=device) % V)
-    inputs = loop_tensors(mesh, R[:, None].contiguous(), t[:, None].contiguous(), Kc, near, check_near=False)
-    cam = inputs[0]
-    lo, hi = window_bounds(cam.permute(2, 0, 1), Kc, height, width)
-    extent = hi - lo
-    z_range = torch.stack([cam[..., 2].amin(1), cam[..., 2].amax(1)], 1).contiguous()
-    read = torch.cat([extent.reshape(-1).double(), z_range[:, 0].amin().reshape(1).double()]).tolist()  # one wait
-    if read[-1] < near:
-        return None  # a vertex behind the near plane: the torch renderer clips it
-    groups = _launch_groups(np.asarray(read[:-1], dtype=np.int64).reshape(C, 2), scratch_bytes)
-    occ = torch.zeros((0, 1, 1), dtype=torch.float32, device=device) if occluder_depth is None else occluder_depth
-    out = torch.empty(C, dtype=torch.float32, device=device)
-    keys = torch.empty(max(g.pixels for g in groups), dtype=torch.int32, device=device)
-    normals = torch.empty(max(g.rows * g.widest * 3 for g in groups), dtype=torch.float32, device=device)
-    shared = [*inputs[:-2], z_range, lo.contiguous(), extent.contiguous()]
-    tail = [occ.float().contiguous(), dist_maps.float().contiguous()]
+    plan = launch_plan(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth, fused, scratch_bytes)
+    if plan is None or not plan.launches:
+        return plan if plan is None else plan.out
     if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
         convert, stream, context = _as_numpy, None, contextlib.nullcontext()
     else:
@@ -205,22 +220,83 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
         stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
         context = cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]
     kernel = _kernel()
+    with context:
+        for blocks, arguments in plan.launches:  # in stream order: each launch reuses the scratch
+            launch = kernel[blocks, threads] if stream is None else kernel[blocks, threads, stream]
+            launch(*(convert(a) if isinstance(a, torch.Tensor) else a for a in arguments))
+    return plan.out
+
+
+@dataclass(frozen=True)
+class LaunchPlan:
+    """The kernel's launches of one call: ``(blocks, arguments)`` each, the arguments in the kernel's order (tensors
+    and scalars), and ``out (C,)``, which they fill."""
+
+    out: torch.Tensor
+    launches: list[tuple[int, list]]
+
+
+def launch_plan(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
+                dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None = None, fused: bool = True,
+                scratch_bytes: int = SCRATCH_BYTES) -> LaunchPlan | None:  # fmt: skip
+    """The kernel's inputs, scratch and launches for B candidates in V views, on the inputs' device (no launch); None
+    where the kernel does not apply.
+
+    The windows' sizes and the nearest vertex are read back once (the call's one wait for the device); canvases are
+    launched in groups, by window width, whose normal maps fit ``scratch_bytes`` (a batch of 2,000 candidates in six
+    320x256 views takes one or two launches).
+
+    Args:
+        mesh: the object (:class:`~bop_cender.render.mesh.RenderMesh` on the inputs' device).
+        T_cam_model: ``(B, V, 4, 4)`` float32 candidate poses in each view's camera frame (mm).
+        K: ``(V, 3, 3)`` float32 intrinsics; height, width: image size; near: near plane (mm).
+        dist_maps: ``(V, H, W)`` float32 distance maps.
+        occluder_depth: ``(V, H, W)`` float32 depth of the objects already placed (0: none), or None.
+        fused: multiply-adds rounded once.
+        scratch_bytes: bytes of normal maps per launch (at least one canvas per launch).
+    """
+    from bop_cender.render.candidate_curvature import window_bounds
+
+    device = T_cam_model.device
+    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
+    check_shape(K, "V 3 3", "K", sizes)
+    check_shape(dist_maps, f"V {int(height)} {int(width)}", "dist_maps", sizes)
+    if occluder_depth is not None:
+        check_shape(occluder_depth, f"V {int(height)} {int(width)}", "occluder_depth", sizes)
+    if KeyCodec.for_faces(int(mesh.faces.shape[0])).dtype != torch.int32:
+        return None  # exact keys: the torch path
+    B, V = int(T_cam_model.shape[0]), int(T_cam_model.shape[1])
+    C = B * V
+    out = torch.empty(C, dtype=torch.float32, device=device)
+    if C == 0:
+        return LaunchPlan(out, [])
+    T = T_cam_model.reshape(C, 4, 4)
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    Kc = K.index_select(0, torch.arange(C, device=device) % V)
+    inputs = loop_tensors(mesh, R[:, None].contiguous(), t[:, None].contiguous(), Kc, near, check_near=False)
+    cam = inputs[0]
+    lo, hi = window_bounds(cam.permute(2, 0, 1), Kc, height, width)
+    extent = hi - lo
+    z_range = torch.stack([cam[..., 2].amin(1), cam[..., 2].amax(1)], 1).contiguous()
+    read = torch.cat([extent.reshape(-1).double(), z_range[:, 0].amin().reshape(1).double()]).cpu().numpy()  # a wait
+    if read[-1] < near:
+        return None  # a vertex behind the near plane: the torch renderer clips it
+    groups = _launch_groups(read[:-1].astype(np.int64).reshape(C, 2), scratch_bytes)
+    occ = torch.zeros((0, 1, 1), dtype=torch.float32, device=device) if occluder_depth is None else occluder_depth
+    keys = torch.empty(max(g.pixels for g in groups), dtype=torch.int32, device=device)
+    normals = torch.empty(max(g.rows * g.widest * 3 for g in groups), dtype=torch.float32, device=device)
     # every group's block table in one copy, before any launch (a copy from pageable memory waits for the stream)
     tables = torch.from_numpy(np.concatenate([np.stack([g.canvases, g.base, g.row_base]) for g in groups], 1))
     tables = tables.to(device)
-    with context:
-        first = 0
-        for group in groups:  # in stream order: each group reuses the scratch
-            per_block = tables[:, first : first + len(group.canvases)]
-            first += len(group.canvases)
-            scratch = normals[: group.rows * group.widest * 3].view(group.rows, group.widest, 3)
-            launch = (
-                kernel[len(group.canvases), threads] if stream is None else kernel[len(group.canvases), threads, stream]
-            )
-            launch(*map(convert, shared[:9]), inputs[-2], inputs[-1], bool(fused), *map(convert, shared[9:]),
-                   *map(convert, per_block), np.float32(near), convert(tail[0]), np.float32(OCCLUSION_MARGIN_MM),
-                   convert(tail[1]), convert(keys), convert(scratch), convert(out))  # fmt: skip
-    return out
+    launches, first = [], 0
+    for group in groups:
+        n = len(group.canvases)
+        scratch = normals[: group.rows * group.widest * 3].view(group.rows, group.widest, 3)
+        launches.append((n, [*inputs[:-2], *inputs[-2:], bool(fused), z_range, lo.contiguous(), extent.contiguous(),
+                             *tables[:, first : first + n], np.float32(near), occ.float().contiguous(),
+                             np.float32(OCCLUSION_MARGIN_MM), dist_maps.float().contiguous(), keys, scratch, out]))  # fmt: skip
+        first += n
+    return LaunchPlan(out, launches)
 
 
 @dataclass(frozen=True)
@@ -237,16 +313,18 @@ class _Group:
 
 def _launch_groups(extent: np.ndarray, scratch_bytes: int) -> list[_Group]:
     """Canvases by window width (``extent (C, 2)``: rows, columns), cut into groups whose normal maps (rows x the
-    group's widest row x 3 float32) fit ``scratch_bytes``, at least one canvas each."""
+    group's widest row x 3 float32) fit ``scratch_bytes``, at least one canvas each. Vectorised per group (a batch
+    of 2,000 candidates in six views is 12,000 canvases, and this runs on every call)."""
     order = np.argsort(extent[:, 1], kind="stable")
-    groups, start, rows = [], 0, 0
-    for n, c in enumerate(order):
-        h, w = int(extent[c, 0]), int(extent[c, 1])
-        if n > start and (rows + h) * w * 12 > scratch_bytes:  # sorted by width: w is the widest so far
-            groups.append(_group(extent, order[start:n]))
-            start, rows = n, 0
-        rows += h
-    groups.append(_group(extent, order[start:]))
+    widths = extent[order, 1]
+    rows_before = np.concatenate([[0], np.cumsum(extent[order, 0])])
+    groups, start = [], 0
+    while start < len(order):
+        # sorted by width: a group from `start` to n has normal maps of (rows) x widths[n - 1] x 12 bytes, growing in n
+        fits = (rows_before[start + 1 :] - rows_before[start]) * widths[start:] * 12 <= scratch_bytes
+        stop = start + max(1, int(np.count_nonzero(fits)))
+        groups.append(_group(extent, order[start:stop]))
+        start = stop
     return groups
 
 

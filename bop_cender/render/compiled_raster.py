@@ -112,7 +112,8 @@ def raster_window(cam, px, py, draw, faces, face_instance, corner_normals, R, K_
 #: their CUDA versions: one source for both targets. They allocate nothing and write only through their array
 #: arguments. Two functions have a version per target: :func:`keep_fragment`, the z-buffer's write (atomic on
 #: CUDA), and :func:`sqrt32` (NumPy's root here, ``math.sqrt`` there). Inlined (``inline="always"``): as separate
-#: calls, with the curvature read from flat normals, the CPU cost loop ran 20 % slower (333-349 against 264-278 calls/s).
+#: calls, with the curvature read from flat normals, the CPU cost loop ran 20 % slower (264-278 against 333-349
+#: calls/s before the split).
 SHARED_FUNCTIONS: dict[str, object] = {}
 
 #: Floats in a face's shading row (:func:`face_row`): the planes of the three normal components, then of 1/z.

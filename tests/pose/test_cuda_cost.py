@@ -33,7 +33,7 @@ _SIMULATED = textwrap.dedent(
     from reference import pose
     from test_cost import H, W, rig, target
     from bop_cender.pose.cost_kernel import compiled_candidate_costs
-    from bop_cender.pose.cuda_cost import _launch_groups, cuda_candidate_costs
+    from bop_cender.pose.cuda_cost import cuda_candidate_costs
     from bop_cender.render.candidate_curvature import prepare_candidates
     from bop_cender.render.compiled_raster import ADDCMUL_FUSED
     from bop_cender.render.mesh import prepare_mesh
@@ -58,7 +58,6 @@ _SIMULATED = textwrap.dedent(
         # the same float32 arithmetic; the float64 sums in another order, rounded to float32
         torch.testing.assert_close(sim, cpu, rtol=2e-7, atol=0)
         print("ok", name, sim.tolist())
-    print("ok groups", [len(g.canvases) for g in _launch_groups(np.array([[10, 8], [5, 30], [7, 9]]), 12 * 200)])
     big = prepare_mesh(trimesh.creation.icosphere(subdivisions=6, radius=20.0))  # 81,920 faces: exact keys,
     print("ok exact keys", cuda_candidate_costs(big, T[:1], K, H, W, 1.0, dist) is None)  # left to torch
     T_near = T.clone()
@@ -83,12 +82,8 @@ def test_the_kernel_repeats_the_cpu_loops_in_numbas_cuda_simulator() -> None:
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     lines = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
-    assert [line.split()[1] for line in lines] == [
-        *("free", "occluded", "groups", "exact", "near"),
-        *("threads", "threads", "threads"),
-    ]
-    assert lines[2] == "ok groups [2, 1]"  # by width: 9 and 8 columns (10 + 7 rows fit 200 floats x 12 B), then 30
-    assert lines[3].endswith("True") and lines[4].endswith("True")
+    assert [line.split()[1] for line in lines] == ["free", "occluded", "exact", "near", "threads", "threads", "threads"]
+    assert lines[2].endswith("True") and lines[3].endswith("True")
     free, occluded = (np.array(eval(line.split(" ", 2)[2])) for line in lines[:2])  # noqa: S307 (our own output)
     assert free[-3:] == pytest.approx(np.full(3, np.hypot(96, 128)), rel=1e-6)  # out of view: the image diagonal
     assert (free[:3] < 20).all()  # the first candidate, near the part, in every view
@@ -107,47 +102,64 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
 
 
 def test_the_kernel_is_taken_where_it_is_available_and_asked_for(monkeypatch) -> None:
-    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else warns once and takes the
-    torch atlases), True insists, False never touches numba.cuda."""
-    from bop_cender.pose import cost
-    from bop_cender.render import cuda_loops
+    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else warns once and leaves the
+    torch atlases in charge: None), True insists."""
+    from bop_cender.pose import cuda_cost
 
-    monkeypatch.setattr(cost, "_KERNEL_FAILED", [])
-    monkeypatch.setattr(cuda_loops, "cuda_unavailable_reason", lambda: None)
-    assert cost._use_cuda_kernel(None) is True and cost._use_cuda_kernel(True) is True
-    monkeypatch.setattr(cuda_loops, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver or device")
-    assert cost._use_cuda_kernel(False) is False
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    args = (mesh, torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
+    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
+    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: torch.ones(1))
+    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: None)
+    assert cuda_cost.kernel_costs(*args, None).tolist() == [1.0] == cuda_cost.kernel_costs(*args, True).tolist()
+    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver or device")
     with pytest.warns(RuntimeWarning, match="torch atlases on CUDA: numba.cuda finds no CUDA driver"):
-        assert cost._use_cuda_kernel(None) is False
+        assert cuda_cost.kernel_costs(*args, None) is None
     with pytest.raises(RuntimeError, match="needs the CUDA cost kernel: numba.cuda finds no CUDA driver"):
-        cost._use_cuda_kernel(True)
+        cuda_cost.kernel_costs(*args, True)
 
 
 def test_a_failing_kernel_leaves_the_torch_atlases_in_charge(monkeypatch) -> None:
     """A compilation or launch error (an NVVM or driver mismatch on the user's machine) costs a warning, not the run:
     ``compiled=None`` falls back for the rest of the process; ``compiled=True`` raises it."""
-    from bop_cender.pose import cost, cuda_cost
-    from bop_cender.render import cuda_loops
+    from bop_cender.pose import cuda_cost
 
     def broken(*args, **kwargs):
         raise RuntimeError("NVVM_ERROR_COMPILATION")
 
-    monkeypatch.setattr(cost, "_KERNEL_FAILED", [])
+    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
     monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", broken)
-    monkeypatch.setattr(cuda_loops, "cuda_unavailable_reason", lambda: None)
+    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: None)
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
     args = (mesh, torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
     with pytest.raises(RuntimeError, match="NVVM_ERROR"):
-        cost._kernel_costs(*args, True)
-    assert cost._KERNEL_FAILED == []
+        cuda_cost.kernel_costs(*args, True)
+    assert cuda_cost._KERNEL_FAILED == []
     with pytest.warns(RuntimeWarning, match=r"the CUDA kernel failed \(RuntimeError: NVVM_ERROR_COMPILATION\)"):
-        assert cost._kernel_costs(*args, None) is None
-    assert cost._use_cuda_kernel(None) is False  # the rest of the process: the atlases
+        assert cuda_cost.kernel_costs(*args, None) is None
+    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: torch.ones(1))  # works again, but
+    assert cuda_cost.kernel_costs(*args, None) is None  # the rest of the process stays on the atlases
     with pytest.raises(RuntimeError, match="the CUDA kernel failed"):
-        cost._use_cuda_kernel(True)
+        cuda_cost.kernel_costs(*args, True)
+    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
     monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: None)  # does not apply
     with pytest.raises(ValueError, match="does not apply here: a vertex behind the near plane"):
-        cost._kernel_costs(*args, True)
+        cuda_cost.kernel_costs(*args, True)
+
+
+def test_launch_groups_fit_the_scratch_and_cover_every_canvas_once() -> None:
+    from bop_cender.pose.cuda_cost import _launch_groups
+
+    extent = np.array([[10, 8], [5, 30], [7, 9], [40, 9], [3, 2]])
+    groups = _launch_groups(extent, 12 * 400)
+    assert sorted(np.concatenate([g.canvases for g in groups]).tolist()) == [0, 1, 2, 3, 4]
+    for g in groups:
+        assert g.rows * g.widest * 12 <= 12 * 400 or len(g.canvases) == 1
+        assert g.rows == extent[g.canvases, 0].sum() and g.widest == extent[g.canvases, 1].max()
+        assert g.row_base.tolist() == np.concatenate([[0], np.cumsum(extent[g.canvases, 0])[:-1]]).tolist()
+    # by width 2, 8, 9, 9, 30: 20 rows x 9 fit 400 floats, 60 x 9 do not; 40 x 9 do, 45 x 30 not
+    assert [g.canvases.tolist() for g in groups] == [[4, 0, 2], [3], [1]]
+    assert [len(g.canvases) for g in _launch_groups(extent, 1)] == [1] * 5  # too small for any: one canvas each
 
 
 @pytest.mark.cuda
