@@ -16,6 +16,7 @@ Python threads on the CPU: how the tests check them against the CPU loops on mac
 from __future__ import annotations
 
 import math
+import threading
 import types
 from functools import cache
 
@@ -52,6 +53,17 @@ def _keep_fragment_atomic(best_key, best_w, p, q, key, f, quantised):
     cuda.atomic.max(best_key, p, np.int32(key))  # noqa: F821 (bound in device_namespace)
 
 
+_SIMULATED_ATOMICS = threading.Lock()
+
+
+def _keep_fragment_simulated(best_key, best_w, p, q, key, f, quantised):
+    """:func:`_keep_fragment_atomic` in numba's simulator, as plain Python under a lock. The simulator's own device
+    functions swap the ``cuda`` name in their globals on every call, and its threads' swaps race: one thread restored
+    the real module while another was in ``cuda.atomic.max`` (a failure seen once in CI)."""
+    with _SIMULATED_ATOMICS:
+        best_key[p] = max(best_key[p], np.int32(key))
+
+
 def _sqrt32_device(x):
     """The float32 square root on CUDA (IEEE's: numba compiles without fast maths); the simulator runs it on a NumPy
     float32, whose root it rounds once to float32 as the CPU's ``np.sqrt`` does."""
@@ -78,11 +90,13 @@ def device_namespace() -> dict:
     # stage 3's Nelder-Mead steps launch a few blocks at a time by design: no occupancy warning per launch
     numba.config.CUDA_LOW_OCCUPANCY_WARNINGS = False
     namespace = dict(vars(compiled_raster))
-    namespace.update(cuda=cuda, numba=numba, np=np)
+    namespace.update(cuda=cuda, numba=numba, np=np, _SIMULATED_ATOMICS=_SIMULATED_ATOMICS)
+    simulated = simulator_enabled()
     for name, py_func in {
         **compiled_raster.SHARED_FUNCTIONS,
-        "keep_fragment": _keep_fragment_atomic,
+        "keep_fragment": _keep_fragment_simulated if simulated else _keep_fragment_atomic,
         "sqrt32": _sqrt32_device,
     }.items():
-        namespace[name] = cuda.jit(device=True)(clone(py_func, namespace))
+        # the simulator runs plain Python functions as they are (no racing swap of `cuda`, see above)
+        namespace[name] = clone(py_func, namespace) if simulated else cuda.jit(device=True)(clone(py_func, namespace))
     return namespace
