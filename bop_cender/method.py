@@ -181,7 +181,7 @@ class CenDerNet:
                 SceneCameras(Ks, T_cw, H, W),
                 self.meshes,
                 lambda obj_id: self.models[obj_id].center,
-                self.config.poses,
+                self.config.poses.for_network_centers() if heatmaps.centers_from_network else self.config.poses,
                 cost_threads=self.cost_threads,
                 curvature_scale=self.config.targets.curvature_scale,
                 target_threshold=self._curvature_threshold(heatmaps),

@@ -500,6 +500,19 @@ def _check_request(request: RunRequest) -> None:
         )
     if request.max_views is not None and request.max_views < 1:
         raise ConfigError(f"expected a positive number of views, got {request.max_views}", field="--max-views")
+    min_views = request.config.centers.min_views
+    if request.max_views is not None and request.max_views < min_views:
+        raise ConfigError(
+            f"--max-views {request.max_views}: a 3D centre needs at least centers.min_views = {min_views} views, so"
+            " no object could be found",
+            field="--max-views",
+        )
+    if request.weights is not None and not uses_network(request.heatmaps):
+        raise ConfigError(
+            f"--weights {request.weights} is not used with --heatmaps {request.heatmaps} (no network runs); drop it"
+            " or choose --heatmaps net",
+            field="--weights",
+        )
     if request.limit_scenes is not None and request.limit_scenes < 1:
         raise ConfigError(f"expected a positive number of scenes, got {request.limit_scenes}", field="--limit-scenes")
     out = Path(request.out)

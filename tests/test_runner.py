@@ -180,10 +180,16 @@ def test_request_checks():
         run(RunRequest("dimo", None, "real", Path("x.csv"), workers=0))
 
 
-def test_one_view_gives_no_estimates_and_rows_stay_per_image(mini_root, tmp_path):
+def test_fewer_views_than_a_centre_needs_or_unused_weights_are_refused(mini_root, tmp_path):
+    """One view cannot triangulate a centre (``centers.min_views`` 2): refused before any work, not a run of empty
+    scenes with exit 0; ``--weights`` with the oracle's heatmaps would be silently unused."""
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
-    summary = run(request(mini_root, out, max_views=1, limit_scenes=1))
-    assert summary.estimates == 0 and summary.empty == ["000000"] and summary.rows == 0
+    with pytest.raises(ConfigError, match="min_views = 2") as e:
+        run(request(mini_root, out, max_views=1, limit_scenes=1))
+    assert e.value.field == "--max-views"
+    with pytest.raises(ConfigError, match="not used with --heatmaps oracle") as e:
+        run(request(mini_root, out, weights=str(tmp_path / "none.pt"), limit_scenes=1))
+    assert e.value.field == "--weights" and list(tmp_path.iterdir()) == []
 
 
 def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, capsys):
@@ -433,3 +439,48 @@ def test_the_network_curvature_threshold_precedence():
     assert network_curvature_choice(plain, 0.6, "real") == (0.6, "the weights' calibration on real views")
     assert network_curvature_choice(given, 0.6, "real") == (0.3, "poses.t_b_network")
     assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")
+
+
+def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
+    """Stage 3 gets ``poses.translation_*_network`` where the centre maps are a network's (also through a mixed
+    source), the general spread and box for the oracle's; None falls back to the general ones."""
+    import dataclasses
+
+    import bop_cender.method as method_module
+    from bop_cender.net.mixed import MixedPredictor
+
+    seen = []
+
+    def fake_optimise(targets, curvature, cameras, meshes, centers, config, **kw):
+        seen.append((config.translation_sigma_mm, config.translation_bound_mm))
+        return []
+
+    monkeypatch.setattr(method_module, "optimise_scene", fake_optimise)
+    ds = open_dimo(mini_root, "real")
+    scene = ds.scene(ds.scene_keys[0])
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    meshes = MeshCache(ds.models)
+    oracle = OraclePredictor(ds.models, meshes, config.targets)
+
+    class AsNetwork:
+        name = "net"
+
+        def predict(self, s):
+            return dataclasses.replace(oracle.predict(s), centers_from_network=True)
+
+    for predictor, expected in (
+        (oracle, (5.0, 20.0)),
+        (AsNetwork(), (10.0, 30.0)),
+        (MixedPredictor(AsNetwork(), oracle), (10.0, 30.0)),
+        (MixedPredictor(oracle, AsNetwork()), (5.0, 20.0)),
+    ):
+        seen.clear()
+        CenDerNet(ds.models, config, predictor, meshes).estimate(scene)
+        assert seen == [expected]
+    same = config.with_settings(["poses.translation_sigma_mm_network=none", "poses.translation_bound_mm_network=none"])
+    seen.clear()
+    CenDerNet(ds.models, same, AsNetwork(), meshes).estimate(scene)
+    assert seen == [(5.0, 20.0)]
+    for bad in ("poses.translation_sigma_mm_network=-1", "poses.translation_bound_mm_network=0"):
+        with pytest.raises(ConfigError):
+            config.with_settings([bad])

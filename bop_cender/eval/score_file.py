@@ -105,6 +105,15 @@ def choose_data(
                 f" {dataset!r}'s)",
                 field="--dataset",
             )
+    if split is not None and parsed is not None:
+        given = name_contradiction(parsed, dataset or parsed.dataset, split)
+        said = None if sidecar is None else name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
+        if given is not None and said is None:  # the name (and the sidecar) say another split: a typo scores other data
+            raise ConfigError(
+                f"{given.replace('the results are of', 'not')}{' (and so does its run sidecar)' if sidecar else ''}:"
+                " results of one split are not scored on another (rename the file if it is that split's)",
+                field="--split",
+            )
     if sidecar is not None and parsed is not None and dataset is None and split is None:
         contradiction = name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
         if contradiction is not None:  # renamed after the run: which data the rows belong to is not known

@@ -21,6 +21,8 @@ class Heatmaps:
         curvature_threshold: where stage 3 should binarise this curvature, when its maker knows better than
             ``PoseConfig.t_b`` (a network: its calibrated threshold, ``PoseConfig.t_b_network``); None: ``t_b``
             (the oracle's rendered curvature).
+        centers_from_network: the centre maps are a network's (True) or rendered from the ground truth (False):
+            stage 3 searches wider around a network's centres (``PoseConfig.translation_*_network``).
     """
 
     center: torch.Tensor
@@ -28,6 +30,7 @@ class Heatmaps:
     channel_obj_ids: tuple[int, ...] | None
     im_ids: tuple[int, ...]
     curvature_threshold: float | None = None
+    centers_from_network: bool = False
 
     def __post_init__(self) -> None:
         if self.center.dim() != 4 or self.curvature.dim() != 3:

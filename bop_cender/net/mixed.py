@@ -59,4 +59,5 @@ class MixedPredictor:
             centers.channel_obj_ids,
             centers.im_ids,
             curvature.curvature_threshold,  # the curvature's binarisation goes with it
+            centers.centers_from_network,  # and the centres' search width with them
         )

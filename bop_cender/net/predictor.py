@@ -144,4 +144,7 @@ class NetPredictor:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         self.last_seconds_per_view = (time.perf_counter() - t0) / max(1, image.shape[0])
-        return Heatmaps(center, curvature, self.channel_obj_ids, tuple(scene.im_ids), self.curvature_threshold)
+        return Heatmaps(
+            center, curvature, self.channel_obj_ids, tuple(scene.im_ids), self.curvature_threshold,
+            centers_from_network=True,
+        )  # fmt: skip

@@ -391,3 +391,21 @@ def test_score_refuses_a_dataset_option_that_contradicts_the_name(small_fixture,
     assert main(["score", str(csv_path), "--dataset", "lmo", "--no-progress"]) == 2
     assert "say dataset 'tless', not 'lmo'" in capsys.readouterr().err
     assert choose_data(csv_path, dataset="tless").request.dataset == "tless"
+
+
+def test_score_refuses_a_split_option_that_contradicts_the_name(small_fixture, results_dir, capsys) -> None:
+    """`score cendernet_dimo-sim.csv --split real` scored sim rows against real's GT with exit 0 (a fuzz found it)."""
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:1])
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0)
+    with pytest.raises(ConfigError, match="--split: the file name says split 'test', not 'train'"):
+        choose_data(csv_path, split="train")
+    assert main(["score", str(csv_path), "--split", "val", "--no-progress"]) == 2
+    assert "(and so does its run sidecar)" in capsys.readouterr().err
+    assert choose_data(csv_path, split="test").request.split == "test"
+    renamed = (
+        results_dir / "cendernet_tless-val.csv"
+    )  # renamed after the run: --split chooses, as the name's error says
+    csv_path.rename(renamed)
+    csv_path.with_suffix(".json").rename(renamed.with_suffix(".json"))
+    assert choose_data(renamed, split="test").request.split == "test"

@@ -277,6 +277,7 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
                          heatmaps="net", weights=str(tmp_path / "cal.pt"))  # fmt: skip
     assert net_predictor(request, dataset).predict(scene).curvature_threshold == 0.55
     assert NetPredictor(calibrated).predict(scene).curvature_threshold == 0.55  # the API's default too
+    assert NetPredictor(calibrated).predict(scene).centers_from_network  # stage 3 searches its centres wider
     with pytest.raises(ValueError, match="curvature_threshold must be in"):
         replace(NetPredictor(calibrated).predict(scene), curvature_threshold=float("nan"))
     given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
