@@ -42,10 +42,14 @@ def why_lines(report: ScoreReport) -> list[str]:
     causes = (c.unmatched_not_visible, c.unmatched_duplicate, c.unmatched_far)
     if not c.missed_instances and not any(causes):
         return []
-    lines = [
+    head = (
         f"why not 1 (MSSD, loosest threshold): {c.missed_instances} of {c.target_instances} target instances"
-        f" matched by no estimate; {sum(causes)} of {c.evaluated} evaluated estimates match none:"
-    ]
+        " matched by no estimate; "
+    )
+    if not any(causes):  # no cause to list: say so, not a colon before nothing
+        head += f"each of the {c.evaluated} evaluated estimates matches an instance (the missed ones have no estimate)"
+        return [head] + _beyond_top_n(c)
+    lines = [head + f"{sum(causes)} of {c.evaluated} evaluated estimates match none:"]
     if c.unmatched_not_visible:
         lines.append(
             f"  {c.unmatched_not_visible} closest to an instance that is not a target (too little of it visible,"
@@ -55,12 +59,16 @@ def why_lines(report: ScoreReport) -> list[str]:
         lines.append(f"  {c.unmatched_duplicate} duplicates: their instance was matched by a higher-ranked estimate")
     if c.unmatched_far:
         lines.append(f"  {c.unmatched_far} farther from every instance than the loosest threshold")
-    if c.beyond_top_n:
-        lines.append(
-            f"  and {c.beyond_top_n} rows beyond the top-n cut were not evaluated (a target keeps its inst_count"
-            " highest-scored estimates; equal scores keep file order)"
-        )
-    return lines
+    return lines + _beyond_top_n(c)
+
+
+def _beyond_top_n(c) -> list[str]:
+    if not c.beyond_top_n:
+        return []
+    return [
+        f"  and {c.beyond_top_n} rows beyond the top-n cut were not evaluated (a target keeps its inst_count"
+        " highest-scored estimates; equal scores keep file order)"
+    ]
 
 
 def _fmt(value: float | None, digits: int) -> str:

@@ -409,3 +409,13 @@ def test_score_refuses_a_split_option_that_contradicts_the_name(small_fixture, r
     csv_path.rename(renamed)
     csv_path.with_suffix(".json").rename(renamed.with_suffix(".json"))
     assert choose_data(renamed, split="test").request.split == "test"
+
+
+def test_missed_instances_alone_are_said_without_an_empty_list(small_fixture, results_dir, capsys) -> None:
+    """Every estimate matches but some instances have none: one line saying so, not a colon before nothing."""
+    csv_path = results_dir / "gt_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture)[:-1])
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 0
+    why = [line for line in capsys.readouterr().out.splitlines() if line.startswith("why not 1")]
+    assert len(why) == 1 and why[0].endswith("matches an instance (the missed ones have no estimate)"), why
+    assert "1 of" in why[0]
