@@ -498,9 +498,7 @@ def _check_request(request: RunRequest) -> None:
             " thread (give one of the two)",
             field="--threads",
         )
-    if request.max_views is not None and request.max_views < 1:
-        raise ConfigError(f"expected a positive number of views, got {request.max_views}", field="--max-views")
-    min_views = request.config.centers.min_views
+    min_views = request.config.centers.min_views  # at least 1 (its bound)
     if request.max_views is not None and request.max_views < min_views:
         raise ConfigError(
             f"--max-views {request.max_views}: a 3D centre needs at least centers.min_views = {min_views} views, so"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import sys
@@ -12,11 +13,13 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 import method_data  # noqa: E402
 
+import bop_cender.method as method_module  # noqa: E402
 from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig  # noqa: E402
+from bop_cender.net.mixed import MixedPredictor  # noqa: E402
 from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
 from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
@@ -444,11 +447,6 @@ def test_the_network_curvature_threshold_precedence():
 def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
     """Stage 3 gets ``poses.translation_*_network`` where the centre maps are a network's (also through a mixed
     source), the general spread and box for the oracle's; None falls back to the general ones."""
-    import dataclasses
-
-    import bop_cender.method as method_module
-    from bop_cender.net.mixed import MixedPredictor
-
     seen = []
 
     def fake_optimise(targets, curvature, cameras, meshes, centers, config, **kw):

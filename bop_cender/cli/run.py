@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-views",
         type=count("--max-views"),
         default=None,
-        help="estimate from the first K views of each scene (ablation)",
+        help="estimate from the first K views of each scene (ablation; at least centers.min_views, 2 by default)",
     )
     p.add_argument(
         "--set",

@@ -38,8 +38,10 @@ from bop_cender.results.bop_csv import read_bop_results
 from bop_cender.results.files import (
     ResultName,
     name_contradiction,
+    names_split,
     parse_result_filename,
     read_run_sidecar,
+    shown_split,
     sidecar_path,
 )
 
@@ -105,13 +107,14 @@ def choose_data(
                 f" {dataset!r}'s)",
                 field="--dataset",
             )
-    if split is not None and parsed is not None:
-        given = name_contradiction(parsed, dataset or parsed.dataset, split)
-        said = None if sidecar is None else name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
-        if given is not None and said is None:  # the name (and the sidecar) say another split: a typo scores other data
+    if split is not None and parsed is not None and not names_split(parsed, split):
+        said = (sidecar or {}).get("split")
+        if said is None or names_split(
+            parsed, said
+        ):  # the name (and the sidecar) say otherwise: a typo scores other data
             raise ConfigError(
-                f"{given.replace('the results are of', 'not')}{' (and so does its run sidecar)' if sidecar else ''}:"
-                " results of one split are not scored on another (rename the file if it is that split's)",
+                f"the file name{' and its run sidecar say' if said else ' says'} split {shown_split(parsed)!r}, not"
+                f" {split!r}: results of one split are not scored on another (rename the file if it is {split!r}'s)",
                 field="--split",
             )
     if sidecar is not None and parsed is not None and dataset is None and split is None:

@@ -111,7 +111,7 @@ class PoseConfig:
             network (:attr:`~bop_cender.net.heatmaps.Heatmaps.centers_from_network`; None: the same as above).
             Ours: 10 and 30 mm. A network's 3D centres are often 5-15 mm off (brackets and shafts, whose
             bounding-box centre is not on the metal; 31 of 69 within 5 mm on a fresh seed-5151 set), where the
-            oracle's are within 1-2 mm. Measured on four unseen or test sets with the shipped networks
+            oracle's are within 1-2 mm. Measured on six unseen or test sets with the shipped networks
             (2-core AMD EPYC, 2026-12-06, ``results/accuracy/v15``): DIMO AR_MSSD<5% seed 5151 ``sim`` 0.734 ->
             0.767, ``real`` 0.720 -> 0.736, seed 9002 ``sim`` 0.812 -> 0.806, ``real`` 0.724 -> 0.759; T-LESS AR
             seed 4243 0.456 -> 0.477, seed 6161 0.583 -> 0.584; sigma 10 with the bound 20 gained nothing (5151

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
+from bop_cender.eval.score_report import SCORE_KEYS, ScoreCounts, ScoreReport
 
 
 def format_scores(rows: list[tuple[str, dict[str, float | None]]], digits: int = 3) -> str:
@@ -62,7 +62,8 @@ def why_lines(report: ScoreReport) -> list[str]:
     return lines + _beyond_top_n(c)
 
 
-def _beyond_top_n(c) -> list[str]:
+def _beyond_top_n(c: ScoreCounts) -> list[str]:
+    """The closing line on the rows the top-n cut left unevaluated (none where it left none)."""
     if not c.beyond_top_n:
         return []
     return [

@@ -94,15 +94,24 @@ def name_contradiction(name: ResultName, dataset: str, split: str) -> str | None
     """
     if dataset != "bop" and name.dataset != dataset:
         return f"the file name says dataset {name.dataset!r}, the results are of {dataset!r}"
-    # a split type names the folder {split}_{type}; an optional id after a split may be the rest of an underscore
-    # split (the default names before BOP's naming: cendernet-net_tless-train_pbr.csv)
+    if not names_split(name, split):
+        return f"the file name says split {shown_split(name)!r}, the results are of {split!r}"
+    return None
+
+
+def names_split(name: ResultName, split: str) -> bool:
+    """Whether result file name ``name`` names split folder ``split``: a split type names the folder
+    ``{split}_{type}``; an optional id after a split may be the rest of an underscore split (the default names
+    before BOP's naming: cendernet-net_tless-train_pbr.csv)."""
     named = {f"{name.split}_{name.split_type}"} if name.split_type else {name.split}
     if name.split_type is None and name.optional_id:
         named.add(f"{name.split}_{name.optional_id}")
-    if split not in named:
-        shown = name.split + (f"-{name.split_type}" if name.split_type else "")
-        return f"the file name says split {shown!r}, the results are of {split!r}"
-    return None
+    return split in named
+
+
+def shown_split(name: ResultName) -> str:
+    """The split of result file name ``name`` as it reads in the name (``train-pbr``)."""
+    return name.split + (f"-{name.split_type}" if name.split_type else "")
 
 
 def default_result_filename(method: str, dataset: str, split: str) -> str:

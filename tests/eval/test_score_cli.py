@@ -398,10 +398,10 @@ def test_score_refuses_a_split_option_that_contradicts_the_name(small_fixture, r
     csv_path = results_dir / "cendernet_tless-test.csv"
     write_bop_results(csv_path, gt_rows(small_fixture)[:1])
     write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0)
-    with pytest.raises(ConfigError, match="--split: the file name says split 'test', not 'train'"):
+    with pytest.raises(ConfigError, match="--split: the file name and its run sidecar say split 'test', not 'train'"):
         choose_data(csv_path, split="train")
     assert main(["score", str(csv_path), "--split", "val", "--no-progress"]) == 2
-    assert "(and so does its run sidecar)" in capsys.readouterr().err
+    assert "say split 'test', not 'val': results of one split are not scored on another" in capsys.readouterr().err
     assert choose_data(csv_path, split="test").request.split == "test"
     renamed = (
         results_dir / "cendernet_tless-val.csv"
@@ -409,6 +409,10 @@ def test_score_refuses_a_split_option_that_contradicts_the_name(small_fixture, r
     csv_path.rename(renamed)
     csv_path.with_suffix(".json").rename(renamed.with_suffix(".json"))
     assert choose_data(renamed, split="test").request.split == "test"
+    csv_path = results_dir / "other_tless-test.csv"  # no sidecar: the name alone
+    write_bop_results(csv_path, gt_rows(small_fixture)[:1])
+    with pytest.raises(ConfigError, match="--split: the file name says split 'test', not 'val'"):
+        choose_data(csv_path, split="val")
 
 
 def test_missed_instances_alone_are_said_without_an_empty_list(small_fixture, results_dir, capsys) -> None:
