@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.bop_io import as_int, as_number, load_image_dict, load_json, require_dir, require_keys
-from bop_cender.data.bop_io import image_size as read_image_size
 from bop_cender.data.bop_scene import (
     IMAGE_SUFFIXES,
     RGB_FOLDERS,
@@ -38,6 +37,7 @@ from bop_cender.data.bop_scene import (
 from bop_cender.data.layout import SCENE_CAMERA, TARGETS_FILE
 from bop_cender.data.models import load_models
 from bop_cender.data.scene_ids import scene_folder_to_int
+from bop_cender.data.split_size import SAMPLE_SCENES, SAMPLE_VIEWS_PER_SCENE, vote_image_size
 from bop_cender.data.targets_file import check_not_repeated
 from bop_cender.data.types import Dataset, ObjectModel
 from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
@@ -414,42 +414,45 @@ def _image_size(
 ) -> tuple[tuple[int, int], bool]:
     """``(width, height)`` of the split's images and whether depth images exist.
 
-    The declared size (camera file, else the layout's constant) is checked against the first
-    image's header; where they differ the images win, with a DatasetWarning.
+    The size is voted by a few images (:func:`bop_cender.data.split_size.vote_image_size`): the declared
+    size (camera file, else the layout's constant) wherever one sampled image agrees with it, so that a
+    single wrong-sized image is the one ``info`` reports; else the images' own size, with a DatasetWarning.
     """
     declared, source = None, None
     if camera is not None:
         declared, source = (camera.width, camera.height), camera.name
     elif layout.image_size is not None:
         declared, source = tuple(layout.image_size), f"the {layout.folder} constant"
-    first_sid = next(iter(index))
-    first_im = min(index[first_sid], default=None)
-    scene_dir = split_dir / first_sid
-    has_depth = (scene_dir / "depth").is_dir() and any((scene_dir / "depth").iterdir())
-    image = None if first_im is None else _first_image(scene_dir, first_im)
-    if image is None:
+    first_dir = split_dir / next(iter(index))
+    has_depth = (first_dir / "depth").is_dir() and any((first_dir / "depth").iterdir())
+    voted = vote_image_size(_sample_images(split_dir, index), declared)
+    if voted is None:
         if declared is None:
             raise DatasetError(
-                "cannot tell the image size: no camera file with width/height and no image", file=scene_dir
+                "cannot tell the image size: no camera file with width/height and no image", file=first_dir
             )
         notes.append(f"image size {declared[0]}x{declared[1]} from {source}")
         return declared, has_depth
-    actual = read_image_size(image)
+    actual = voted.size
     if declared is not None and declared != actual:
         warnings.warn(
-            f"{source} says {declared[0]}x{declared[1]} but {image} is {actual[0]}x{actual[1]}: using the images' size",
+            f"{source} says {declared[0]}x{declared[1]} but {voted.agreeing[0]} is {actual[0]}x{actual[1]}"
+            f" (as {len(voted.agreeing)} of {len(voted.sampled)} sampled images are): using the images' size",
             DatasetWarning,
             stacklevel=3,
         )
         source = None
-    notes.append(f"image size {actual[0]}x{actual[1]}" + (f" ({source}, checked on {image.name})" if source else ""))
+    checked = f"checked on {len(voted.agreeing)} of {len(voted.sampled)} sampled images"
+    notes.append(f"image size {actual[0]}x{actual[1]}" + (f" ({source}, {checked})" if source else ""))
     return actual, has_depth
 
 
-def _first_image(scene_dir: Path, im_id: int) -> Path | None:
-    for sub in (*RGB_FOLDERS, "depth"):
-        for ext in IMAGE_SUFFIXES:
-            path = scene_dir / sub / f"{im_id:06d}{ext}"
-            if path.is_file():
-                return path
-    return None
+def _sample_images(split_dir: Path, index: dict[str, dict[int, bool]]) -> list[Path]:
+    """The colour and depth images of the first views of the first scenes (existing or not)."""
+    paths = []
+    for scene_folder in list(index)[:SAMPLE_SCENES]:
+        scene_dir = split_dir / scene_folder
+        for im_id in sorted(index[scene_folder])[:SAMPLE_VIEWS_PER_SCENE]:
+            for sub in (*RGB_FOLDERS, "depth"):
+                paths.extend(scene_dir / sub / f"{im_id:06d}{ext}" for ext in IMAGE_SUFFIXES)
+    return paths

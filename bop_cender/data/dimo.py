@@ -34,6 +34,7 @@ from bop_cender.data.dimo_files import (
     rgb_path,
 )
 from bop_cender.data.models import load_models
+from bop_cender.data.split_size import SAMPLE_SCENES, SAMPLE_VIEWS_PER_SCENE, vote_image_size
 from bop_cender.data.types import CameraView, Dataset, GtObject, ObjectModel, Scene
 from bop_cender.errors import ConfigError, DatasetError
 
@@ -366,9 +367,16 @@ def _variant_drop_reason(split: str, variant: int, variants: tuple[int, ...] | N
 
 
 def _first_image_size(folders: Sequence[DimoFolder]) -> tuple[int, int] | None:
-    """(width, height) of the split's first selected image, if it exists (else the scene load reports it)."""
-    path = rgb_path(folders[0].path, folders[0].im_ids[0])
-    return image_size(path) if path.is_file() else None
+    """(width, height) most of the first views of the first selected folders share
+    (:func:`bop_cender.data.split_size.vote_image_size`: one wrong-sized first image is not the reference),
+    None where none of them exists (the scene load reports it)."""
+    paths = [
+        rgb_path(folder.path, im_id)
+        for folder in folders[:SAMPLE_SCENES]
+        for im_id in folder.im_ids[:SAMPLE_VIEWS_PER_SCENE]
+    ]
+    voted = vote_image_size(paths)
+    return None if voted is None else voted.size
 
 
 def _merge_residuals(residuals: dict[str, float], prefix: str, tracker: ResidualTracker) -> None:

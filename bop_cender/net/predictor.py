@@ -8,6 +8,7 @@ as the oracle's. :attr:`NetPredictor.last_seconds_per_view` is the inference tim
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 import torch
@@ -82,9 +83,25 @@ def scene_rgb(scene: Scene) -> np.ndarray:
     for view in scene.views:
         if view.rgb_path is None:
             raise DatasetError(f"scene {scene.key} image {view.im_id} has no colour image", file=view.source)
-        images.append(load_rgb(view.rgb_path))
-    if len({im.shape for im in images}) > 1:
-        raise DatasetError(f"scene {scene.key}: views of different sizes are not supported")
+        image = load_rgb(view.rgb_path)
+        if image.shape[:2] != (view.height, view.width):
+            raise DatasetError(
+                f"scene {scene.key}: image is {image.shape[1]}x{image.shape[0]}, expected {view.width}x{view.height}"
+                " (the split's image size)",
+                file=view.rgb_path,
+                field="size",
+            )
+        images.append(image)
+    sizes = Counter(im.shape for im in images)
+    if len(sizes) > 1:  # each as its view says, but the views differ (DIMO reads each view's own size)
+        common = sizes.most_common(1)[0][0]
+        odd = next(v for v, im in zip(scene.views, images, strict=True) if im.shape != common)
+        raise DatasetError(
+            f"scene {scene.key}: views of different sizes are not supported: this one is {odd.width}x{odd.height},"
+            f" the scene's others {common[1]}x{common[0]}",
+            file=odd.rgb_path,
+            field="size",
+        )
     return np.stack(images)
 
 

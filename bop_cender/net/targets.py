@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from bop_cender.data.types import ObjectModel, Scene
+from bop_cender.errors import DatasetError
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE, curvature
 from bop_cender.render.mesh import RenderMesh
@@ -97,11 +98,20 @@ def scene_targets(
 
     Returns:
         :class:`Heatmaps` with center ``(V, C, H, W)`` and curvature ``(V, H, W)``.
+
+    Raises:
+        DatasetError: views of different sizes (naming the first odd one's image).
     """
     views = scene.views
     H, W = views[0].height, views[0].width
     if any((v.height, v.width) != (H, W) for v in views):
-        raise ValueError(f"scene {scene.key}: views of different sizes are not supported")
+        odd = next(v for v in views if (v.height, v.width) != (H, W))
+        raise DatasetError(
+            f"scene {scene.key}: views of different sizes are not supported: this one is {odd.width}x{odd.height},"
+            f" the scene's first {W}x{H}",
+            file=odd.rgb_path or odd.source,
+            field="size",
+        )
     if config.per_object_channels:
         channels = channel_obj_ids or tuple(sorted(i for i, m in models.items() if m.is_target))
     else:

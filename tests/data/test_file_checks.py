@@ -12,7 +12,7 @@ from bop_cender.cli import main
 from bop_cender.data.file_checks import ImageFile, check_image
 from bop_cender.data.image_header import read_image_header
 from bop_cender.data.tless import open_tless
-from bop_cender.errors import DatasetError
+from bop_cender.errors import DatasetError, DatasetWarning
 
 try:
     from tests.data.bop_builder import BopSpec, build_bop
@@ -41,8 +41,7 @@ def problems(lines: list[str]) -> list[str]:
 
 
 def a_view(root: Path, scene: int = 1, view: int = 1):
-    """A view the split uses (T-LESS test: only target images), of the second scene by default: the first
-    image of the first scene is where the loader reads the split's size."""
+    """A view the split uses (T-LESS test: only target images), of the second scene by default."""
     ds = open_tless(root, "test", n_views=5)
     return ds.scene(ds.scene_keys[scene]).views[view]
 
@@ -122,6 +121,35 @@ def test_every_problem_is_listed_a_broken_scene_included(tless: Path, capsys) ->
     assert code == 2 and len(found) == 2 and lines[-1] == "checked 6 meshes, 6 images (headers): 2 problems"
     assert found[0].startswith(f"{gt}: malformed JSON") and found[1].startswith(f"{ply}: vertex:")
     assert "scenes    1" in lines  # the scene that loads is described and checked
+
+
+def test_a_wrong_sized_first_image_is_the_one_reported(tless: Path, capsys) -> None:
+    """The split's size is voted by a few images and the camera file, not read from the first image: a
+    wrong-sized first image used to become the reference, and every other image was blamed instead."""
+    first = sorted((tless / "test_primesense" / "000001" / "rgb").iterdir())[0]
+    cv2.imwrite(str(first), np.zeros((12, 16, 3), np.uint8))
+    code, lines, _ = info(capsys, tless)
+    assert code == 2 and problems(lines) == [f"{first}: size: image is 16x12, expected 32x24 (the split's image size)"]
+    assert "  - image size 32x24 (camera_primesense.json, checked on 7 of 8 sampled images)" in lines
+
+
+def test_a_camera_file_that_no_image_agrees_with_still_yields_to_the_images(tless: Path) -> None:
+    for path in (tless / "test_primesense").rglob("*.png"):
+        if path.parent.name in ("rgb", "depth"):
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            cv2.imwrite(str(path), cv2.resize(image, (16, 12), interpolation=cv2.INTER_NEAREST))
+    with pytest.warns(DatasetWarning, match=r"says 32x24 but .* is 16x12 \(as 8 of 8 sampled images are\)"):
+        ds = open_tless(tless, "test", n_views=5)
+    assert ds.image_size == (16, 12)
+
+
+def test_dimo_a_wrong_sized_first_image_is_the_one_reported(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "dimo"
+    build_dimo(root, [SceneSpec(folder="000000"), SceneSpec(folder="000001")])
+    rgb = root / "real_jaigo" / "000000" / "rgb" / "000000.png"
+    cv2.imwrite(str(rgb), np.zeros((12, 20, 3), np.uint8))
+    code, lines, _ = info(capsys, root, dataset="dimo")
+    assert code == 2 and problems(lines) == [f"{rgb}: size: image is 20x12, expected 16x12 (the split's image size)"]
 
 
 def test_dimo_images_are_checked_against_the_split_size(tmp_path: Path, capsys) -> None:

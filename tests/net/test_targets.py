@@ -119,3 +119,27 @@ def test_heatmaps_validate_shapes():
         Heatmaps(torch.zeros(2, 2, 4, 5), torch.zeros(2, 4, 5), None, (0, 1))
     with pytest.raises(ValueError):
         Heatmaps(torch.zeros(2, 1, 4, 5), torch.zeros(2, 4, 5), None, (0,))
+
+
+def test_a_view_of_another_size_is_named(tmp_path: Path) -> None:
+    """A colour image of another size than its view declares, or views of different sizes, is one error naming
+    the image and the field (``run`` used to say "views of different sizes" with no file)."""
+    import cv2
+
+    from bop_cender.errors import DatasetError
+    from bop_cender.net.predictor import scene_rgb
+
+    ds = open_dimo(method_data.build(tmp_path / "dimo"), "real")
+    scene = ds.scene(ds.scene_keys[0])
+    odd = scene.views[1]
+    cv2.imwrite(str(odd.rgb_path), np.zeros((odd.height // 2, odd.width // 2, 3), np.uint8))
+    with pytest.raises(DatasetError, match=r"image is \d+x\d+, expected") as caught:
+        scene_rgb(scene)
+    assert caught.value.file == str(odd.rgb_path) and caught.value.field == "size"
+    reread = ds.loader(ds.scene_keys[0])  # DIMO reads each view's size from its image: the views now differ
+    with pytest.raises(DatasetError, match="views of different sizes are not supported: this one is") as caught:
+        scene_rgb(reread)
+    assert caught.value.file == str(odd.rgb_path) and caught.value.field == "size"
+    with pytest.raises(DatasetError, match="views of different sizes are not supported: this one is") as caught:
+        scene_targets(reread, ds.models, MeshCache(ds.models), TargetConfig.for_dataset("dimo"))
+    assert caught.value.file == str(odd.rgb_path)
