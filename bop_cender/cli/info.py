@@ -18,7 +18,9 @@ EPILOG = """examples:
   bop-cender info --dataset tless --data-root ~/bop/tless --deep   # decode every image, not only its header
 Besides the description, info checks what run and score read: every model mesh (as their readers read it)
 and every colour and depth image (its header by default: the split's size, depth 16-bit; --deep decodes
-them all). Every problem is listed, then a summary line; exit status 2 if there is any, else 0.
+them all), and the targets file's inst_count against the ground truth, as score does. Every problem is
+listed, then a summary line; exit status 2 if there is any, else 0. A mesh without a models_info.json
+entry (read by neither run nor score) is a note.
 """
 
 
@@ -43,13 +45,18 @@ def cmd_info(args: argparse.Namespace) -> int:
     from bop_cender.data.describe import describe, summarise
     from bop_cender.data.file_checks import check_files
     from bop_cender.datasets import open_with_demo
+    from bop_cender.eval.targets import targets_file_problems
 
     progress = not args.no_progress
     ds = open_with_demo(data_request(args), announce=announce)
     summary = summarise(ds, progress=progress, keep_going=True)
     print(describe(ds, summary=summary), flush=True)
-    check = check_files(ds, [ds.scene(key) for key in summary.loaded], deep=args.deep, progress=progress)
+    scenes = [ds.scene(key) for key in summary.loaded]
+    check = check_files(ds, scenes, deep=args.deep, progress=progress)
     check.problems[:0] = summary.problems
+    check.problems += targets_file_problems(ds, scenes)
+    for note in check.notes:
+        print(f"note      {note}")
     for problem in check.problems:
         print(f"problem   {problem}")
     print(check.summary())

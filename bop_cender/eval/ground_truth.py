@@ -14,7 +14,7 @@ is the fallback for scenes held only in memory, and :attr:`GroundTruth.pose_sour
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -121,8 +121,9 @@ class GroundTruth:
             return None
 
 
-def collect_ground_truth(dataset: Dataset, progress: bool = True) -> GroundTruth:
-    """Load every scene of ``dataset`` and list its images with their GT instances.
+def collect_ground_truth(dataset: Dataset, progress: bool = True, scenes: Sequence[Scene] | None = None) -> GroundTruth:
+    """Load every scene of ``dataset`` (or take ``scenes``, some of its loaded scenes) and list its images with
+    their GT instances.
 
     Raises:
         DatasetError: an image appears in two scenes.
@@ -131,7 +132,12 @@ def collect_ground_truth(dataset: Dataset, progress: bool = True) -> GroundTruth
     sources: set[str] = set()
     suffixed = False
     scenes = progress_bar(
-        dataset.scenes(), total=len(dataset), desc="ground truth", unit="scene", disable=not progress, leave=False
+        dataset.scenes() if scenes is None else scenes,
+        total=len(dataset) if scenes is None else len(scenes),
+        desc="ground truth",
+        unit="scene",
+        disable=not progress,
+        leave=False,
     )
     for scene in scenes:
         suffixed |= is_suffixed(scene.scene_id)

@@ -13,14 +13,15 @@ Three sources, in this order (:func:`resolve_targets`):
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from bop_cender.data.layout import MIN_VISIB_FRACT, TARGETS_FILE
 from bop_cender.data.targets_file import Target
+from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import DatasetError
-from bop_cender.eval.ground_truth import GroundTruth, ImageGt
+from bop_cender.eval.ground_truth import GroundTruth, ImageGt, collect_ground_truth
 
 SOURCE_FILE = "file"
 SOURCE_GT_INFO = "scene_gt_info"
@@ -94,18 +95,33 @@ def check_against_ground_truth(targets: list[Target], gt: GroundTruth, path: Pat
     the top-``inst_count`` cut would keep estimates that no instance can match.
 
     Raises:
-        DatasetError: naming the file and the target.
+        DatasetError: naming the file and the (first such) target.
     """
+    problems = inst_count_problems(targets, gt, path)
+    if problems:
+        raise problems[0]
+
+
+def inst_count_problems(targets: Iterable[Target], gt: GroundTruth, path: Path | None) -> list[DatasetError]:
+    """One error per target of a loaded image whose ``inst_count`` exceeds the image's GT instances of its
+    object (see :func:`check_against_ground_truth`; ``bop-cender info`` lists them all). Targets of images
+    not in ``gt`` are not judged."""
+    problems = []
     for t in targets:
-        image = gt.images[(int(t.scene_id), t.im_id)]
+        image = gt.images.get((int(t.scene_id), t.im_id))
+        if image is None:
+            continue
         n = sum(g.obj_id == t.obj_id for g in image.instances)
         if t.inst_count > n:
-            raise DatasetError(
-                f"the target of scene {t.scene_id}, image {t.im_id}, object {t.obj_id} has inst_count {t.inst_count},"
-                f" but the image's ground truth has {n} instance(s) of that object",
-                file=path if path is not None else TARGETS_FILE,
-                field="inst_count",
+            problems.append(
+                DatasetError(
+                    f"the target of scene {t.scene_id}, image {t.im_id}, object {t.obj_id} has inst_count"
+                    f" {t.inst_count}, but the image's ground truth has {n} instance(s) of that object",
+                    file=path if path is not None else TARGETS_FILE,
+                    field="inst_count",
+                )
             )
+    return problems
 
 
 def stored_visib(gt: GroundTruth) -> VisibFracts | None:
@@ -141,3 +157,17 @@ def targets_from_visibility(
 def _count(targets: list[Target]) -> str:
     images = len({(t.scene_id, t.im_id) for t in targets})
     return f"{len(targets)} targets, {sum(t.inst_count for t in targets)} instances in {images} images"
+
+
+def targets_file_problems(dataset: Dataset, scenes: Sequence[Scene]) -> list[str]:
+    """What ``score`` would refuse in the dataset's ``test_targets_bop19.json`` for the loaded ``scenes``, one
+    formatted line each (``bop-cender info`` lists them; none without a targets file): a malformed file, or
+    targets asking for more instances than their image's ground truth has."""
+    try:
+        targets = dataset.bop19_targets()
+        if targets is None:
+            return []
+        gt = collect_ground_truth(dataset, progress=False, scenes=scenes)
+    except DatasetError as e:
+        return [e.format()]
+    return [e.format() for e in inst_count_problems(targets, gt, dataset.root / TARGETS_FILE)]

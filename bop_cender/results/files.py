@@ -7,13 +7,14 @@ would misread. The sidecar records where a run's data came from so ``bop-cender 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bop_cender.data.bop_io import load_json, save_json
-from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 
 SIDECAR_FORMAT = "bop-cender-run"
 SIDECAR_VERSION = 1
@@ -166,7 +167,12 @@ def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
     """The sidecar of a results CSV as a dict, or None when there is none.
 
     Raises:
-        ResultsError: the sidecar is not JSON, not ours, or a key is missing or of the wrong type.
+        ResultsError: the sidecar is not JSON, not ours, or a key is missing, of the wrong type or of a value no
+            run writes (an empty data root, a negative seed).
+
+    A relative ``data_root`` (a hand-written sidecar) is taken from the sidecar's folder, as paths in a
+    configuration file are, and returned absolute; a ``results`` name other than the CSV's is a
+    :class:`~bop_cender.errors.ResultsWarning` (a renamed pair is scored, and says so).
     """
     path = sidecar_path(csv_path)
     if not path.exists():
@@ -179,10 +185,36 @@ def read_run_sidecar(csv_path: str | Path) -> dict[str, Any] | None:
         for key, kind in _SIDECAR_TYPES.items()
         if not isinstance(data.get(key), kind) or (kind is int and isinstance(data.get(key), bool))
     ]
+    if not problems:
+        problems = _sidecar_value_problems(data)
     if problems:
         raise ResultsError("malformed run sidecar", file=path, problems=problems)
     if data["version"] > SIDECAR_VERSION:
         raise ResultsError(
             f"sidecar version {data['version']} is newer than this bop-cender's {SIDECAR_VERSION}", file=path
         )
+    csv_name = Path(csv_path).name
+    if data.get("results") not in (None, csv_name):  # a renamed pair (or another file's sidecar): said, then used
+        warnings.warn(
+            f"{path}: results: the sidecar was written for {data['results']}, not {csv_name}; using it for {csv_name}",
+            ResultsWarning,
+            stacklevel=2,
+        )
+    root = Path(data["data_root"]).expanduser()
+    data["data_root"] = str(root if root.is_absolute() else (path.parent / root).resolve())
     return data
+
+
+def _sidecar_value_problems(data: Mapping[str, Any]) -> list[str]:
+    """``field: problem`` for each value of a well-typed sidecar that no run writes (a hand edit, or damage)."""
+    problems = []
+    if data["version"] < 1:
+        problems.append(f"version: expected 1 to {SIDECAR_VERSION}, got {data['version']}")
+    if data["seed"] < 0:
+        problems.append(f"seed: expected a non-negative integer, got {data['seed']}")
+    for key in ("data_root", "dataset", "split"):
+        if not data[key].strip():
+            problems.append(f"{key}: expected a non-empty string, got {data[key]!r}")
+    if "results" in data and not (isinstance(data["results"], str) and data["results"].strip()):
+        problems.append(f"results: expected the results file's name, got {data['results']!r}")
+    return problems

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -188,3 +189,32 @@ def test_headers_are_read_without_decoding(tmp_path: Path) -> None:
     (tmp_path / "cut.png").write_bytes((tmp_path / "d.png").read_bytes()[:20])
     with pytest.raises(DatasetError, match="PNG header cut or malformed"):
         read_image_header(tmp_path / "cut.png")
+
+
+def test_targets_asking_for_more_instances_than_the_ground_truth_are_each_listed(tless: Path, capsys) -> None:
+    """info applies score's inst_count check (score refuses the first such target; info lists them all)."""
+    path = tless / "test_targets_bop19.json"
+    targets = json.loads(path.read_text())
+    targets[0]["inst_count"] = 9
+    targets[-1]["inst_count"] = 7
+    path.write_text(json.dumps(targets))
+    code, lines, _ = info(capsys, tless)
+    found = problems(lines)
+    assert code == 2 and len(found) == 2 and lines[-1].endswith(": 2 problems")
+    first = targets[0]
+    assert found[0].startswith(f"{path}: inst_count: the target of scene {first['scene_id']}, image {first['im_id']},")
+    assert "has inst_count 9, but the image's ground truth has " in found[0]
+    assert "has inst_count 7" in found[1]
+    path.write_text("{")  # T-LESS selects its images by the targets: the split does not open
+    code, _, err = info(capsys, tless)
+    assert code == 2 and f"{path}: malformed JSON" in err
+
+
+def test_a_mesh_without_a_models_info_entry_is_a_note(tless: Path, capsys) -> None:
+    stray = tless / "models_cad" / "obj_000042.ply"
+    stray.write_bytes((tless / "models_cad" / "obj_000001.ply").read_bytes())
+    code, lines, _ = info(capsys, tless)
+    assert (
+        code == 0
+        and f"note      {stray}: no entry 42 in models_info.json: not loaded (neither scored nor an occluder)" in lines
+    )

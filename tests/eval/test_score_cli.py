@@ -408,7 +408,8 @@ def test_score_refuses_a_split_option_that_contradicts_the_name(small_fixture, r
     )  # renamed after the run: --split chooses, as the name's error says
     csv_path.rename(renamed)
     csv_path.with_suffix(".json").rename(renamed.with_suffix(".json"))
-    assert choose_data(renamed, split="test").request.split == "test"
+    with pytest.warns(ResultsWarning, match="the sidecar was written for cendernet_tless-test.csv"):
+        assert choose_data(renamed, split="test").request.split == "test"
     csv_path = results_dir / "other_tless-test.csv"  # no sidecar: the name alone
     write_bop_results(csv_path, gt_rows(small_fixture)[:1])
     with pytest.raises(ConfigError, match="--split: the file name says split 'test', not 'val'"):

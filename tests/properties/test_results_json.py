@@ -44,6 +44,10 @@ def _sidecar_semantic() -> st.SearchStrategy[Case]:
     cases += [
         Case(dumps(replaced(SIDECAR, ("format",), "bop-cender-runs")), "invalid", "another format"),
         Case(dumps(replaced(SIDECAR, ("version",), 2)), "invalid", "a newer version"),
+        Case(dumps(replaced(SIDECAR, ("version",), 0)), "invalid", "version 0"),
+        Case(dumps(replaced(SIDECAR, ("seed",), -3)), "invalid", "a negative seed"),
+        Case(dumps(replaced(SIDECAR, ("data_root",), "")), "invalid", "an empty data root"),
+        Case(dumps(replaced(SIDECAR, ("dataset",), "")), "invalid", "an empty dataset"),
         Case(b"[]", "invalid", "a list"),
     ]
     return st.sampled_from(cases)

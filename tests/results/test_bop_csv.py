@@ -360,3 +360,31 @@ def test_sidecar_round_trip_and_validation(tmp_path: Path) -> None:
     path.write_text("[]")
     with pytest.raises(ResultsError, match="not a run sidecar"):
         read_run_sidecar(csv)
+
+
+def test_sidecar_values_no_run_writes_are_refused_each_named(tmp_path: Path) -> None:
+    csv = tmp_path / "cendernet_dimo-sim.csv"
+    path = write_run_sidecar(csv, tmp_path / "data", "dimo", "sim", {}, seed=7)
+    data = json.loads(path.read_text())
+    path.write_text(json.dumps({**data, "version": -1, "seed": -3, "data_root": "", "split": " ", "results": 5}))
+    with pytest.raises(ResultsError, match="malformed run sidecar") as info:
+        read_run_sidecar(csv)
+    assert info.value.problems == [
+        "version: expected 1 to 1, got -1",
+        "seed: expected a non-negative integer, got -3",
+        "data_root: expected a non-empty string, got ''",
+        "split: expected a non-empty string, got ' '",
+        "results: expected the results file's name, got 5",
+    ]
+
+
+def test_sidecar_relative_data_root_is_the_sidecars_folders_and_another_results_name_is_said(tmp_path: Path) -> None:
+    csv = tmp_path / "runs" / "cendernet_dimo-sim.csv"
+    csv.parent.mkdir()
+    path = write_run_sidecar(csv, tmp_path / "data", "dimo", "sim", {}, seed=0)
+    data = json.loads(path.read_text())
+    path.write_text(json.dumps({**data, "data_root": "../data"}))
+    assert read_run_sidecar(csv)["data_root"] == str((tmp_path / "data").resolve())  # not the current folder's
+    path.write_text(json.dumps({**data, "results": "other_dimo-sim.csv"}))
+    with pytest.warns(ResultsWarning, match=r"results: the sidecar was written for other_dimo-sim.csv, not cendernet"):
+        assert read_run_sidecar(csv)["dataset"] == "dimo"
