@@ -272,16 +272,17 @@ def run(
     fingerprint = request.fingerprint()
     if work.exists() and not request.resume:
         shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
+    created = _make_dirs(work)
     try:
         outcomes, resumed = _run_scenes(request, dataset, keys, work, fingerprint, progress)
     except BaseException:
         if not any(work.iterdir()):
-            work.rmdir()  # nothing done: leave nothing behind
+            _remove_empty(created)  # nothing done: leave nothing behind, --out's new folders included
         raise
     failed = {k: o.error for k, o in outcomes.items() if o.error is not None}
     if len(failed) == len(keys):  # nothing to write: no results file, no sidecar, no shards to resume from
         shutil.rmtree(work, ignore_errors=True)
+        _remove_empty(created)
         raise RunError(
             f"every scene failed ({len(keys)}); nothing was written",
             file=request.out,
@@ -289,6 +290,25 @@ def run(
             + ([f"... and {len(failed) - 10} more"] if len(failed) > 10 else []),
         )
     return _merge(request, dataset, keys, outcomes, resumed, work, start, threshold)
+
+
+def _make_dirs(folder: Path) -> list[Path]:
+    """``mkdir -p folder``; returns the folders it created, outermost first (to remove them when nothing
+    was written)."""
+    created = [p for p in (*reversed(folder.parents), folder) if not p.exists()]
+    folder.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+def _remove_empty(created: list[Path]) -> None:
+    """Remove the folders :func:`_make_dirs` created, innermost first, where they are still empty."""
+    for folder in reversed(created):
+        if not folder.exists():
+            continue
+        try:
+            folder.rmdir()
+        except OSError:  # not empty: another file landed there, and so in its parents
+            return
 
 
 def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[dict[str, SceneOutcome], int]:

@@ -230,6 +230,7 @@ def test_settings_override_the_config():
         ("centers.refine_maxiter=-1", "centers.refine_maxiter: expected an integer >= 1"),
         ("poses.top_k=0", "poses.top_k: expected an integer >= 1, got 0"),
         ("poses.n_candidates=0", "poses.n_candidates: expected an integer >= 1"),
+        ("poses.n_candidates=2", r"poses.top_k: expected at most poses.n_candidates \(2\), got 3"),
         ("poses.nm_maxfev=-1", "poses.nm_maxfev: expected an integer >= 1"),
         ("poses.rotation_bound_rad=0", "poses.rotation_bound_rad: expected a number > 0"),
         ("poses.candidate_downscale=0", "poses.candidate_downscale: expected an integer >= 1"),
@@ -252,13 +253,18 @@ def test_a_run_where_every_scene_fails_writes_nothing_and_exits_non_zero(mini_ro
         raise RuntimeError("heatmaps of the wrong size")
 
     monkeypatch.setattr(method_module.CenDerNet, "run_scene", broken)
-    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    out = tmp_path / "new" / "runs" / "cendernet-oracle_dimo-real.csv"
     code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out),
                  "--no-progress"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "every scene failed (2); nothing was written" in err
     assert err.count("RuntimeError: heatmaps of the wrong size") == 2 and "scene 000001:" in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no CSV, no sidecar, no shards
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no CSV, no sidecar, no shards, nor --out's new folders
+    (tmp_path / "kept").mkdir()
+    out = tmp_path / "kept" / "cendernet-oracle_dimo-real.csv"
+    assert main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out),
+                 "--no-progress"]) == 2  # fmt: skip
+    assert [p.name for p in tmp_path.iterdir()] == ["kept"]  # a folder that was there stays
 
 
 def test_a_failed_scene_is_reported_recorded_and_redone_by_resume(mini_root, reference_csv, tmp_path, capsys,

@@ -152,8 +152,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     try:
         spec = UNetSpec.from_dict(payload["spec"])
         kind = str(payload["dataset"])
-        ids = payload["channel_obj_ids"]
-        channel_obj_ids = None if ids is None else tuple(int(i) for i in ids)
+        channel_obj_ids = _channel_ids(payload["channel_obj_ids"], path)
         targets = TargetConfig(**payload["targets"])
         state = payload["state_dict"]
     except ConfigError as exc:  # a target setting out of range, named by its field
@@ -196,6 +195,17 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
         model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold),
         {str(k): float(v) for k, v in by_split.items()},
     )  # fmt: skip
+
+
+def _channel_ids(ids: Any, path: Path) -> tuple[int, ...] | None:
+    """``channel_obj_ids`` as ints (None for one shared channel); anything else names the field."""
+    if ids is None:
+        return None
+    if isinstance(ids, list | tuple) and all(isinstance(i, int) and not isinstance(i, bool) for i in ids):
+        return tuple(ids)
+    raise ConfigError(
+        f"malformed weights file (channel_obj_ids: expected a list of object ids, got {ids!r})", file=path
+    )
 
 
 def _check_channels(path: Path, spec: UNetSpec, kind: str, channel_obj_ids: tuple[int, ...] | None) -> None:

@@ -295,6 +295,12 @@ class PoseConfig:
                     f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
                 )
         check_settings("poses", self, _POSE_BOUNDS, flags=("occlusion",))
+        if self.top_k > self.n_candidates:  # more starts than candidates: the refinement would run fewer than asked
+            raise ConfigError(
+                f"poses.top_k: expected at most poses.n_candidates ({self.n_candidates}), got {self.top_k}"
+                " (--top-k refines that many of the --candidates)",
+                field="--set",
+            )
 
 
 _UNIT_INTERVAL = Bound(0.0, 1.0, high_open=True)

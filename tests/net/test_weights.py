@@ -102,6 +102,9 @@ def test_malformed_weights_contents_are_one_clear_error_naming_the_field(tmp_pat
         (tless, "few.pt", lambda p: p.update(channel_obj_ids=[1, 2]), r"one object id per center channel \(3\), got 2"),
         (tless, "none.pt", lambda p: p.update(channel_obj_ids=None), r"channel \(3\), got none"),
         (tless, "dup.pt", lambda p: p.update(channel_obj_ids=[1, 1, 5]), r"distinct positive object ids"),
+        (tless, "str.pt", lambda p: p.update(channel_obj_ids=["a", 2, 5]), r"channel_obj_ids: expected a list of obj"),
+        (tless, "float.pt", lambda p: p.update(channel_obj_ids=[1.5, 2, 5]), r"channel_obj_ids: expected a list of"),
+        (tless, "text.pt", lambda p: p.update(channel_obj_ids="125"), r"channel_obj_ids: expected a list of object"),
         (good, "kind.pt", lambda p: p.update(dataset="foo"), r"dataset: expected one of dimo, tless, got 'foo'"),
         (good, "nospec.pt", lambda p: p.pop("spec"), r"missing key 'spec'"),
     ]
