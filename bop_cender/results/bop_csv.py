@@ -219,6 +219,7 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
             f"{bad} bad line(s) in BOP results (expected '{HEADER}')", file=path, problems=_fmt(problems, "line")
         )
     _warn_rotations(warn, path, "line")
+    _warn_repeats(np.column_stack([sid, im, obj, R.reshape(-1, 9), t]).astype(np.float64), numbers, path)
     return [
         BopEstimate(int(sid[k]), int(im[k]), int(obj[k]), float(score[k]), R[k], t[k], float(time[k]), int(numbers[k]))
         for k in range(len(parsed))
@@ -350,6 +351,25 @@ def _warn_rotations(warn: tuple[int, int, float] | None, path: Path, word: str) 
         warnings.warn(
             f"{path}: {count} rotation(s) slightly non-orthonormal (max |R R^T - I| > {ROTATION_WARN_TOLERANCE:g});"
             f" worst {err:.3g} at {word} {worst}; used as they are",
+            ResultsWarning,
+            stacklevel=3,
+        )
+
+
+def _warn_repeats(keys: np.ndarray, numbers: np.ndarray, path: Path) -> None:
+    """One :class:`ResultsWarning` when rows repeat an earlier row's image, object and pose exactly (``keys``
+    ``(N, 15)``: scene, image, object, R, t): a file written twice, or two methods' rows merged. They are
+    scored as the toolkit scores them (each an estimate), but the user should hear of it."""
+    if len(keys) < 2:
+        return
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    repeats = np.flatnonzero(first[inverse.reshape(-1)] != np.arange(len(keys)))
+    if repeats.size:
+        k = int(repeats[0])
+        warnings.warn(
+            f"{path}: {repeats.size} row(s) repeat an earlier row's image, object and pose (first: line"
+            f" {numbers[k]} repeats line {numbers[first[inverse.reshape(-1)[k]]]}); each is scored as an estimate,"
+            " as the toolkit scores them",
             ResultsWarning,
             stacklevel=3,
         )

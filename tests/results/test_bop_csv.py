@@ -223,7 +223,8 @@ def test_reader_accepts_crlf_trailing_blank_lines_and_no_header(tmp_path: Path) 
 
 def test_unknown_times_are_not_compared(tmp_path: Path) -> None:
     rows = read_bop_results(
-        _write(tmp_path, HEADER, GOOD, GOOD.replace(",0.31", ",-1"), GOOD.replace(",0.31", ",0.3105"))
+        _write(tmp_path, HEADER, GOOD, GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
+               GOOD.replace("1,0,2,", "1,0,4,").replace(",0.31", ",0.3105"))  # fmt: skip
     )
     assert [r.time for r in rows] == [0.31, -1.0, 0.3105]
 
@@ -268,12 +269,27 @@ def test_inconsistent_times(tmp_path: Path) -> None:
 
 
 def test_slightly_non_orthonormal_rotation_warns_once(tmp_path: Path) -> None:
-    lines = [GOOD, GOOD.replace(" 0.0 1.0,", " 0.0 1.0005,"), GOOD.replace(" 0.0 1.0,", " 0.0 1.002,"), GOOD]
+    lines = [GOOD, GOOD.replace(" 0.0 1.0,", " 0.0 1.0005,"), GOOD.replace(" 0.0 1.0,", " 0.0 1.002,"),
+             GOOD.replace("1,0,2,", "1,1,2,", 1)]  # fmt: skip
     with pytest.warns(ResultsWarning) as record:
         rows = read_bop_results(_write(tmp_path, HEADER, *lines))
     assert len(record) == 1
     assert "2 rotation(s) slightly non-orthonormal" in str(record[0].message) and "at line 4" in str(record[0].message)
     assert rows[2].R[2, 2] == 1.002  # used as written, never re-orthonormalised
+
+
+def test_rows_repeating_an_earlier_row_warn_once(tmp_path: Path) -> None:
+    """A file written twice, or two methods' rows merged: each row is scored (as by the toolkit), and said once."""
+    other = GOOD.replace("1,0,2,", "1,0,3,", 1)
+    with pytest.warns(ResultsWarning) as record:
+        rows = read_bop_results(_write(tmp_path, HEADER, GOOD, other, GOOD.replace("0.93", "0.5"), other))
+    assert len(rows) == 4 and len(record) == 1
+    assert "2 row(s) repeat an earlier row's image, object and pose (first: line 4 repeats line 2)" in str(
+        record[0].message
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_bop_results(_write(tmp_path, HEADER, GOOD, other, name="once_tless-test.csv"))  # no repeat: no warning
 
 
 def test_all_bad_lines_reported_together(tmp_path: Path) -> None:
