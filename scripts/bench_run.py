@@ -11,7 +11,8 @@
    operators it runs, the CUDA kernels it launches and the calls that wait for the device (``nonzero``,
    ``item``, copies, synchronisations): why a small batch on a GPU is bound by the host; and one edge-proxy call
    of 3 poses in each of its layouts (the kernel, the CPU's default: no torch operator; compacted torch; dense
-   torch, CUDA's default: no synchronising call).
+   torch, CUDA's fallback: no synchronising call; the CUDA kernel, CUDA's default where numba's CUDA target works:
+   one launch).
 2. Seconds per scene end to end, split by stage (heatmaps, centers, poses), for DIMO-layout scenes
    with oracle heatmaps and the default config (``--data-root`` a DIMO-layout dataset; default the
    embedded demo), one process as ``bop-cender run`` runs it (one torch thread, the render search's
@@ -99,10 +100,16 @@ def edge_calls_per_second(
 ) -> tuple[float, float]:
     """Median calls/s and ms per call of the edge-point proxy (:mod:`bop_cender.pose.edge_cost`) on the same
     workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking;
-    ``layout``: its layout (None: the device's default, the kernel on the CPU, dense on CUDA)."""
+    ``layout``: its layout (None: the device's default, the kernel on the CPU, the CUDA kernel or dense on CUDA)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, max_segments)
     return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, layout=layout), device, batch, seconds)
+
+
+def _cuda_edge_kernel_available() -> bool:
+    from bop_cender.pose.cuda_edge_kernel import kernel_available
+
+    return kernel_available() is None
 
 
 def _edge_model(mesh, max_segments: int | None):
@@ -137,12 +144,13 @@ def cost_call_profile(
 def edge_call_profile(device: torch.device, batch: int = 3) -> list[tuple[str, float, int, int, int]]:
     """:func:`cost_call_profile` of one edge-proxy call (full model; ``batch`` poses: a Nelder-Mead step) in each
     layout of the device: ``(layout, ms, operators, launches, synchronising calls)``. The dense layout (CUDA's
-    default) makes no ``nonzero`` and reads no size from a tensor, so on a GPU nothing waits before the result is
+    fallback) makes no ``nonzero`` and reads no size from a tensor, so on a GPU nothing waits before the result is
     read; the kernel (the CPU's default) runs no torch operator at all."""
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, None)
     rows = []
-    for layout in ("compacted", "dense") + (("kernel",) if device.type == "cpu" else ()):
+    own = ("kernel",) if device.type == "cpu" else ("cuda",) if _cuda_edge_kernel_available() else ()
+    for layout in ("compacted", "dense", *own):
         rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, layout=layout), device)))
         print(f"profile edge proxy {device.type} batch {batch} {layout}: " + _profile_line(rows[-1][1:]), flush=True)
     return rows
@@ -361,6 +369,13 @@ def main() -> None:
         # each device's default layout, then the compacted torch one for reference; on the CPU the kernel with one
         # thread too (as `run` calls it: one torch thread per process)
         layouts = [("dense", threads), ("compacted", threads)]
+        if device.type == "cuda":
+            from bop_cender.pose.cuda_edge_kernel import kernel_available
+
+            if kernel_available() is None:  # the CUDA kernel, the default where numba's CUDA target works
+                layouts.insert(0, ("cuda", threads))
+            else:
+                print(f"edge proxy: no CUDA kernel rows ({kernel_available()})", flush=True)
         if device.type == "cpu":
             layouts = (
                 [("kernel", 1), ("kernel", threads), ("compacted", threads)]

@@ -1,4 +1,5 @@
-"""Compile the CUDA cost kernel to PTX without a GPU: does it still build for the device, and how lean is it?
+"""Compile the CUDA kernels (the render cost's and the edge proxy's) to PTX without a GPU: do they still build for the
+device, and how lean are they?
 
 Why. Most sessions have no GPU, and numba's CUDA simulator (what the tests run) executes the kernel as plain Python:
 it accepts code the CUDA target refuses (a ``reshape`` that links to a CPU-only helper, a NumPy function the device
@@ -60,21 +61,31 @@ def main() -> int:
         compute_capability = cc
 
     dispatcher.get_current_device = lambda: _Capability()
-    from bop_cender.pose.cuda_cost import kernel_function
+    from bop_cender.pose import cuda_cost, cuda_edge_kernel
 
-    kernel = kernel_function()
-    signature = tuple(typeof(a) for a in _launch_arguments())
-    try:
-        ptx, _ = cuda.compile_ptx(kernel, signature, cc=cc)
-    except Exception as error:
-        if "nvvm" in str(error).lower() or "nvrtc" in str(error).lower():
-            print(f"check_cuda_compile: NVVM or nvrtc not found ({type(error).__name__}: {error})", file=sys.stderr)
-            return 2
-        raise
+    status = 0
+    for name, kernel_function, arguments in (
+        ("cost kernel", cuda_cost.kernel_function, _launch_arguments),
+        ("edge kernel", cuda_edge_kernel.kernel_function, _edge_arguments),
+    ):
+        signature = tuple(typeof(a) for a in arguments())
+        try:
+            ptx, _ = cuda.compile_ptx(kernel_function(), signature, cc=cc)
+        except Exception as error:
+            if "nvvm" in str(error).lower() or "nvrtc" in str(error).lower():
+                print(f"check_cuda_compile: NVVM or nvrtc not found ({type(error).__name__}: {error})", file=sys.stderr)
+                return 2
+            raise
+        status = max(status, _report(name, ptx, cc))
+    return status
+
+
+def _report(name: str, ptx: str, cc: tuple[int, ...]) -> int:
+    """Print the PTX's figures; 1 where it uses local memory, calls or links to an external helper, else 0."""
     lines = ptx.splitlines()
     local = sum(".local" in line for line in lines)
     calls = [line.strip() for line in lines if line.strip().startswith("call")]
-    print(f"sm_{cc[0]}{cc[1]}: {len(ptx):,} bytes of PTX, {ptx.count('fma.rn.f32')} float32 and "
+    print(f"{name}, sm_{cc[0]}{cc[1]}: {len(ptx):,} bytes of PTX, {ptx.count('fma.rn.f32')} float32 and "
           f"{ptx.count('fma.rn.f64')} float64 fused multiply-adds, {ptx.count('atom.')} atomics, "
           f"{local} local-memory lines, {len(calls)} calls")  # fmt: skip
     for line in calls[:5]:
@@ -83,6 +94,26 @@ def main() -> int:
     for line in externs[:5]:
         print("  extern:", line, "(links to a helper the device may not have)")
     return 1 if local or calls or externs else 0
+
+
+def _edge_arguments() -> list:
+    """The edge kernel's arguments of a small real call (a box's edges in two views), as NumPy arrays and scalars."""
+    import torch
+    import trimesh
+
+    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_model_of
+    from bop_cender.render.mesh import prepare_mesh
+
+    model = edge_model_of(prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0))))
+    proj = model.projection
+    first, count = model.edge_segments.unbind(1)
+    T = torch.eye(4).repeat(2, 1, 1)
+    T[:, 2, 3] = 300.0
+    K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
+    tensors = [T, torch.arange(2), K, torch.ones(2, 96, 128), torch.zeros(2, 96, 128), model.planes, model.crease,
+               first, count, proj.seg_from, proj.seg_to, proj.frac_a, proj.frac_b, proj.ends]  # fmt: skip
+    arrays = [x.contiguous().numpy() for x in tensors]
+    return [*arrays, 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM, np.zeros(2)]
 
 
 if __name__ == "__main__":

@@ -38,10 +38,12 @@ Three layouts of the same arithmetic (:func:`edge_costs`' ``layout``), which agr
 - ``compacted`` (torch): the drawn segments gathered first (``nonzero``: of a part's segments only the
   contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
   the work); the CPU's layout before the kernel, kept as its reference;
-- ``dense`` (torch), CUDA's default: every segment of every canvas costed with a 0/1 weight. That costs
+- ``dense`` (torch), CUDA's fallback: every segment of every canvas costed with a 0/1 weight. That costs
   several times the arithmetic but has fixed shapes: no ``nonzero`` or data-dependent ``repeat_interleave``,
   so a call never waits for the device until its result is read, which is what bounds the small calls of
-  Nelder-Mead on a GPU (``results/bench/``).
+  Nelder-Mead on a GPU (``results/bench/``);
+- ``cuda``, CUDA's default where numba's CUDA target works: the kernel layout's loop as one CUDA kernel (a block
+  per canvas, :mod:`bop_cender.pose.cuda_edge_kernel`), one launch per call instead of dozens of torch kernels.
 
 Measured (``scripts/bench_run.py``): see ``results/bench/``.
 """
@@ -72,7 +74,7 @@ SAMPLES_PER_SEGMENT = 2
 EDGE_COINCIDENCE_MM = 1.0
 
 #: The layouts of :func:`edge_costs` (module docstring).
-LAYOUTS = ("kernel", "compacted", "dense")
+LAYOUTS = ("kernel", "compacted", "dense", "cuda")
 
 #: Canvases (candidate x view) costed together in the compacted layout: bounds the memory of the per-segment arrays.
 CANVAS_CHUNK = 512
@@ -297,10 +299,11 @@ def edge_costs(
         occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
             :func:`edge_occluder`; None: none.
         near: points closer to the camera plane than this (mm) are not drawn.
-        layout: ``kernel`` (CPU only: one compiled loop, :mod:`bop_cender.pose.edge_kernel`), ``compacted`` (torch:
-            the drawn segments gathered first) or ``dense`` (torch: every segment costed with a 0/1 weight, fixed
-            shapes, no wait for the device); None (default): dense on CUDA, the kernel on the CPU (the module
-            docstring says why).
+        layout: ``kernel`` (CPU only: one compiled loop, :mod:`bop_cender.pose.edge_kernel`), ``cuda`` (CUDA only,
+            or numba's simulator: the same loop as one CUDA kernel, :mod:`bop_cender.pose.cuda_edge_kernel`),
+            ``compacted`` (torch: the drawn segments gathered first) or ``dense`` (torch: every segment costed with a
+            0/1 weight, fixed shapes, no wait for the device); None (default): the kernel on the CPU, the CUDA kernel
+            on CUDA where numba's CUDA target works, else dense (warned once; the module docstring says why).
 
     Returns:
         ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
@@ -312,8 +315,9 @@ def edge_costs(
     if occluder_depth is not None:
         check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
     device = T_cam_model.device
+    fallback = layout is None and device.type == "cuda"  # the CUDA kernel where numba's CUDA target works
     if layout is None:
-        layout = "dense" if device.type == "cuda" else "kernel"
+        layout = "kernel" if device.type != "cuda" else _cuda_default()
     if layout not in LAYOUTS:
         raise ValueError(f"unknown edge-cost layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
     if layout == "kernel" and device.type != "cpu":
@@ -324,6 +328,7 @@ def edge_costs(
     Ks = K.to(device, torch.float32)
     dist = dist_maps.to(device, torch.float32)
     occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
+    per_view = None
     if layout == "kernel":
         from bop_cender.pose.edge_kernel import kernel_canvas_costs  # numba: imported where it is used
 
@@ -331,7 +336,10 @@ def edge_costs(
         per_view = kernel_canvas_costs(
             model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
         )
-    else:
+    elif layout == "cuda":
+        per_view = _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback)
+        layout = "dense"  # where the kernel failed (``fallback`` only): the torch layout below
+    if per_view is None:
         dense = layout == "dense"
         per_view = torch.empty(B * V, dtype=torch.float32, device=device)
         chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
@@ -340,6 +348,36 @@ def edge_costs(
             view = torch.arange(start, stop, device=device) % V
             per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
     return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
+
+
+def _cuda_default() -> str:
+    """CUDA's default layout: the CUDA kernel (:mod:`bop_cender.pose.cuda_edge_kernel`) where numba's CUDA target
+    works, else ``dense`` (with one warning saying why)."""
+    from bop_cender.pose import cuda_edge_kernel
+
+    reason = cuda_edge_kernel.kernel_available()
+    if reason is None:
+        return "cuda"
+    cuda_edge_kernel.warn_once(f"the edge proxy runs in the dense torch layout on CUDA: {reason}")
+    return "dense"
+
+
+def _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback) -> torch.Tensor | None:
+    """The CUDA kernel's per-canvas costs; None where it failed and ``fallback`` lets the torch layout serve (the
+    default on CUDA: warned once, and later calls take the torch layout); a failure is raised where the kernel was
+    asked for by name."""
+    from bop_cender.pose import cuda_edge_kernel
+
+    view = torch.arange(flat_T.shape[0], device=flat_T.device) % V
+    try:
+        return cuda_edge_kernel.cuda_canvas_costs(
+            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
+        )
+    except Exception as error:  # numba's compilation, the driver or the launch: the torch layout stays available
+        if not fallback:
+            raise
+        cuda_edge_kernel.note_failure(error)
+        return None
 
 
 def _drawn_edges(model: EdgeModel, T: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,142 @@
+"""The edge proxy's CUDA kernel (``bop_cender.pose.cuda_edge_kernel``): the CPU loop's costs, one launch per call.
+
+Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
+thread a Python thread, the shared device functions the plain Python ones), where it must give the CPU loop's costs
+to float64 rounding (the threads' sums are added in another order): poses near the part, out of some views, behind
+the cameras, non-finite, with and without placed objects, for the full and a sparse edge model. On a GPU
+(``-m cuda``) ``edge_costs`` takes it by default and must give the CPU's costs to float32 rounding.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: What the simulated run checks, printed line by line ("ok ...") for the test to read.
+_SIMULATED = textwrap.dedent(
+    """
+    import sys, tempfile
+    from pathlib import Path
+    sys.path[:0] = [{tests!r}]
+    import numpy as np, torch
+    import method_data
+    from method_data import gt_of, perturb
+    from bop_cender.data.dimo import open_dimo
+    from bop_cender.meshes import MeshCache
+    from bop_cender.net.targets import TargetConfig, scene_targets
+    from bop_cender.pose.cost import distance_maps
+    from bop_cender.pose.cuda_edge_kernel import cuda_canvas_costs
+    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_costs, edge_model_of
+    from bop_cender.pose.edge_kernel import kernel_canvas_costs
+
+    root = method_data.build(Path(tempfile.mkdtemp()) / "dimo")
+    ds = open_dimo(root, "real")
+    scene = ds.scene(ds.scene_keys[0])
+    meshes = MeshCache(ds.models)
+    maps = scene_targets(scene, ds.models, meshes, TargetConfig(curvature_scale=1.0))
+    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > method_data.BOX_T_B))
+    V, H, W = dist.shape
+    Ks = torch.as_tensor(np.stack([v.K for v in scene.views]), dtype=torch.float32)
+    T_cw = np.stack([v.T_cam_world for v in scene.views])
+    g = gt_of(scene, 3).T_world_model
+    poses = np.stack([perturb(g, a, s) for a, s in ((0, 0), (5, 3), (20, 12), (0, 0), (0, 0), (0, 0))])
+    poses[2, :3, 3] += [60.0, 0.0, 0.0]  # partly out of some views
+    poses[3, :3, 3] -= 5000.0 * T_cw[0, 2, :3]  # behind the first camera
+    poses[4, 0, 0] = np.nan
+    poses[5, :3, 3] = np.inf
+    T = torch.as_tensor(np.einsum("vij,njk->nvik", T_cw, poses), dtype=torch.float32).reshape(-1, 4, 4)
+    view = torch.arange(T.shape[0]) % V
+    occ = torch.zeros((V, H, W))
+    occ[:, :, : W // 2] = 300.0
+    model = edge_model_of(meshes(3))
+    for name, m in (("full", model), ("sparse", model.sparse(40))):
+        for o_name, o in (("free", None), ("occluded", occ)):
+            args = (m, T, view, Ks, dist, o, 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM)
+            cpu = kernel_canvas_costs(*args).numpy()
+            sim = cuda_canvas_costs(*args, threads=4).numpy()
+            print("ok", name, o_name, float(np.max(np.abs(sim - cpu))), sim.tolist())
+    w = torch.full((V,), 1.0 / V)
+    T4 = T.reshape(-1, V, 4, 4)[:2]
+    by_layout = edge_costs(model, T4, Ks, dist, w, layout="cuda")  # the default block size, through edge_costs
+    print("ok layout", float(torch.max(torch.abs(by_layout - edge_costs(model, T4, Ks, dist, w, layout="kernel")))))
+    for threads in (0, 3, 128):
+        try:
+            cuda_canvas_costs(*args, threads=threads)
+        except ValueError as error:
+            print("ok threads", threads, error)
+    """
+)
+
+
+def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None:
+    script = _SIMULATED.format(tests=str(ROOT / "tests"))
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line.split(" ", 4) for line in done.stdout.splitlines() if line.startswith("ok ")]
+    assert [line[1] for line in lines] == ["full", "full", "sparse", "sparse", "layout", "threads", "threads", "threads"]
+    for _, name, occluded, error, costs in lines[:4]:
+        assert float(error) < 1e-5, (name, occluded, error)  # float32 costs of float64 sums in another order
+        costs = np.array(eval(costs))  # noqa: S307 (our own output)
+        per_pose = costs.reshape(6, -1)
+        assert np.isfinite(costs).all()
+        assert (per_pose[3:] == per_pose[3:].max()).all()  # behind / non-finite: the image diagonal in every view
+        assert per_pose[0].min() < 1.0 and (per_pose[1] >= per_pose[0]).all()  # smallest at the GT pose
+    free, occluded = (np.array(eval(line[4])) for line in lines[:2])  # noqa: S307
+    assert not np.array_equal(free, occluded)  # the placed object hid something
+    assert float(lines[4][2]) < 1e-5
+    assert [line[2] for line in lines[5:]] == ["0", "3", "128"]
+
+
+def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
+    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+    from bop_cender.render.cuda_loops import simulator_enabled
+    from bop_cender.render.mesh import prepare_mesh
+
+    if simulator_enabled():
+        pytest.skip("the simulator takes CPU tensors")
+    import trimesh
+
+    model = edge_model_of(prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0))))
+    T = torch.eye(4)[None, None].clone()
+    T[..., 2, 3] = 300.0
+    K = torch.tensor([[[100.0, 0.0, 16.0], [0.0, 100.0, 16.0], [0.0, 0.0, 1.0]]])
+    with pytest.raises(ValueError, match="CUDA tensors"):
+        edge_costs(model, T, K, torch.zeros(1, 32, 32), torch.ones(1), layout="cuda")
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_on_cuda_the_default_is_the_kernel_and_gives_the_cpu_costs(mini) -> None:
+    from method_data import gt_of, perturb
+
+    from bop_cender.pose import cuda_edge_kernel
+    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+
+    if cuda_edge_kernel.kernel_available() is not None:
+        pytest.skip(f"numba's CUDA target: {cuda_edge_kernel.kernel_available()}")
+    ds, scene, meshes, maps, cams, dist = mini
+    g = gt_of(scene, 3)
+    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12))])
+    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, poses), dtype=torch.float32)
+    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+    model = edge_model_of(meshes(3))
+    occ = torch.zeros_like(dist)
+    occ[:, :, : occ.shape[2] // 2] = 300.0
+    for o in (None, occ):
+        cpu = edge_costs(model, T, K, dist, w, occluder_depth=o)
+        args = (model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())
+        gpu = edge_costs(*args, occluder_depth=None if o is None else o.cuda())
+        named = edge_costs(*args, occluder_depth=None if o is None else o.cuda(), layout="cuda")
+        assert gpu.device.type == "cuda" and torch.equal(gpu, named)
+        torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-4)
