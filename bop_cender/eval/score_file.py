@@ -164,6 +164,15 @@ def choose_data(
     return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys), tuple(failed))
 
 
+def score_file_outputs(csv_path: str | Path, out_dir: str | Path | None = None) -> tuple[Path, Path]:
+    """``(scores_<stem>.json, errors_<stem>.csv)`` that :func:`score_file` writes for ``csv_path`` into ``out_dir``
+    (default: beside the CSV)."""
+    csv_path = Path(csv_path)
+    out = Path(out_dir) if out_dir is not None else csv_path.parent
+    stem = csv_path.name.split(".")[0]
+    return out / f"scores_{stem}.json", out / f"errors_{stem}.csv"
+
+
 def score_file(
     csv_path: str | Path,
     *,
@@ -239,9 +248,7 @@ def score_file(
         )
         report.notes.append(message)
         warnings.warn(f"{csv_path}: {message}", ResultsWarning, stacklevel=2)
-    out = Path(out_dir) if out_dir is not None else csv_path.parent
-    stem = csv_path.name.split(".")[0]
-    scored = ScoredFile(report, choice, ds, out / f"scores_{stem}.json", out / f"errors_{stem}.csv")
+    scored = ScoredFile(report, choice, ds, *score_file_outputs(csv_path, out_dir))
     report.timings["total"] = time.perf_counter() - clock
     if write:
         write_scored(scored)

@@ -23,6 +23,8 @@ from bop_cender.data.bop_io import load_json, write_text_atomic, write_texts_ato
 #: The scores, in the order they are printed and written.
 SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
 SCORES_FORMAT = "bop-cender-scores"
+#: How far a scores JSON's AR may be from the mean of its three parts (figures rounded to three decimals pass).
+AR_MEAN_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,6 +223,13 @@ def read_scores_json(path: str | Path) -> dict[str, Any]:
         value = data[key]
         if value is not None and not is_recall(value):
             raise ResultsError(f"expected a recall in [0, 1] or null, got {value!r}", file=path, field=key)
+    parts = [data[k] for k in ("AR_VSD", "AR_MSSD", "AR_MSPD")]
+    if None in parts and data["AR"] is not None:
+        raise ResultsError(f"AR is {data['AR']!r} but AR_VSD, AR_MSSD or AR_MSPD is null: expected null (AR is their mean)",
+                           file=path, field="AR")  # fmt: skip
+    if None not in parts and (data["AR"] is None or abs(data["AR"] - sum(parts) / 3) > AR_MEAN_TOLERANCE):
+        raise ResultsError(f"AR is {data['AR']!r}, not the mean of AR_VSD, AR_MSSD and AR_MSPD ({sum(parts) / 3:.6g})",
+                           file=path, field="AR")  # fmt: skip
     meta = data.get("metadata")
     if meta is not None and not isinstance(meta, dict):
         raise ResultsError(f"expected an object, got {type(meta).__name__}", file=path, field="metadata")

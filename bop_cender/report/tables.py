@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -30,8 +31,15 @@ from pathlib import Path
 from bop_cender.data.bop_io import atomic_path, check_output_dir, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
-from bop_cender.errors import ConfigError, ResultsError
-from bop_cender.eval.score_file import ScoredFile, choose_data, method_name, score_file, write_scored
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
+from bop_cender.eval.score_file import (
+    ScoredFile,
+    choose_data,
+    method_name,
+    score_file,
+    score_file_outputs,
+    write_scored,
+)
 from bop_cender.eval.score_report import SCORE_KEYS, is_recall, read_scores_json
 
 #: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
@@ -139,6 +147,7 @@ def compare(
             meta = jsons[path].get("metadata") or {}
             planned[path] = (meta.get("dataset"), meta.get("split"))
     _one_dataset_and_split(planned)  # before anything is scored
+    _check_outputs(paths, [out for path in paths if path.suffix == ".csv" for out in score_file_outputs(path, out_dir)])
     rows: list[MethodRow] = []
     scored_files: list[ScoredFile] = []
     for path in paths:
@@ -171,7 +180,15 @@ def compare(
     table_dataset = next((r.dataset for r in rows if r.dataset), None if dataset == "bop" else dataset)
     table_split = next((r.split for r in rows if r.split), split)
     if table is not None:
-        rows += reference_rows_of(table, table_dataset, table_split)
+        reported = reference_rows_of(table, table_dataset, table_split)
+        if not reported:  # asked for and absent: said, not left to be noticed
+            warnings.warn(
+                f"the reference table {reference} has no row for {table_dataset or 'any dataset'}"
+                f" {table_split or 'any split'}: the table holds the inputs alone",
+                ResultsWarning,
+                stacklevel=2,
+            )
+        rows += reported
     comparison = Comparison(rows, table_dataset, table_split)
     stem = f"comparison_{table_dataset or 'results'}-{table_split or 'all'}"
     comparison.files = {
@@ -179,12 +196,34 @@ def compare(
         "csv": out_dir / f"{stem}.csv",
         "png": out_dir / f"{stem}.png",
     }
+    _check_outputs(paths, list(comparison.files.values()))
     for scored in scored_files:  # every input scored: now the files
         write_scored(scored)
     write_text_atomic(comparison.files["markdown"], comparison.markdown())
     write_text_atomic(comparison.files["csv"], comparison.csv_text())
     bar_chart(comparison, comparison.files["png"])
     return comparison
+
+
+def _check_outputs(inputs: list[Path], outputs: list[Path]) -> None:
+    """Refuse outputs that would overwrite an input (``scores_X.json`` given as an input beside ``X.csv``, scored
+    into the same folder) or each other (two inputs of one file name from different folders): one file would be
+    lost without a word."""
+    given = {p.resolve(): p for p in inputs}
+    seen: dict[Path, Path] = {}
+    for out in outputs:
+        resolved = out.resolve()
+        if resolved in given:
+            raise ConfigError(
+                f"{out} would be written over the input {given[resolved]}: give another --out folder", field="--out"
+            )
+        if resolved in seen:
+            raise ConfigError(
+                f"two inputs would both write {out} (inputs of one file name from different folders): rename one,"
+                " or compare them in turn",
+                field="inputs",
+            )
+        seen[resolved] = out
 
 
 def _one_dataset_and_split(found: dict[Path, tuple[str | None, str | None]]) -> None:
@@ -235,6 +274,8 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
         raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
     records = []
+    first: dict[tuple[str, str, str, str], dict[str, str]] = {}
+    first_row: dict[tuple[str, str, str, str], int] = {}
     for n, rec in enumerate(csv.DictReader(lines), start=2):
         try:
             if not is_recall(float(rec["value"])):
@@ -251,6 +292,15 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
             raise ConfigError(
                 f"unknown metric {rec['metric']!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
             )
+        key = (rec["dataset"], rec["split"], rec["method"], rec["metric"])
+        if key in first_row and float(first[key]["value"]) != float(rec["value"]):  # one would be dropped unsaid
+            raise ConfigError(
+                f"{rec['method']} on {rec['dataset']} {rec['split']} has two values of {rec['metric']}:"
+                f" {first[key]['value']} (row {first_row[key]}) and {rec['value']}",
+                field=f"{path}: row {n}",
+            )
+        first.setdefault(key, rec)
+        first_row.setdefault(key, n)
         records.append(rec)
     return records
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bop_cender.cli import main
-from bop_cender.errors import ConfigError, ResultsError
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 from bop_cender.eval.score_file import score_file
 from bop_cender.eval.score_report import SCORE_KEYS
 from bop_cender.report.tables import PAPER_TABLES, compare, reference_rows
@@ -110,6 +110,9 @@ def test_compare_rejects_other_inputs(tmp_path: Path) -> None:
         ('{"AR": -0.3}', "AR: expected a recall"),
         ('{"metadata": [1]}', "metadata: expected an object"),
         ('{"metadata": {"method": 5}}', "metadata.method: expected a string"),
+        ('{"AR": 0.2}', r"AR: AR is 0.2, not the mean of AR_VSD, AR_MSSD and AR_MSPD \(0.5\)"),
+        ('{"AR": null}', "AR: AR is None, not the mean"),
+        ('{"AR_VSD": null}', "AR: AR is 0.5 but AR_VSD, AR_MSSD or AR_MSPD is null: expected null"),
         ("{not json", "malformed JSON"),
     ],
 )
@@ -122,6 +125,21 @@ def test_a_malformed_scores_json_is_one_error_naming_the_field(tmp_path: Path, c
         path.write_text(json.dumps({**scores, **json.loads(content)}))
     with pytest.raises(ResultsError, match=message):
         compare([path], out_dir=tmp_path)
+
+
+def test_a_reference_table_with_two_values_of_one_figure_is_refused_and_one_without_the_split_said(
+    small_fixture, results_dir, capsys
+) -> None:
+    good = results_dir / "gt_tless-test.csv"
+    write_bop_results(good, gt_rows(small_fixture))
+    reference = results_dir / "ref.csv"
+    reference.write_text("dataset,split,method,source,metric,value\ntless,test,x,y,AR,0.5\ntless,test,x,z,AR,0.7\n")
+    args = ["--data-root", str(small_fixture.root), "--out", str(results_dir / "t"), "--no-progress"]
+    assert main(["compare", str(good), "--reference", str(reference), *args]) == 2
+    assert "row 3: x on tless test has two values of AR: 0.5 (row 2) and 0.7" in capsys.readouterr().err
+    reference.write_text("dataset,split,method,source,metric,value\ndimo,sim,x,y,AR,0.5\ndimo,sim,x,y,AR,0.5\n")
+    with pytest.warns(ResultsWarning, match="has no row for tless test: the table holds the inputs alone"):
+        assert main(["compare", str(good), "--reference", str(reference), *args]) == 0  # one value twice: one
 
 
 def test_compare_refuses_inputs_of_two_datasets_before_scoring_any(small_fixture, results_dir, capsys) -> None:
@@ -144,15 +162,33 @@ def test_compare_names_rows_of_one_method_by_their_file(small_fixture, results_d
     (results_dir / "b").mkdir()
     second = results_dir / "b" / "gt_tless-test.csv"
     write_bop_results(second, gt_rows(small_fixture, {3: "t_5.5%"}))
-    scored = score_file(first, data_root=small_fixture.root, out_dir=results_dir / "scores", progress=False)
-    comparison = compare(
-        [first, second, scored.scores_path], data_root=small_fixture.root, out_dir=results_dir / "t", progress=False
-    )
+    one = score_file(first, data_root=small_fixture.root, out_dir=results_dir / "scores", progress=False).scores_path
+    two = score_file(second, data_root=small_fixture.root, out_dir=results_dir / "b", progress=False).scores_path
+    comparison = compare([first, one, two], data_root=small_fixture.root, out_dir=results_dir / "t", progress=False)
     names = [r.method for r in comparison.rows]
-    assert names == [f"gt ({first})", f"gt ({second})", "gt (scores_gt_tless-test)"]
-    assert len(set(names)) == len(names)
+    assert names == ["gt (gt_tless-test)", f"gt ({one})", f"gt ({two})"]
     with pytest.raises(ConfigError, match="is given twice"):
         compare([first, first], data_root=small_fixture.root, out_dir=results_dir / "u", progress=False)
+
+
+def test_compare_never_writes_over_an_input_or_one_output_over_another(small_fixture, results_dir, capsys) -> None:
+    """Two CSVs of one name would both write scores_<name>.json (one silently lost), and a CSV scored beside its
+    own scores JSON given as an input would overwrite it (a fuzz found both): refused before anything is scored."""
+    first = results_dir / "gt_tless-test.csv"
+    write_bop_results(first, gt_rows(small_fixture))
+    (results_dir / "b").mkdir()
+    second = results_dir / "b" / "gt_tless-test.csv"
+    write_bop_results(second, gt_rows(small_fixture, {3: "t_5.5%"}))
+    out = results_dir / "t"
+    args = ["--data-root", str(small_fixture.root), "--no-progress"]
+    assert main(["compare", str(first), str(second), *args, "--out", str(out)]) == 2
+    assert "inputs: two inputs would both write" in capsys.readouterr().err and not out.exists()
+    stale = results_dir / "scores_gt_tless-test.json"
+    score_file(first, data_root=small_fixture.root, progress=False)  # beside the CSV
+    before = stale.read_bytes()
+    assert main(["compare", str(first), str(stale), *args, "--out", str(results_dir)]) == 2
+    assert f"--out: {stale} would be written over the input {stale}" in capsys.readouterr().err
+    assert stale.read_bytes() == before
 
 
 def test_compare_checks_everything_before_writing_anything(small_fixture, results_dir, capsys) -> None:
