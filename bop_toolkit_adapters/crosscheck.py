@@ -12,6 +12,7 @@ importable, :func:`crosscheck` raises :class:`ToolkitUnavailable` and the CLI pr
 from __future__ import annotations
 
 import math
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from bop_cender.data.types import Dataset
 from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_toolkit_adapters.export import ToolkitExport, export_for_toolkit
 from bop_toolkit_adapters.runtime import (
+    ToolkitRunError,
     ToolkitScores,
     ToolkitUnavailable,
     evaluate,
@@ -47,6 +49,18 @@ __all__ = [
 #: (the toolkit renders with OpenGL: a silhouette pixel on a tie between fill rules, or depth rounded
 #: differently at the delta or tau boundary, moves one pixel's vote).
 LIST_TOLERANCE = {"mssd": 1e-6, "mspd": 1e-6, "vsd": 0.0}
+
+#: How far each score may be from the toolkit's for the two to agree: the MSSD and MSPD figures to float noise, AR_VSD
+#: (and AR, a third of it) within the renderers' silhouette ties (1.8e-5 on the 1,244 pairs of
+#: ``results/bench/crosscheck_*``; a pixel's vote moves a recall by a step of 1 / (pairs x taus x thresholds)).
+SCORE_TOLERANCE = {
+    "AR": 1e-3,
+    "AR_VSD": 1e-3,
+    "AR_MSSD": 1e-6,
+    "AR_MSPD": 1e-6,
+    "AR_MSPD<5px": 1e-6,
+    "AR_MSSD<5%": 1e-6,
+}
 
 
 @dataclass(frozen=True)
@@ -94,6 +108,33 @@ class Crosscheck:
     differences: list[PairDifference] = field(default_factory=list)
     toolkit_seconds: float | None = None
 
+    def disagreements(self) -> list[str]:
+        """Why the two evaluations do not agree, one line each (empty: they agree): a score beyond
+        :data:`SCORE_TOLERANCE`, or given by one side only or not a number; MSSD or MSPD pairs computed by one side
+        only, none compared, or differing beyond :data:`LIST_TOLERANCE`. VSD pairs are listed, not judged (the
+        renderers' ties), but AR_VSD is."""
+        out = []
+        for key in SCORE_KEYS:
+            ours, theirs = self.ours.scores.get(key), self.toolkit_scores.get(key)
+            if ours is None and theirs is None:
+                continue
+            if ours is None or theirs is None or not math.isfinite(theirs):
+                out.append(f"{key}: bop-cender {_f(ours, 6)}, the toolkit {_f(theirs, 6)}")
+            elif abs(ours - theirs) > SCORE_TOLERANCE[key]:
+                out.append(f"{key} differs by {abs(ours - theirs):.3g} (more than {SCORE_TOLERANCE[key]:g})")
+        for err in ("mssd", "mspd"):
+            if err not in self.pair_diffs:
+                continue
+            compared, missing = int(self.pair_diffs[f"n_{err}"]), int(self.pair_diffs[f"missing_{err}"])
+            if missing:
+                out.append(f"{err.upper()}: {missing} (estimate, GT) pair(s) computed by one side only")
+            elif not compared and self.ours.records:
+                out.append(f"{err.upper()}: no (estimate, GT) pair compared")
+            differing = sum(d.error == err for d in self.differences)
+            if differing:
+                out.append(f"{err.upper()}: {differing} pair(s) differ by more than {LIST_TOLERANCE[err]:g}")
+        return out
+
     @property
     def recall_diffs(self) -> dict[str, float]:
         """Max |ours - toolkit| over the per-threshold recalls of each error type."""
@@ -136,7 +177,16 @@ def crosscheck(
     vsd_delta = ours.metadata.vsd_delta
     export = export_for_toolkit(dataset, results_csv, out_dir, vsd_delta=vsd_delta, progress=progress)
     clock = time.perf_counter()
-    toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet, progress=progress)
+    try:
+        toolkit = evaluate(export, scripts, with_vsd=vsd_ok, quiet=quiet, progress=progress)
+    except ToolkitRunError:
+        raise
+    except Exception as error:  # its library or its output files are not what this adapter reads
+        raise ToolkitRunError(
+            f"the toolkit's library or output is not what bop-cender reads ({type(error).__name__}: {error}):"
+            " an incompatible version?",
+            file=toolkit_dir if toolkit_dir is not None else "bop_toolkit_lib",
+        ) from None
     toolkit_seconds = time.perf_counter() - clock
     theirs = result_summary(toolkit)
     score_diffs = {
@@ -268,17 +318,31 @@ def crosscheck_file(
 
     The toolkit is imported first, so that a missing toolkit costs nothing.
 
+    Nothing is left in ``out_dir`` where it fails (the folder itself is removed where it was new).
+
     Raises:
         ToolkitUnavailable: ``bop_toolkit_lib`` (or its scripts) cannot be imported.
+        ToolkitRunError: a toolkit script failed, or its library or output is not what the adapter reads.
     """
     from bop_cender.eval.score_file import score_file
 
     import_toolkit(toolkit_dir)
     out_dir = Path(out_dir)
-    scored = score_file(
-        results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
-        model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
-    )  # fmt: skip
-    return crosscheck(
-        results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet, progress
-    )
+    existed = out_dir.exists()
+    written: list[Path] = []
+    try:
+        scored = score_file(
+            results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
+            model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
+        )  # fmt: skip
+        written += [scored.scores_path, scored.errors_path, out_dir / "toolkit_input"]
+        return crosscheck(
+            results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet,
+            progress,
+        )  # fmt: skip
+    except BaseException:  # a cross-check that failed leaves nothing half-written
+        if not existed:
+            shutil.rmtree(out_dir, ignore_errors=True)
+        for path in written:
+            shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
+        raise

@@ -254,7 +254,10 @@ def _read_recall(export: ToolkitExport, sign: str, th: float) -> float:
     from bop_toolkit_lib import inout, misc
 
     path = export.eval_path / export.result_name / sign / f"scores_{misc.get_score_signature([th], -1)}.json"
-    return float(inout.load_json(str(path))["recall"])
+    recall = inout.load_json(str(path))["recall"]
+    if isinstance(recall, bool) or not isinstance(recall, int | float) or not 0.0 <= recall <= 1.0:
+        raise ToolkitRunError(f"expected a recall in [0, 1], got {recall!r}", file=path, field="recall")
+    return float(recall)
 
 
 def _read_errors(export: ToolkitExport, signs: list[str]) -> dict[tuple[int, int, int, int, int], list[float]]:

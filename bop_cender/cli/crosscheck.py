@@ -15,12 +15,16 @@ from bop_cender.cli.options import add_data_options, add_scoring_options, data_o
 CROSSCHECK_EPILOG = """examples:
   bop-cender crosscheck cendernet_tless-test.csv --data-root ~/bop/tless --toolkit ~/src/bop_toolkit
   EGL_PLATFORM=surfaceless bop-cender crosscheck cendernet_dimo-sim.csv --data-root ~/dimo --toolkit ~/src/bop_toolkit
-Exits 2 when the toolkit cannot be imported (the cross-check did not run: not a pass).
+Exit 0 when the two agree (every score within its tolerance, every MSSD / MSPD pair on both sides and equal to
+float noise), 1 when they disagree (the reasons listed), 2 when the toolkit cannot be imported or fails (the
+cross-check did not run: not a pass).
 """
 
 
 #: The exit status when the cross-check could not run (no toolkit): not 0, which would read as a pass.
 CROSSCHECK_NOT_RUN = 2
+#: The exit status when it ran and the two evaluations disagree (beyond the tolerances, or not comparable).
+CROSSCHECK_DISAGREES = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -68,4 +72,10 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         listed = out / "pair_differences.csv"
         write_pair_differences(listed, check.differences)
         print(f"pairs that differ, largest first: {listed}")
+    disagreements = check.disagreements()
+    if disagreements:  # exit 0 reads as a pass: only where the two agree
+        print(f"verdict: bop-cender and the BOP toolkit DISAGREE ({len(disagreements)}):")
+        print("\n".join(f"  {line}" for line in disagreements))
+        return CROSSCHECK_DISAGREES
+    print("verdict: bop-cender and the BOP toolkit agree")
     return 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -159,3 +160,88 @@ def test_a_failing_toolkit_script_is_one_error_naming_it(tmp_path) -> None:
         _run(tmp_path / "exits.py", [], quiet=True)
     with pytest.raises(ToolkitRunError, match=r"raises.py: failed: ValueError: no such scene"):
         _run(tmp_path / "raises.py", [], quiet=True)
+
+
+def _fake_toolkit(root: Path, misc: str) -> Path:
+    """A stand-in for a toolkit checkout: ``bop_toolkit_lib`` with ``misc`` as its misc.py, an errors script that
+    writes no error and a scores script that writes the recall in ``$RECALL``."""
+    lib = root / "bop_toolkit_lib"
+    (root / "scripts").mkdir(parents=True)
+    lib.mkdir()
+    (lib / "__init__.py").write_text("")
+    (lib / "misc.py").write_text(misc)
+    (lib / "inout.py").write_text("import json\ndef load_json(p, keys_to_int=False):\n    return json.load(open(p))\n")
+    (lib / "dataset_params.py").write_text(
+        "def get_split_params(*a, **k): return {}\ndef get_model_params(*a, **k): return {}\n"
+    )
+    (root / "scripts" / "eval_calc_errors.py").write_text("")
+    (root / "scripts" / "eval_calc_scores.py").write_text(
+        "import os, sys\n"
+        "a = dict(x.split('=', 1) for x in sys.argv[1:] if x.startswith('--'))\n"
+        "th = [v for k, v in a.items() if k.startswith('--correct_th')][0]\n"
+        "p = os.path.join(a['--eval_path'], a['--error_dir_paths'])\n"
+        "os.makedirs(p, exist_ok=True)\n"
+        "open(os.path.join(p, 'scores_th=' + th + '.json'), 'w').write('{\"recall\": %s}' % os.environ['RECALL'])\n"
+    )
+    return root
+
+
+_MISC = "def get_error_signature(e, n, **k): return f'error={e}_ntop={n}'\ndef get_score_signature(th, v): return 'th=' + str(th[0])\n"
+
+
+def test_a_crosscheck_that_disagrees_or_cannot_read_the_toolkit_is_never_exit_0(small_fixture, tmp_path) -> None:
+    """A fuzz found exit 0 beside an AR 6 apart and "0 pairs compared", a traceback from an incompatible toolkit,
+    and the scores and export left behind by a failed one. In a subprocess: the fake toolkit stays out of this one."""
+    import subprocess
+    import sys
+
+    csv = tmp_path / "gt_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture))
+    good, broken = _fake_toolkit(tmp_path / "tk", _MISC), _fake_toolkit(tmp_path / "old", "")
+    root = Path(__file__).resolve().parents[2]
+
+    def crosscheck(toolkit: Path, recall: str) -> tuple[int, str, str]:
+        out = tmp_path / "cc"
+        shutil.rmtree(out, ignore_errors=True)
+        argv = [sys.executable, "-m", "bop_cender.cli", "crosscheck", str(csv), "--toolkit", str(toolkit),
+                "--data-root", str(small_fixture.root), "--no-vsd", "--no-progress", "--out", str(out)]  # fmt: skip
+        env = {**os.environ, "RECALL": recall, "PYTHONPATH": str(root)}
+        done = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+        assert "Traceback" not in done.stdout + done.stderr, done.stderr[-2000:]
+        return done.returncode, done.stdout, done.stderr
+
+    code, out, _ = crosscheck(good, "0.5")
+    assert code == 1 and "verdict: bop-cender and the BOP toolkit DISAGREE" in out
+    assert "AR_MSSD differs by 0.5 (more than 1e-06)" in out and "pair(s) computed by one side only" in out
+    for toolkit, recall, message in ((good, "NaN", "recall: expected a recall in [0, 1], got nan"),
+                                     (good, "7", "recall: expected a recall in [0, 1], got 7"),
+                                     (broken, "0.5", "an incompatible version?")):  # fmt: skip
+        code, _, err = crosscheck(toolkit, recall)
+        assert code == 2 and message in err and err.count("\n") == 1, err
+        assert not (tmp_path / "cc").exists()  # nothing half-written
+
+
+def test_the_verdict_lists_every_disagreement(small_fixture, small_dataset, tmp_path) -> None:
+    from bop_cender.eval.scoring import score_results
+    from bop_toolkit_adapters.crosscheck import Crosscheck, compare_pair_errors
+    from bop_toolkit_adapters.runtime import ToolkitScores
+
+    report = score_results(gt_rows(small_fixture, {3: "t_5.5%"}), small_dataset, progress=False)
+    toolkit = ToolkitScores(errors={"mssd": {}, "mspd": {}})
+    for r in report.records:
+        for j, gt_id in enumerate(r.gt_ids.tolist()):
+            key = (r.scene_id, r.im_id, r.obj_id, r.est_id, gt_id)
+            toolkit.errors["mssd"][key] = [float(r.mssd_mm[j])]
+            toolkit.errors["mspd"][key] = [float(r.mspd_px[j])]
+    same = dict(report.scores)
+
+    def check(theirs: dict) -> list[str]:
+        return Crosscheck(report, toolkit, None, theirs, {}, compare_pair_errors(report, toolkit), []).disagreements()
+
+    assert check(same) == []
+    assert check({**same, "AR_MSSD": same["AR_MSSD"] + 1e-5}) == ["AR_MSSD differs by 1e-05 (more than 1e-06)"]
+    tied = None if same["AR_VSD"] is None else same["AR_VSD"] + 5e-4  # the renderers' ties: within tolerance
+    assert check({**same, "AR_VSD": tied}) == []
+    assert check({**same, "AR_MSPD": float("nan")})[0].startswith("AR_MSPD: bop-cender ")
+    del toolkit.errors["mspd"][next(iter(toolkit.errors["mspd"]))]
+    assert check(same) == ["MSPD: 1 (estimate, GT) pair(s) computed by one side only"]

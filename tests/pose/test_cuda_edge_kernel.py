@@ -83,7 +83,16 @@ def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     lines = [line.split(" ", 4) for line in done.stdout.splitlines() if line.startswith("ok ")]
-    assert [line[1] for line in lines] == ["full", "full", "sparse", "sparse", "layout", "threads", "threads", "threads"]
+    assert [line[1] for line in lines] == [
+        "full",
+        "full",
+        "sparse",
+        "sparse",
+        "layout",
+        "threads",
+        "threads",
+        "threads",
+    ]
     for _, name, occluded, error, costs in lines[:4]:
         assert float(error) < 1e-5, (name, occluded, error)  # float32 costs of float64 sums in another order
         costs = np.array(eval(costs))  # noqa: S307 (our own output)

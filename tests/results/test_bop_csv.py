@@ -223,8 +223,13 @@ def test_reader_accepts_crlf_trailing_blank_lines_and_no_header(tmp_path: Path) 
 
 def test_unknown_times_are_not_compared(tmp_path: Path) -> None:
     rows = read_bop_results(
-        _write(tmp_path, HEADER, GOOD, GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
-               GOOD.replace("1,0,2,", "1,0,4,").replace(",0.31", ",0.3105"))  # fmt: skip
+        _write(
+            tmp_path,
+            HEADER,
+            GOOD,
+            GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
+            GOOD.replace("1,0,2,", "1,0,4,").replace(",0.31", ",0.3105"),
+        )  # fmt: skip
     )
     assert [r.time for r in rows] == [0.31, -1.0, 0.3105]
 
