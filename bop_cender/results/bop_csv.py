@@ -184,7 +184,8 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
     row: 7 columns; ids non-negative ints; score, R, t, time finite numbers; R 9 numbers, t 3;
     R a rotation (error when max|R R^T - I| > 1e-2 or det < 0, one :class:`ResultsWarning` for
     all rows above 1e-4; never re-orthonormalised); obj_id in ``known_obj_ids`` when given; all
-    rows of one image with a known time (>= 0) within 0.001 s of the image's first such row.
+    rows of one image with times within 0.001 s of each other (unknown times, negative, included: the toolkit's
+    rule).
 
     Returns:
         The rows in file order, each with its ``line``.
@@ -325,12 +326,13 @@ def _check_arrays(
 def _check_times(
     sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.ndarray, word: str
 ) -> list[tuple[int, str]]:
-    """Per image, every known time (>= 0) within TIME_TOLERANCE_S of that image's first known time."""
+    """Per image, every time within TIME_TOLERANCE_S of that image's first time, unknown ones (negative) included:
+    the toolkit's ``check_consistent_timings`` compares them all (a -1 beside 0.5 in one image fails it)."""
     first: dict[tuple[int, int], int] = {}
     problems = []
     times = time.tolist()
     for k, (s, i, tm) in enumerate(zip(sid.tolist(), im.tolist(), times, strict=True)):
-        if not tm >= 0:  # unknown (-1), as in the toolkit; NaN is reported elsewhere
+        if tm != tm:  # NaN: reported elsewhere
             continue
         j = first.setdefault((s, i), k)
         if abs(tm - times[j]) > TIME_TOLERANCE_S:

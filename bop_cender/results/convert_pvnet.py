@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ import numpy as np
 from bop_cender.data.bop_io import load_json
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import has_bool
-from bop_cender.errors import ResultsError
+from bop_cender.errors import ResultsError, ResultsWarning
 from bop_cender.results.bop_csv import MAX_ID, TIME_TOLERANCE_S, BopEstimate, write_bop_results
 
 METRES_TO_MM = 1000.0
@@ -138,6 +139,14 @@ def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:
     files = sorted(p for p in folder.rglob("*.npy") if p.is_file())
     if not files:
         raise ResultsError("no .npy files found", file=folder)
+    others = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix != ".npy" and not p.name.startswith("."))
+    if others:  # an .npz or a .txt of poses would otherwise vanish from the results unsaid
+        warnings.warn(
+            f"{folder}: {len(others)} file(s) other than .npy not read (first: {others[0].relative_to(folder)})",
+            ResultsWarning,
+            stacklevel=2,
+        )
+    sources: dict[tuple[int, int, int], Path] = {}
     for path in files:
         rel = path.relative_to(folder)
         if len(rel.parts) == 1 and (m := _FLAT.match(path.stem)):
@@ -149,6 +158,15 @@ def read_pvnet_folder(folder: str | Path) -> list[BopEstimate]:
                 "expected {scene}_{im_id}_{obj_id}.npy or {scene}/{im_id}_{obj_id}.npy", file=path, field="file name"
             )
         scene_int = _scene(scene, path, "file name")
+        key = (scene_int, int(m["im"]), int(m["obj"]))
+        first = sources.setdefault(key, path)
+        if first is not path:  # 000001_000000_000010.npy beside 1_0_10.npy, or a flat file beside a scene folder's
+            raise ResultsError(
+                f"scene {key[0]}, image {key[1]}, object {key[2]} again (first in {first}): one file per object and"
+                " image, or its poses would be counted twice",
+                file=path,
+                field="file name",
+            )
         try:
             poses = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError) as e:  # EOFError: an empty file
@@ -167,9 +185,18 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             f"expected an object mapping image keys to estimates, got {type(content).__name__}", file=path
         )
     rows: list[BopEstimate] = []
-    first_time: dict[tuple[int, int], tuple[float, str]] = {}  # per image, its first known time and where
+    first_time: dict[tuple[int, int], tuple[float, str]] = {}  # per image, its first time (-1: unknown) and where
+    keys: dict[tuple[int, int], str] = {}
     for key, entries in content.items():
         scene_int, im_id = _image_key(key, path)
+        first = keys.setdefault((scene_int, im_id), key)
+        if first != key:  # "000001/000000" beside "test_primesense/000001/rgb/000000.png"
+            raise ResultsError(
+                f"scene {scene_int}, image {im_id} again (first as {first!r}): one key per image, or its estimates"
+                " would be counted twice",
+                file=path,
+                field=key,
+            )
         if not isinstance(entries, list):
             raise ResultsError(f"expected a list of estimates, got {type(entries).__name__}", file=path, field=key)
         for i, entry in enumerate(entries):
@@ -186,15 +213,15 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             obj_id = _int(entry["obj_id"], path, f"{where}.obj_id")
             score = _number(entry.get("score", 1.0), path, f"{where}.score")
             time_s = _number(entry.get("time", -1.0), path, f"{where}.time")
-            if time_s >= 0:  # checked here, so that the error names this file and key (the writer's: a row)
-                t0, at = first_time.setdefault((scene_int, im_id), (time_s, where))
-                if abs(time_s - t0) > TIME_TOLERANCE_S:
-                    raise ResultsError(
-                        f"time {time_s!r} s differs from {t0!r} s at {at} (the same image); one image's estimates"
-                        f" must share its time within {TIME_TOLERANCE_S} s",
-                        file=path,
-                        field=f"{where}.time",
-                    )
+            # checked here, so that the error names this file and key (the writer's: a row); unknown times (-1) too
+            t0, at = first_time.setdefault((scene_int, im_id), (time_s, where))
+            if abs(time_s - t0) > TIME_TOLERANCE_S:
+                raise ResultsError(
+                    f"time {time_s!r} s differs from {t0!r} s at {at} (the same image); one image's estimates"
+                    f" must share its time within {TIME_TOLERANCE_S} s",
+                    file=path,
+                    field=f"{where}.time",
+                )
             poses = _poses(entry["pose"], path, f"{where}.pose")
             if len(poses) != 1:
                 raise ResultsError(f"expected one 3x4 pose, got {len(poses)}", file=path, field=f"{where}.pose")

@@ -361,10 +361,12 @@ def test_the_causes_of_unmatched_estimates_are_counted_apart(small_fixture, resu
         for b in range(a + 1, len(rows))
         if (rows[a].scene_id, rows[a].im_id, rows[a].obj_id) == (rows[b].scene_id, rows[b].im_id, rows[b].obj_id)
     )
-    rows[k2] = row(rows[k2].scene_id, rows[k2].im_id, rows[k2].obj_id, 0.5, rows[k1].T_cam_model)  # a duplicate
+    rows[k2] = row(
+        rows[k2].scene_id, rows[k2].im_id, rows[k2].obj_id, 0.5, rows[k1].T_cam_model, rows[k2].time
+    )  # a duplicate
     far = rows[-1].T_cam_model.copy()
     far[:3, 3] += 5000.0
-    rows[-1] = row(rows[-1].scene_id, rows[-1].im_id, rows[-1].obj_id, 1.0, far)
+    rows[-1] = row(rows[-1].scene_id, rows[-1].im_id, rows[-1].obj_id, 1.0, far, rows[-1].time)
     csv_path = results_dir / "gt_tless-test.csv"
     write_bop_results(csv_path, rows)
     with pytest.warns(ResultsWarning, match="1 row\\(s\\) repeat an earlier row's image, object and pose"):

@@ -88,7 +88,7 @@ def test_reads_real_submission_unchanged() -> None:
 
 def test_round_trip_is_exact(tmp_path: Path) -> None:
     rows = _random_rows(60)
-    rows.append(BopEstimate(0, 0, 1, 0.1 + 0.2, np.eye(3), [-0.0, 1e-300, 5e300], -1))
+    rows.append(BopEstimate(5, 0, 1, 0.1 + 0.2, np.eye(3), [-0.0, 1e-300, 5e300], -1))
     path = tmp_path / "cendernet_tless-test.csv"
     write_bop_results(path, rows, sort=False)
     back = read_bop_results(path)
@@ -221,17 +221,23 @@ def test_reader_accepts_crlf_trailing_blank_lines_and_no_header(tmp_path: Path) 
     assert read_bop_results(_write(tmp_path, HEADER, name="empty.csv")) == []
 
 
-def test_unknown_times_are_not_compared(tmp_path: Path) -> None:
+def test_unknown_times_are_compared_as_the_toolkit_compares_them(tmp_path: Path) -> None:
+    """The toolkit's check_consistent_timings compares every time of an image, negative (unknown) ones included:
+    a -1 beside 0.31 fails it, so it fails here (it was accepted, and the two scorers parted)."""
     rows = read_bop_results(
         _write(
             tmp_path,
             HEADER,
             GOOD,
-            GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
             GOOD.replace("1,0,2,", "1,0,4,").replace(",0.31", ",0.3105"),
+            GOOD.replace("1,0,2,", "1,1,2,").replace(",0.31", ",-5"),
         )  # fmt: skip
     )
-    assert [r.time for r in rows] == [0.31, -1.0, 0.3105]
+    assert [r.time for r in rows] == [0.31, 0.3105, -5.0]  # any negative time is unknown, as in the toolkit
+    problems = _problems(_write(tmp_path, HEADER, GOOD, GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
+                                name="mixed_tless-test.csv"))  # fmt: skip
+    assert problems == ["line 3: time: -1.0 s differs from 0.31 s of the same image (scene 1, image 0) at line 2;"
+                        " one image's estimates must share its time within 0.001 s"]  # fmt: skip
 
 
 # --- reader: bad input --------------------------------------------------------------------------

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bop_cender.cli import main
-from bop_cender.errors import ResultsError
+from bop_cender.errors import ResultsError, ResultsWarning
 from bop_cender.results.bop_csv import read_bop_results
 from bop_cender.results.convert_pvnet import convert_pvnet, read_pvnet_folder, read_pvnet_json
 
@@ -157,3 +157,36 @@ def test_json_input_that_would_lose_a_value_is_refused(tmp_path: Path, text: str
     with pytest.raises(ResultsError, match=message) as info:
         read_pvnet_json(src)
     assert "pvnet.json" in info.value.format()
+
+
+def test_one_image_or_object_given_twice_is_refused(tmp_path: Path) -> None:
+    """Two names of one file (a fuzz: 000001_000000_000010.npy beside 1_0_10.npy, a flat file beside a scene
+    folder's) or two keys of one image in JSON counted its poses twice, without a word."""
+    src = tmp_path / "in"
+    src.mkdir()
+    np.save(src / "000001_000000_000010.npy", pose([0.0, 0.0, 0.7]))
+    np.save(src / "1_0_10.npy", pose([0.0, 0.0, 0.7]))
+    with pytest.raises(ResultsError, match=r"scene 1, image 0, object 10 again \(first in .*000001_000000_000010.npy"):
+        read_pvnet_folder(src)
+    (src / "1_0_10.npy").unlink()
+    (src / "poses.npz").write_bytes(b"")
+    with pytest.warns(ResultsWarning, match=r"1 file\(s\) other than .npy not read \(first: poses.npz\)"):
+        assert len(read_pvnet_folder(src)) == 1
+    (src / "000001").mkdir()
+    np.save(src / "000001" / "000000_000010.npy", pose([0.0, 0.0, 0.7]))
+    with pytest.raises(ResultsError, match="object 10 again"):
+        read_pvnet_folder(src)
+    doc = tmp_path / "pvnet.json"
+    entry = [{"obj_id": 5, "pose": pose([0.0, 0.0, 0.7]).tolist()}]
+    doc.write_text(json.dumps({"000001/000000": entry, "test_primesense/000001/rgb/000000.png": entry}))
+    with pytest.raises(ResultsError, match=r"scene 1, image 0 again \(first as '000001/000000'\)"):
+        read_pvnet_json(doc)
+
+
+def test_an_unknown_time_beside_a_known_one_in_an_image_is_refused(tmp_path: Path) -> None:
+    """The toolkit compares every time of an image, -1 included: a converted file would fail it."""
+    doc = tmp_path / "pvnet.json"
+    doc.write_text(json.dumps({"000001/000000": [{"obj_id": 5, "pose": pose([0.0, 0.0, 0.7]).tolist(), "time": 0.5},
+                                                 {"obj_id": 6, "pose": pose([0.0, 0.1, 0.7]).tolist()}]}))  # fmt: skip
+    with pytest.raises(ResultsError, match=r"time -1.0 s differs from 0.5 s"):
+        read_pvnet_json(doc)
