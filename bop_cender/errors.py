@@ -53,11 +53,17 @@ class ResultsError(BopCenderError):
         self.problems = list(problems or [])
         super().__init__(message, file=file, field=field)
 
+    #: Problems shown by :meth:`format` (a file with a wrong column order has one per line: the first few tell).
+    SHOWN_PROBLEMS = 20
+
     def format(self) -> str:
         head = super().format()
         if not self.problems:
             return head
-        return head + "\n" + "\n".join(f"  {p}" for p in self.problems)
+        shown = self.problems[: self.SHOWN_PROBLEMS]
+        more = len(self.problems) - len(shown)
+        tail = [f"  ... and {more} more of the {len(self.problems)}"] if more > 0 else []
+        return "\n".join([head, *(f"  {p}" for p in shown), *tail])
 
 
 class ConfigError(BopCenderError):

@@ -201,6 +201,12 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
         end -= 1
     problems: list[tuple[int, str]] = []
     parsed: list[tuple] = []
+    if end and HEADER not in lines[0] and _looks_like_a_header(lines[0]):  # one line, not one error per row
+        raise ResultsError(
+            f"expected the header '{HEADER}' (or none), got {lines[0].strip()!r}: the columns are read in that order",
+            file=path,
+            field="line 1",
+        )
     for i in range(1 if lines and HEADER in lines[0] else 0, end):
         row = _parse_line(lines[i], i + 1, problems)
         if row is not None:
@@ -345,6 +351,21 @@ def _check_times(
 
 def _fmt(problems: list[tuple[int, str]], word: str) -> list[str]:
     return [f"{word} {n}: {msg}" for n, msg in problems]
+
+
+def _looks_like_a_header(line: str) -> bool:
+    """Whether a first line that is not the header is a header of other columns, case or spacing (``scene_id, im_id,
+    ...``, ``SCENE_ID,...``, columns in another order): no field of it is a number."""
+    fields = [f.strip() for f in line.replace(";", ",").split(",") if f.strip()]
+    return bool(fields) and not any(_is_number(f.split()[0]) for f in fields)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _warn_rotations(warn: tuple[int, int, float] | None, path: Path, word: str) -> None:

@@ -415,3 +415,27 @@ def test_sidecar_relative_data_root_is_the_sidecars_folders_and_another_results_
     path.write_text(json.dumps({**data, "results": "other_dimo-sim.csv"}))
     with pytest.warns(ResultsWarning, match=r"results: the sidecar was written for other_dimo-sim.csv, not cendernet"):
         assert read_run_sidecar(csv)["dataset"] == "dimo"
+
+
+@pytest.mark.parametrize(
+    "header",
+    ["time,t,R,score,obj_id,im_id,scene_id", "scene_id, im_id, obj_id, score, R, t, time",
+     "SCENE_ID,IM_ID,OBJ_ID,SCORE,R,T,TIME", "scene_id;im_id;obj_id;score;R;t;time"],
+)  # fmt: skip
+def test_a_header_of_other_columns_order_case_or_separator_is_one_error(tmp_path: Path, header: str) -> None:
+    """It was read as a data row, then every row failed: a flood of errors that said nothing of the header."""
+    path = _write(tmp_path, header, *[GOOD] * 30)
+    with pytest.raises(ResultsError) as info:
+        read_bop_results(path)
+    assert info.value.format() == (
+        f"{path}: line 1: expected the header '{HEADER}' (or none), got {header!r}: the columns are read in that order"
+    )
+
+
+def test_a_long_list_of_bad_lines_is_shown_in_part(tmp_path: Path) -> None:
+    path = _write(tmp_path, HEADER, *[GOOD + ",extra"] * 30)
+    with pytest.raises(ResultsError) as info:
+        read_bop_results(path)
+    lines = info.value.format().splitlines()
+    assert len(info.value.problems) == 30 and len(lines) == 1 + 20 + 1
+    assert lines[-1] == "  ... and 10 more of the 30"
