@@ -97,6 +97,9 @@ def _ints(text: str, option: str) -> tuple[int, ...]:
         raise ConfigError(f"expected comma-separated integers, got {text!r}", field=option) from None
     if not values:
         raise ConfigError("expected at least one value", field=option)
+    repeated = sorted({v for v in values if values.count(v) > 1})
+    if repeated:  # each value is a folder or a draw: twice would be written twice, or counted twice
+        raise ConfigError(f"{', '.join(map(str, repeated))} given twice in {text!r}: each value once", field=option)
     return values
 
 

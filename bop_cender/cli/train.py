@@ -90,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--class-loss-weight",
         type=positive_number("--class-loss-weight"),
-        default=0.1,
+        default=None,
         metavar="W",
         help="factored center heads only: weight of the per-pixel object-class cross-entropy (default 0.1)",
     )
@@ -133,11 +133,19 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     from bop_cender.data.bop_io import check_output_dir
     from bop_cender.datasets import resolve_data_root
+    from bop_cender.errors import ConfigError
     from bop_cender.net.train import TrainConfig, train
     from bop_cender.synth.demo import cache_dir
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
+    factored = args.factored_centers or args.variant == "tless-factored"
+    if args.class_loss_weight is not None and not factored:  # it would be recorded in config.json and not used
+        raise ConfigError(
+            "weights the class loss of a factored center head; this network has none (--variant tless-factored, or"
+            " --factored-centers)",
+            field="--class-loss-weight",
+        )
     check_output_dir(args.out)
     root = resolve_data_root(args.dataset, args.data_root, announce)
     config = TrainConfig(
@@ -147,7 +155,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
-        center_loss_weight=args.center_loss_weight, class_loss_weight=args.class_loss_weight,
+        center_loss_weight=args.center_loss_weight,
+        class_loss_weight=0.1 if args.class_loss_weight is None else args.class_loss_weight,
         factored_centers=args.factored_centers,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
     )  # fmt: skip
@@ -159,6 +168,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     done = f"{summary.epochs_done} epoch{'s' if summary.epochs_done != 1 else ''}" + (
         f" (resumed after {summary.resumed_from})" if summary.resumed_from else ""
     )
-    print(f"trained {done} in {summary.wall_s:.0f} s" + (f"; last loss {last.train_loss:.4f}" if last else ""))
+    if summary.resumed_from and summary.resumed_from >= summary.epochs_done:  # a finished run's command again
+        print(f"nothing to train: {summary.run_dir} holds its {summary.epochs_done} epochs already (--epochs)")
+    else:
+        print(f"trained {done} in {summary.wall_s:.0f} s" + (f"; last loss {last.train_loss:.4f}" if last else ""))
     print(f"wrote {summary.run_dir / 'weights.pt'} (use: --heatmaps net --weights {summary.run_dir / 'weights.pt'})")
     return 0

@@ -102,9 +102,9 @@ def choose_data(
         said = (sidecar or {}).get("dataset")
         if said in (None, parsed.dataset):  # the name (and the sidecar) say otherwise: a typo scores other data
             raise ConfigError(
-                f"the file name{' and its run sidecar' if said else ''} say dataset {parsed.dataset!r}, not"
-                f" {dataset!r}: results of one dataset are not scored on another (rename the file if it is"
-                f" {dataset!r}'s)",
+                f"the file name{' and its run sidecar say' if said else ' says'} dataset {parsed.dataset!r}, not"
+                f" {dataset!r}: results of one dataset are not scored on another (rename the file if its results"
+                f" are of {dataset!r})",
                 field="--dataset",
             )
     if split is not None and parsed is not None and not names_split(parsed, split):
@@ -114,7 +114,7 @@ def choose_data(
         ):  # the name (and the sidecar) say otherwise: a typo scores other data
             raise ConfigError(
                 f"the file name{' and its run sidecar say' if said else ' says'} split {shown_split(parsed)!r}, not"
-                f" {split!r}: results of one split are not scored on another (rename the file if it is {split!r}'s)",
+                f" {split!r}: results of one split are not scored on another (rename the file if its results are of {split!r})",
                 field="--split",
             )
     if sidecar is not None and parsed is not None and dataset is None and split is None:

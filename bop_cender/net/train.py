@@ -284,6 +284,12 @@ def train(
     start_epoch = 0
     if resume and checkpoint_path.exists():
         start_epoch, history = _restore(checkpoint_path, config, model, optimiser, device)
+        if start_epoch > config.epochs:  # its weights are of a later epoch than asked: nothing would match
+            raise ConfigError(
+                f"{run_dir} holds {start_epoch} epochs already, more than --epochs {config.epochs}: give --epochs"
+                f" {start_epoch} or more to go on, or another --out",
+                field="--epochs",
+            )
         say(f"resuming {run_dir} after epoch {start_epoch}")
     elif resume:  # a resumable job's first start (scripts rerun the same command): go on, but say so
         say(f"--resume: {run_dir} holds no checkpoint yet; starting a new run")

@@ -140,7 +140,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
         # torch's own text (a paragraph on weights_only, "[Errno 22]") helps nobody: say what the file is
         raise ConfigError(
-            f"not a readable weights file: {_load_failure(exc)} ({type(exc).__name__})", file=path
+            f"not a readable weights file: {_load_failure(exc, path)} ({type(exc).__name__})", file=path
         ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ConfigError(f"not a bop-cender network weights file (no format {FORMAT!r})", file=path)
@@ -251,10 +251,17 @@ def _check_finite(path: Path, state: Mapping[str, torch.Tensor]) -> None:
         )
 
 
-def _load_failure(exc: BaseException) -> str:
+def _load_failure(exc: BaseException, path: Path) -> str:
     """What a failed ``torch.load(weights_only=True)`` most likely means, in a few words."""
     if isinstance(exc, PermissionError):
         return "permission denied"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError:
+        head = b""
+    if head and not head.startswith((b"PK\x03\x04", b"\x80")):  # neither torch.save's zip nor a pickle
+        return "not a torch file (neither torch.save's zip archive nor a pickle)"
     if type(exc).__name__ == "UnpicklingError" and "weights_only" in str(exc).lower().replace(" ", "_"):
         return "it holds objects other than tensors and plain values (not written by bop-cender)"
     return "truncated, or not written by torch.save"

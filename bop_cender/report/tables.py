@@ -76,7 +76,7 @@ class Comparison:
             cells = [r.method, r.source] + [
                 "–" if r.scores.get(k) is None else f"{r.scores[k]:.{digits}f}" for k in SCORE_KEYS
             ]
-            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+            lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
         return "\n".join(lines) + "\n"
 
     def csv_text(self) -> str:
@@ -89,6 +89,11 @@ class Comparison:
                 + ["" if r.scores.get(k) is None else repr(r.scores[k]) for k in SCORE_KEYS]
             )
         return buf.getvalue()
+
+
+def _cell(text: str) -> str:
+    """A markdown table cell: one line (a name with a line break would end the row), pipes shown as slashes."""
+    return " ".join(text.split()).replace("|", "/")
 
 
 def compare(

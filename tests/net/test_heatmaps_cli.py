@@ -43,6 +43,12 @@ def test_oracle_heatmaps_score_one_and_write_their_pngs(root, tmp_path, capsys) 
     assert report["views"] == len(method_data.VIEWPOINTS) and report["metrics"]["center_f1"] == 1.0
     pngs = sorted((out / "png").glob("*.png"))
     assert len(pngs) == len(method_data.VIEWPOINTS) and pngs[0].read_bytes()[:4] == b"\x89PNG"
+    stale = out / "png" / "000009_000000.png"  # an earlier run's view that this one does not cover
+    stale.write_bytes(pngs[0].read_bytes())
+    code = main(["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", "oracle",
+                 "--png", "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0 and "removed 1 PNG(s) of an earlier run" in capsys.readouterr().out
+    assert sorted((out / "png").glob("*.png")) == pngs
 
 
 def test_network_heatmaps_report_their_time_and_figures(root, weights, tmp_path, capsys) -> None:
@@ -67,6 +73,7 @@ def test_network_heatmaps_report_their_time_and_figures(root, weights, tmp_path,
         (["train", "--epochs", "0", "--out", "run"], "--epochs"),
         (["train", "--crop", "12by4", "--out", "run"], "--crop"),
         (["train", "--out", "afile"], "not a directory"),
+        (["train", "--class-loss-weight", "0.5", "--out", "run"], "--class-loss-weight: weights the class loss of a"),
     ],
 )
 def test_bad_options_are_one_line(root, tmp_path, capsys, monkeypatch, argv, field) -> None:
@@ -83,6 +90,12 @@ def test_train_from_the_command_line_writes_a_run(root, tmp_path, capsys) -> Non
                  "--width", "0.25", "--batch-size", "4", "--out", str(tmp_path / "run"), "--no-progress"])  # fmt: skip
     assert code == 0 and (tmp_path / "run" / "weights.pt").is_file()
     assert "trained 1 epoch" in capsys.readouterr().out
+    again = ["train", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--width", "0.25",
+             "--batch-size", "4", "--out", str(tmp_path / "run"), "--no-progress", "--resume"]  # fmt: skip
+    weights = (tmp_path / "run" / "weights.pt").read_bytes()
+    assert main([*again, "--epochs", "1"]) == 0  # a finished run's command again: said, nothing changed
+    assert f"nothing to train: {tmp_path / 'run'} holds its 1 epochs already" in capsys.readouterr().out
+    assert (tmp_path / "run" / "weights.pt").read_bytes() == weights
 
 
 def test_run_with_network_weights_estimates_every_scene(root, weights, tmp_path, capsys, monkeypatch) -> None:

@@ -354,3 +354,13 @@ def test_the_class_loss_weight_binds_a_resume_of_a_factored_run_only(tiny_root) 
     factored = _config(tiny_root, dataset="tless", variant="tless-factored")
     assert not factored.same_run_as(replace(factored, class_loss_weight=0.5))
     assert factored.same_run_as(replace(factored, epochs=9))
+
+
+def test_resuming_with_fewer_epochs_than_done_is_refused(tiny_root, tmp_path) -> None:
+    """Its weights are of a later epoch than asked: the run said "trained 1 epoch (resumed after 2)" and exit 0."""
+    config = _config(tiny_root, epochs=2, batch_size=4, augment=False, limit_scenes=1, val_split=None)
+    train(config, tmp_path / "run", cache_dir=tmp_path / "cache", progress=False)
+    before = (tmp_path / "run" / WEIGHTS).read_bytes()
+    with pytest.raises(ConfigError, match=r"--epochs: .* holds 2 epochs already, more than --epochs 1"):
+        train(replace(config, epochs=1), tmp_path / "run", resume=True, cache_dir=tmp_path / "cache", progress=False)
+    assert (tmp_path / "run" / WEIGHTS).read_bytes() == before

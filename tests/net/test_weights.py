@@ -58,7 +58,7 @@ def test_bad_weights_files_are_one_clear_error(tmp_path) -> None:
         (tmp_path / "missing.pt", "not found"),
         (tmp_path, "is a directory"),
         (truncated, "not a readable weights file"),
-        (text, "not a readable weights file"),
+        (text, r"not a readable weights file: not a torch file \(neither torch.save's zip archive nor a pickle\)"),
         (foreign, "not a bop-cender network weights file"),
         (other_arch, "do not fit their network spec"),
     ]

@@ -231,3 +231,11 @@ def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir
     out = results_dir / "tables"
     assert main(["compare", str(csv_path), "--data-root", str(small_fixture.root), "--out", str(out)]) == 2
     assert f"0 of {len(ignored)} rows match a target" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_method_name_with_a_line_break_or_a_pipe_keeps_the_markdown_table_whole() -> None:
+    from bop_cender.report.tables import Comparison, MethodRow
+
+    scores = dict.fromkeys(SCORE_KEYS, 0.5)
+    table = Comparison([MethodRow("a|b\n# hi", "scores x.json", scores, "tless", "test")], "tless", "test").markdown()
+    assert table.splitlines()[-1].startswith("| a/b # hi | scores x.json | 0.500")

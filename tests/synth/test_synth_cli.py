@@ -83,6 +83,8 @@ def test_negative_seeds_are_refused(tmp_path: Path, capsys, flag: str) -> None:
         (["--layout", "tless", "--scenes", "1", "--variants", "0"], "--variants: is a dimo option; --layout tless"),
         (["--layout", "tless", "--scenes", "1", "--carriers", "1"], "--carriers: is a dimo option; --layout tless"),
         (["--layout", "tless", "--scenes", "1", "--compositions", "1"], "--compositions: is a dimo option"),
+        (["--layout", "dimo", "--scenes", "1", "--variants", "0,0"], "--variants: 0 given twice in '0,0': each value"),
+        (["--layout", "dimo", "--scenes", "1", "--carriers", "2,1,2"], "--carriers: 2 given twice in '2,1,2'"),
     ],
 )
 def test_numbers_that_make_no_dataset_are_refused(tmp_path: Path, capsys, argv: list[str], message: str) -> None:
