@@ -26,6 +26,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bop_cender.data.bop_io import check_output_dir, require_file
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.scene_ids import scene_folder_to_int
@@ -234,6 +236,7 @@ def score_file(
             model_type=model_type,
         )  # fmt: skip
         ds = restrict_scenes(open_data(choice.request), choice.scene_keys, csv_path)
+        check_millimetres(rows, ds, csv_path)
         opened = time.perf_counter()
         report = score_results(rows, ds, vsd_delta=vsd_delta, progress=progress, source=csv_path, renderer=renderer)
     report.timings.update(read_results=read - clock, open_dataset=opened - read)
@@ -263,6 +266,35 @@ def write_scored(scored: ScoredFile) -> None:
 #: Below this fraction of rows naming a target, scoring warns (the rest are ignored): a file made on other
 #: data, or scored on the wrong split, would otherwise give a low score without a word.
 MIN_MATCHING_FRACTION = 0.5
+
+
+#: Below this median distance from the camera, in model diameters, the objects would be inside the camera: t in
+#: metres (a part 700 mm away written as 0.7 is 0.005 diameters of a 140 mm part).
+MIN_DISTANCE_IN_DIAMETERS = 0.5
+
+
+def check_millimetres(rows: list, ds: Dataset, csv_path: Path) -> None:
+    """Refuse translations that cannot be in millimetres (BOP's unit): written in metres, every estimate is
+    "farther than the loosest threshold" and the file scores 0 with no other sign. The median over the rows of
+    known objects is judged, so that a few wild estimates do not refuse a file.
+
+    Raises:
+        ResultsError: the objects would lie a median of under :data:`MIN_DISTANCE_IN_DIAMETERS` diameters from
+            the camera.
+    """
+    ratios = [float(np.linalg.norm(r.t)) / ds.models[r.obj_id].diameter for r in rows if r.obj_id in ds.models]
+    if not ratios:
+        return
+    median = float(np.median(ratios))
+    if median < MIN_DISTANCE_IN_DIAMETERS:
+        distance = float(np.median([np.linalg.norm(r.t) for r in rows if r.obj_id in ds.models]))
+        raise ResultsError(
+            f"implausible translations: the objects would lie a median {median:.3g} model diameters ({distance:.3g}"
+            " mm) from the camera, inside it; BOP results give t in millimetres: were they in metres? multiply them"
+            " by 1000",
+            file=csv_path,
+            field="t",
+        )
 
 
 def check_matching(report: ScoreReport, csv_path: Path, choice: DataChoice) -> None:

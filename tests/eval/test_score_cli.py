@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -427,3 +428,14 @@ def test_missed_instances_alone_are_said_without_an_empty_list(small_fixture, re
     why = [line for line in capsys.readouterr().out.splitlines() if line.startswith("why not 1")]
     assert len(why) == 1 and why[0].endswith("matches an instance (the missed ones have no estimate)"), why
     assert "1 of" in why[0]
+
+
+def test_translations_in_metres_are_refused_not_scored_zero(small_fixture, results_dir, capsys) -> None:
+    """Every estimate "farther than the loosest threshold", AR 0.000 and exit 0 (a fuzz found it): refused."""
+    csv_path = results_dir / "metres_tless-test.csv"
+    rows = gt_rows(small_fixture)
+    write_bop_results(csv_path, [replace(r, t=r.t / 1000.0) for r in rows])
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "t: implausible translations: the objects would lie a median" in err and "were they in metres?" in err
+    assert not (results_dir / "scores_metres_tless-test.json").exists()
