@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import shutil
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,13 +113,15 @@ class Crosscheck:
         """Why the two evaluations do not agree, one line each (empty: they agree): a score beyond
         :data:`SCORE_TOLERANCE`, or given by one side only or not a number; MSSD or MSPD pairs computed by one side
         only, none compared, or differing beyond :data:`LIST_TOLERANCE`. VSD pairs are listed, not judged (the
-        renderers' ties), but AR_VSD is."""
+        renderers' ties), but AR_VSD is, where the toolkit computed it (``--no-vsd``, or no renderer: AR and AR_VSD
+        are left out, as the notes say)."""
         out = []
+        vsd_skipped = "vsd" in self.toolkit.skipped  # on request, or no renderer: said in the notes, not judged
         for key in SCORE_KEYS:
             ours, theirs = self.ours.scores.get(key), self.toolkit_scores.get(key)
-            if ours is None and theirs is None:
+            if (ours is None and theirs is None) or (vsd_skipped and key in ("AR", "AR_VSD") and theirs is None):
                 continue
-            if ours is None or theirs is None or not math.isfinite(theirs):
+            if ours is None or theirs is None or not math.isfinite(theirs) or not math.isfinite(ours):
                 out.append(f"{key}: bop-cender {_f(ours, 6)}, the toolkit {_f(theirs, 6)}")
             elif abs(ours - theirs) > SCORE_TOLERANCE[key]:
                 out.append(f"{key} differs by {abs(ours - theirs):.3g} (more than {SCORE_TOLERANCE[key]:g})")
@@ -182,9 +185,10 @@ def crosscheck(
     except ToolkitRunError:
         raise
     except Exception as error:  # its library or its output files are not what this adapter reads
+        frame = traceback.extract_tb(error.__traceback__)[-1]  # where: the toolkit's code, or this adapter's
         raise ToolkitRunError(
-            f"the toolkit's library or output is not what bop-cender reads ({type(error).__name__}: {error}):"
-            " an incompatible version?",
+            f"the toolkit's library or output is not what bop-cender reads ({type(error).__name__}: {error}, at"
+            f" {Path(frame.filename).name}:{frame.lineno}): an incompatible version?",
             file=toolkit_dir if toolkit_dir is not None else "bop_toolkit_lib",
         ) from None
     toolkit_seconds = time.perf_counter() - clock
@@ -318,7 +322,8 @@ def crosscheck_file(
 
     The toolkit is imported first, so that a missing toolkit costs nothing.
 
-    Nothing is left in ``out_dir`` where it fails (the folder itself is removed where it was new).
+    Nothing half-written is left where it fails: a new ``out_dir`` is removed, in an existing one the toolkit's
+    input (the scores written before the failure are complete and stay).
 
     Raises:
         ToolkitUnavailable: ``bop_toolkit_lib`` (or its scripts) cannot be imported.
@@ -329,13 +334,11 @@ def crosscheck_file(
     import_toolkit(toolkit_dir)
     out_dir = Path(out_dir)
     existed = out_dir.exists()
-    written: list[Path] = []
     try:
         scored = score_file(
             results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
             model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
         )  # fmt: skip
-        written += [scored.scores_path, scored.errors_path, out_dir / "toolkit_input"]
         return crosscheck(
             results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet,
             progress,
@@ -343,6 +346,6 @@ def crosscheck_file(
     except BaseException:  # a cross-check that failed leaves nothing half-written
         if not existed:
             shutil.rmtree(out_dir, ignore_errors=True)
-        for path in written:
-            shutil.rmtree(path, ignore_errors=True) if path.is_dir() else path.unlink(missing_ok=True)
+        else:  # the scores written are complete (and replaced an earlier run's): only the export goes
+            shutil.rmtree(out_dir / "toolkit_input", ignore_errors=True)
         raise

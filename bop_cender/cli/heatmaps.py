@@ -103,8 +103,14 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(json_path, json.dumps(report.as_dict(), indent=2) + "\n")
-    stale = sorted(p for p in earlier if p.suffix == ".png" and p not in set(report.pngs))
-    for path in stale:  # an earlier run's views that this report does not cover: they would read as this run's
+    split_keys = {key.replace("/", "_") for key in dataset.scene_keys}  # the PNG names of this split's views
+    stale = sorted(
+        p
+        for p in earlier
+        if p.suffix == ".png" and p not in set(report.pngs) and p.stem.rpartition("_")[0] in split_keys
+    )
+    for path in stale:  # an earlier run's views of this split that this report does not cover: they would read as
+        # this run's (another split's or dataset's PNGs in the folder stay: their reports stay too)
         path.unlink(missing_ok=True)
     print(format_report(report))
     print(f"wrote {json_path}" + (f" and {len(report.pngs)} PNGs under {out / 'png'}" if report.pngs else ""))

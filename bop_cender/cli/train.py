@@ -139,7 +139,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
-    factored = args.factored_centers or args.variant == "tless-factored"
+    from bop_cender.net.unet import UNetSpec
+
+    variant = args.variant or f"{kind}-lean"
+    factored = args.factored_centers or UNetSpec.named(variant, center_channels=2).factored_centers
     if args.class_loss_weight is not None and not factored:  # it would be recorded in config.json and not used
         raise ConfigError(
             "weights the class loss of a factored center head; this network has none (--variant tless-factored, or"

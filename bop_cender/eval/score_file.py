@@ -271,23 +271,26 @@ MIN_MATCHING_FRACTION = 0.5
 #: Below this median distance from the camera, in model diameters, the objects would be inside the camera: t in
 #: metres (a part 700 mm away written as 0.7 is 0.005 diameters of a 140 mm part).
 MIN_DISTANCE_IN_DIAMETERS = 0.5
+#: ... and the median distance under this many millimetres (a figure that reads as metres: 0.5-2 for a bin camera).
+MAX_METRES_LIKE_MM = 10.0
 
 
 def check_millimetres(rows: list, ds: Dataset, csv_path: Path) -> None:
     """Refuse translations that cannot be in millimetres (BOP's unit): written in metres, every estimate is
     "farther than the loosest threshold" and the file scores 0 with no other sign. The median over the rows of
-    known objects is judged, so that a few wild estimates do not refuse a file.
+    known objects is judged (rows with t = 0, a method's placeholder, left out), so that a few wild estimates do
+    not refuse a file; it must be under half a diameter and under :data:`MAX_METRES_LIKE_MM`.
 
     Raises:
         ResultsError: the objects would lie a median of under :data:`MIN_DISTANCE_IN_DIAMETERS` diameters from
             the camera.
     """
-    ratios = [float(np.linalg.norm(r.t)) / ds.models[r.obj_id].diameter for r in rows if r.obj_id in ds.models]
-    if not ratios:
+    placed = [r for r in rows if r.obj_id in ds.models and float(np.linalg.norm(r.t)) > 0]  # t = 0: a placeholder
+    if not placed:
         return
-    median = float(np.median(ratios))
-    if median < MIN_DISTANCE_IN_DIAMETERS:
-        distance = float(np.median([np.linalg.norm(r.t) for r in rows if r.obj_id in ds.models]))
+    median = float(np.median([float(np.linalg.norm(r.t)) / ds.models[r.obj_id].diameter for r in placed]))
+    distance = float(np.median([np.linalg.norm(r.t) for r in placed]))
+    if median < MIN_DISTANCE_IN_DIAMETERS and distance < MAX_METRES_LIKE_MM:
         raise ResultsError(
             f"implausible translations: the objects would lie a median {median:.3g} model diameters ({distance:.3g}"
             " mm) from the camera, inside it; BOP results give t in millimetres: were they in metres? multiply them"

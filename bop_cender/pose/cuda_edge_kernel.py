@@ -13,12 +13,12 @@ a GPU NVVM contracts multiply-adds: the costs agree with the CPU's to float32 ro
 CUDA simulator (what the tests run without a GPU) the device functions are the plain Python ones.
 
 numba's CUDA target is optional (:mod:`bop_cender.render.cuda_loops`): where it is missing or the kernel fails to
-compile or launch, :func:`~bop_cender.pose.edge_cost.edge_costs` warns once and runs the ``dense`` torch layout.
+compile or to launch, :func:`~bop_cender.pose.edge_cost.edge_costs` warns once and runs the ``dense`` torch layout
+(an error the device reports later, asynchronously, surfaces in torch's next call instead).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import math
 import warnings
@@ -153,17 +153,16 @@ def cuda_canvas_costs(
     tensors = [T, view, Ks, dist, occ, model.planes, model.crease, first, count, proj.seg_from, proj.seg_to,
                proj.frac_a, proj.frac_b, proj.ends]  # fmt: skip
     tensors = [x.contiguous() for x in tensors]
+    kernel = _kernel()
     if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
         arrays = [x.detach().numpy() for x in (*tensors, out)]
-        stream, context = None, contextlib.nullcontext()
-    else:
-        from numba import cuda
+        kernel[C, threads](*arrays[:-1], float(near), int(samples), float(coincidence_mm), arrays[-1])
+        return out.float()
+    from numba import cuda
 
+    with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
+        # the arrays and the stream inside the device's context: on cuda:1 they would otherwise bind device 0's
         arrays = [cuda.as_cuda_array(x.detach()) for x in (*tensors, out)]
         stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-        context = cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]
-    kernel = _kernel()
-    with context:
-        launch = kernel[C, threads] if stream is None else kernel[C, threads, stream]
-        launch(*arrays[:-1], float(near), int(samples), float(coincidence_mm), arrays[-1])
+        kernel[C, threads, stream](*arrays[:-1], float(near), int(samples), float(coincidence_mm), arrays[-1])
     return out.float()

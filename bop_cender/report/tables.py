@@ -152,14 +152,16 @@ def compare(
             meta = jsons[path].get("metadata") or {}
             planned[path] = (meta.get("dataset"), meta.get("split"))
     _one_dataset_and_split(planned)  # before anything is scored
-    _check_outputs(paths, [out for path in paths if path.suffix == ".csv" for out in score_file_outputs(path, out_dir)])
+    score_dirs = _score_dirs(paths, out_dir)
+    _check_outputs(paths, [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)])
     rows: list[MethodRow] = []
     scored_files: list[ScoredFile] = []
     for path in paths:
         if path.suffix == ".csv":
             scored = score_file(
                 path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
-                model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
+                model_type=model_type, vsd_delta=vsd_delta, out_dir=score_dirs[path], progress=progress,
+                open_data=open_data,
                 write=False,
             )  # fmt: skip
             scored_files.append(scored)
@@ -210,10 +212,18 @@ def compare(
     return comparison
 
 
+def _score_dirs(paths: list[Path], out_dir: Path) -> dict[Path, Path]:
+    """Where each CSV input's ``scores_<stem>.json`` and ``errors_<stem>.csv`` go: ``out_dir``, or, for CSVs of one
+    file name from different folders (their rows named apart by path), ``out_dir/input<k>/`` (k: the input's
+    position, from 1), so that neither file is written over the other."""
+    csvs = [p for p in paths if p.suffix == ".csv"]
+    stems = Counter(p.name.split(".")[0] for p in csvs)
+    return {p: out_dir / f"input{paths.index(p) + 1}" if stems[p.name.split(".")[0]] > 1 else out_dir for p in csvs}
+
+
 def _check_outputs(inputs: list[Path], outputs: list[Path]) -> None:
     """Refuse outputs that would overwrite an input (``scores_X.json`` given as an input beside ``X.csv``, scored
-    into the same folder) or each other (two inputs of one file name from different folders): one file would be
-    lost without a word."""
+    into the same folder) or each other: one file would be lost without a word."""
     given = {p.resolve(): p for p in inputs}
     seen: dict[Path, Path] = {}
     for out in outputs:

@@ -217,8 +217,8 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
             t0, at = first_time.setdefault((scene_int, im_id), (time_s, where))
             if abs(time_s - t0) > TIME_TOLERANCE_S:
                 raise ResultsError(
-                    f"time {time_s!r} s differs from {t0!r} s at {at} (the same image); one image's estimates"
-                    f" must share its time within {TIME_TOLERANCE_S} s",
+                    f"time {_time_said(time_s)} differs from {_time_said(t0)} at {at} (the same image); one image's estimates"
+                    f" must share its time within {TIME_TOLERANCE_S} s (the toolkit's rule, unknown times included)",
                     file=path,
                     field=f"{where}.time",
                 )
@@ -227,6 +227,11 @@ def read_pvnet_json(path: str | Path) -> list[BopEstimate]:
                 raise ResultsError(f"expected one 3x4 pose, got {len(poses)}", file=path, field=f"{where}.pose")
             rows.append(_row(scene_int, im_id, obj_id, score, poses[0], time_s, path, where))
     return rows
+
+
+def _time_said(t: float) -> str:
+    """A time as a message shows it: ``0.5 s``, or ``-1.0 (unknown: ...)`` (an entry without one reads as -1)."""
+    return f"{t!r} s" if t >= 0 else f"{t!r} (unknown: no time, or a negative one)"
 
 
 def _image_key(key: str, path: Path) -> tuple[int, int]:

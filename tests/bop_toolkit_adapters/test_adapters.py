@@ -10,6 +10,7 @@ import importlib.util
 import json
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -210,6 +211,8 @@ def test_a_crosscheck_that_disagrees_or_cannot_read_the_toolkit_is_never_exit_0(
         assert "Traceback" not in done.stdout + done.stderr, done.stderr[-2000:]
         return done.returncode, done.stdout, done.stderr
 
+    code, out, _ = crosscheck(good, "1.0")  # every recall 1, as ours: but no pair (the stand-in writes no error)
+    assert code == 1 and "AR" not in out.split("verdict")[1] and "computed by one side only" in out
     code, out, _ = crosscheck(good, "0.5")
     assert code == 1 and "verdict: bop-cender and the BOP toolkit DISAGREE" in out
     assert "AR_MSSD differs by 0.5 (more than 1e-06)" in out and "pair(s) computed by one side only" in out
@@ -243,5 +246,11 @@ def test_the_verdict_lists_every_disagreement(small_fixture, small_dataset, tmp_
     tied = None if same["AR_VSD"] is None else same["AR_VSD"] + 5e-4  # the renderers' ties: within tolerance
     assert check({**same, "AR_VSD": tied}) == []
     assert check({**same, "AR_MSPD": float("nan")})[0].startswith("AR_MSPD: bop-cender ")
+    assert check({**same, "AR": None, "AR_VSD": None})[0].startswith("AR: bop-cender ")  # VSD not skipped: missing
+    toolkit.skipped["vsd"] = "skipped on request"  # --no-vsd, or no renderer: AR and AR_VSD are not judged
+    assert check({**same, "AR": None, "AR_VSD": None}) == []
+    ours_nan = Crosscheck(replace(report, scores={**same, "AR_MSSD": float("nan")}), toolkit, None, same, {},
+                          compare_pair_errors(report, toolkit), [])  # fmt: skip
+    assert ours_nan.disagreements()[0].startswith("AR_MSSD: bop-cender n/a")
     del toolkit.errors["mspd"][next(iter(toolkit.errors["mspd"]))]
     assert check(same) == ["MSPD: 1 (estimate, GT) pair(s) computed by one side only"]

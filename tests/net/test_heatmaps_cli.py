@@ -43,12 +43,14 @@ def test_oracle_heatmaps_score_one_and_write_their_pngs(root, tmp_path, capsys) 
     assert report["views"] == len(method_data.VIEWPOINTS) and report["metrics"]["center_f1"] == 1.0
     pngs = sorted((out / "png").glob("*.png"))
     assert len(pngs) == len(method_data.VIEWPOINTS) and pngs[0].read_bytes()[:4] == b"\x89PNG"
-    stale = out / "png" / "000009_000000.png"  # an earlier run's view that this one does not cover
+    stale = out / "png" / f"{pngs[0].stem.rpartition('_')[0]}_000099.png"  # a view of this split not covered now
     stale.write_bytes(pngs[0].read_bytes())
+    other = out / "png" / "000000_00_000000.png"  # a sim view (another split, whose report stays): kept
+    other.write_bytes(pngs[0].read_bytes())
     code = main(["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", "oracle",
                  "--png", "--out", str(out), "--no-progress"])  # fmt: skip
     assert code == 0 and "removed 1 PNG(s) of an earlier run" in capsys.readouterr().out
-    assert sorted((out / "png").glob("*.png")) == pngs
+    assert sorted((out / "png").glob("*.png")) == sorted([*pngs, other])
 
 
 def test_network_heatmaps_report_their_time_and_figures(root, weights, tmp_path, capsys) -> None:

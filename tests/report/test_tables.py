@@ -172,8 +172,9 @@ def test_compare_names_rows_of_one_method_by_their_file(small_fixture, results_d
 
 
 def test_compare_never_writes_over_an_input_or_one_output_over_another(small_fixture, results_dir, capsys) -> None:
-    """Two CSVs of one name would both write scores_<name>.json (one silently lost), and a CSV scored beside its
-    own scores JSON given as an input would overwrite it (a fuzz found both): refused before anything is scored."""
+    """Two CSVs of one name would both write scores_<name>.json (one silently lost): each goes to out/input<k>/;
+    a CSV scored beside its own scores JSON given as an input would overwrite it: refused before anything is
+    scored (a fuzz found both)."""
     first = results_dir / "gt_tless-test.csv"
     write_bop_results(first, gt_rows(small_fixture))
     (results_dir / "b").mkdir()
@@ -181,8 +182,10 @@ def test_compare_never_writes_over_an_input_or_one_output_over_another(small_fix
     write_bop_results(second, gt_rows(small_fixture, {3: "t_5.5%"}))
     out = results_dir / "t"
     args = ["--data-root", str(small_fixture.root), "--no-progress"]
-    assert main(["compare", str(first), str(second), *args, "--out", str(out)]) == 2
-    assert "inputs: two inputs would both write" in capsys.readouterr().err and not out.exists()
+    assert main(["compare", str(first), str(second), *args, "--out", str(out)]) == 0
+    one, two = (json.loads((out / f"input{k}" / "scores_gt_tless-test.json").read_text()) for k in (1, 2))
+    assert one["AR_MSSD"] == 1.0 and two["AR_MSSD"] < 1.0  # each CSV's scores in a folder of its own
+    assert not (out / "scores_gt_tless-test.json").exists()
     stale = results_dir / "scores_gt_tless-test.json"
     score_file(first, data_root=small_fixture.root, progress=False)  # beside the CSV
     before = stale.read_bytes()

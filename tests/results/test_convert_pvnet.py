@@ -188,5 +188,5 @@ def test_an_unknown_time_beside_a_known_one_in_an_image_is_refused(tmp_path: Pat
     doc = tmp_path / "pvnet.json"
     doc.write_text(json.dumps({"000001/000000": [{"obj_id": 5, "pose": pose([0.0, 0.0, 0.7]).tolist(), "time": 0.5},
                                                  {"obj_id": 6, "pose": pose([0.0, 0.1, 0.7]).tolist()}]}))  # fmt: skip
-    with pytest.raises(ResultsError, match=r"time -1.0 s differs from 0.5 s"):
+    with pytest.raises(ResultsError, match=r"time -1.0 \(unknown: no time, or a negative one\) differs from 0.5 s"):
         read_pvnet_json(doc)
