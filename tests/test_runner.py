@@ -460,12 +460,12 @@ def test_the_network_curvature_threshold_precedence():
 
 
 def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
-    """Stage 3 gets ``poses.translation_*_network`` where the centre maps are a network's (also through a mixed
-    source), the general spread and box for the oracle's; None falls back to the general ones."""
+    """Stage 3 gets ``poses.translation_*_network`` and ``scene_polish_passes_network`` where the centre maps are a
+    network's (also through a mixed source), the general ones for the oracle's; None falls back to the general."""
     seen = []
 
     def fake_optimise(targets, curvature, cameras, meshes, centers, config, **kw):
-        seen.append((config.translation_sigma_mm, config.translation_bound_mm))
+        seen.append((config.translation_sigma_mm, config.translation_bound_mm, config.scene_polish_passes))
         return []
 
     monkeypatch.setattr(method_module, "optimise_scene", fake_optimise)
@@ -482,18 +482,20 @@ def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
             return dataclasses.replace(oracle.predict(s), centers_from_network=True)
 
     for predictor, expected in (
-        (oracle, (5.0, 20.0)),
-        (AsNetwork(), (10.0, 30.0)),
-        (MixedPredictor(AsNetwork(), oracle), (10.0, 30.0)),
-        (MixedPredictor(oracle, AsNetwork()), (5.0, 20.0)),
+        (oracle, (5.0, 20.0, 2)),
+        (AsNetwork(), (10.0, 30.0, 1)),
+        (MixedPredictor(AsNetwork(), oracle), (10.0, 30.0, 1)),
+        (MixedPredictor(oracle, AsNetwork()), (5.0, 20.0, 2)),
     ):
         seen.clear()
         CenDerNet(ds.models, config, predictor, meshes).estimate(scene)
         assert seen == [expected]
-    same = config.with_settings(["poses.translation_sigma_mm_network=none", "poses.translation_bound_mm_network=none"])
+    same = config.with_settings(["poses.translation_sigma_mm_network=none", "poses.translation_bound_mm_network=none",
+                                 "poses.scene_polish_passes_network=none"])  # fmt: skip
     seen.clear()
     CenDerNet(ds.models, same, AsNetwork(), meshes).estimate(scene)
-    assert seen == [(5.0, 20.0)]
-    for bad in ("poses.translation_sigma_mm_network=-1", "poses.translation_bound_mm_network=0"):
+    assert seen == [(5.0, 20.0, 2)]
+    for bad in ("poses.translation_sigma_mm_network=-1", "poses.translation_bound_mm_network=0",
+                "poses.scene_polish_passes=0", "poses.scene_polish_passes_network=0"):  # fmt: skip
         with pytest.raises(ConfigError):
             config.with_settings([bad])

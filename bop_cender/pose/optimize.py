@@ -201,9 +201,15 @@ class PoseConfig:
             strictest threshold), nothing else moves the part to the scene's. Measured with oracle heatmaps
             (``results/accuracy/README.md``), 0 -> 100: AR_MSSD<5% 0.843 -> 0.890 (DIMO seed 9002), 0.870 ->
             0.926 (seed 4242); 200 gave the same as 100 (0.890).
-        scene_polish_passes: how many times the scene polish goes over the placed objects (1: once; it stops
-            early where a pass kept no new pose). Why more: stacked parts pull on each other's edges, so a part
-            can only settle once its neighbour has (measured in ``results/accuracy/README.md``).
+        scene_polish_passes, scene_polish_passes_network: how many times the scene polish goes over the placed
+            objects (it stops early where a pass kept no new pose); the second where the centres come from a
+            network (None: the first). Ours: 2, and 1 for a network's. Why: stacked parts pull on each other's
+            edges, so a part settles only once its neighbour has. Measured (``results/accuracy/README.md``,
+            seventeenth session), passes 1 -> 2 -> 3, AR_MSSD<5%: oracle DIMO seed 5151 ``sim`` 0.939 -> 0.977 ->
+            0.977 (the pose stage's CPU time 99 -> 139 -> 178 s for the 12 scenes), seed 9002 0.965 at 3 (one pass:
+            0.962-0.971); with the shipped network 1 -> 3: 5151 ``sim`` 0.767 -> 0.783 (2: 0.767), ``real`` 0.736 ->
+            0.736, 9002 ``sim`` 0.806 -> 0.806, ``real`` 0.759 -> 0.744, T-LESS AR 0.584 -> 0.583 and 0.477 ->
+            0.477: no gain for 40-80 % more pose time, so one pass for a network's centres.
         scene_polish_xatol, scene_polish_fatol: the scene polish's Nelder-Mead tolerances (as ``nm_xatol`` and
             ``nm_fatol``; ours: 0.2 and 0.005, looser than the search's 0.05 and 0.001, which the polish never
             reached in its 100 evaluations; with these the 8 parts of the bench's third scene stop after 57-101,
@@ -271,7 +277,8 @@ class PoseConfig:
     passes: int = 3
     acceptance: str = "finalists"
     scene_polish_maxfev: int = 100
-    scene_polish_passes: int = 1
+    scene_polish_passes: int = 2
+    scene_polish_passes_network: int | None = 1
     scene_polish_margin_px: int = 12
     scene_polish_xatol: float = 0.2
     scene_polish_fatol: float = 0.005
@@ -280,13 +287,16 @@ class PoseConfig:
     screen_maxfev: int = 30
 
     def for_network_centers(self) -> PoseConfig:
-        """This config with the candidates' spread and the refinement's box of a network's centres
-        (``translation_*_network`` where set): what stage 3 uses when the 3D centres come from a network."""
+        """This config with the candidates' spread, the refinement's box and the scene polish's passes of a
+        network's centres (``translation_*_network``, ``scene_polish_passes_network`` where set): what stage 3 uses
+        when the 3D centres come from a network."""
         sigma, bound = self.translation_sigma_mm_network, self.translation_bound_mm_network
+        passes = self.scene_polish_passes_network
         return replace(
             self,
             translation_sigma_mm=self.translation_sigma_mm if sigma is None else sigma,
             translation_bound_mm=self.translation_bound_mm if bound is None else bound,
+            scene_polish_passes=self.scene_polish_passes if passes is None else passes,
         )
 
     def __post_init__(self) -> None:
@@ -328,6 +338,7 @@ _POSE_BOUNDS = {
     "passes": COUNT,
     "scene_polish_maxfev": COUNT_OR_ZERO,
     "scene_polish_passes": COUNT,
+    "scene_polish_passes_network": replace(COUNT, optional=True),
     "scene_polish_margin_px": COUNT_OR_ZERO,
     "scene_polish_xatol": NON_NEGATIVE,
     "scene_polish_fatol": NON_NEGATIVE,

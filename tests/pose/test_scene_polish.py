@@ -3,6 +3,7 @@ moves a slightly wrong part onto its true pose (only where the whole scene gains
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -232,7 +233,17 @@ def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch)
     assert calls == []
     assert PoseConfig().scene_polish_maxfev == 100 and PoseConfig().center_weight == 1.0  # ours; the paper has neither
     optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10), curvature_scale=1.0)
-    assert calls == [2]
+    assert calls == [2]  # two passes asked (ours), but the first kept no new pose: the second would repeat it
+    moved = []
+
+    def moving(placed, judge, scene_now=None):  # every pass moves every part a little
+        moved.append(scene_now)
+        return [dataclasses.replace(p, T_world_model=p.T_world_model.copy()) for p in placed]
+
+    monkeypatch.setattr(optimize, "polish_on_scene", moving)
+    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10, scene_polish_passes=3),
+                   curvature_scale=1.0)  # fmt: skip
+    assert len(moved) == 3 and moved[1:] == [None, None]  # later passes judge the placement afresh
 
 
 @pytest.mark.parametrize(
