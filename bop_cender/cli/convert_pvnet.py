@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--data-root",
         type=Path,
         default=None,
-        help="dataset root: check object ids against its models, and the units of t against their diameters",
+        help="dataset root: check object ids against its models, the units of t against their diameters, and the"
+        " scenes and images against the split the --out name says (where it opens there)",
     )
     # The name this option had before every command named the dataset root --data-root; kept, announced.
     p.add_argument("--dataset-root", type=Path, default=None, dest="old_dataset_root", help=argparse.SUPPRESS)
@@ -35,13 +36,38 @@ def cmd_convert_pvnet(args: argparse.Namespace) -> int:
         print("warning: --dataset-root is deprecated: use --data-root", file=sys.stderr)
         root = args.old_dataset_root
     check_output_file(args.out)
-    known = diameters = None
+    known = diameters = check = None
     if root is not None:
         diameters = _model_diameters(root)
         known = sorted(diameters)
-    rows = convert_pvnet(args.input, args.out, known_obj_ids=known, diameters=diameters)
+        check = _rows_in_split(args.out, root, args.input)
+    rows = convert_pvnet(args.input, args.out, known_obj_ids=known, diameters=diameters, check=check)
     print(f"wrote {len(rows)} estimates to {args.out}")
     return 0
+
+
+def _rows_in_split(out: Path, root: Path, source: Path):
+    """With ``--data-root``: a check that every row's scene and image are in the split the output's BOP name says
+    (``pvnet_tless-test.csv``: T-LESS ``test``), as ``score`` will check them. Where that split does not open at
+    the root (a models-only root, another dataset's), a warning says why and the ids are left to ``score``."""
+    from bop_cender.data.registry import DatasetRequest, open_dataset
+    from bop_cender.errors import BopCenderError
+    from bop_cender.eval.ground_truth import collect_ground_truth
+    from bop_cender.eval.score_rows import check_rows
+    from bop_cender.results.files import parse_result_filename
+
+    name = parse_result_filename(out)
+    request = DatasetRequest(name.dataset, root, name.split, split_type=name.split_type)
+
+    def check(rows) -> None:
+        try:
+            dataset = open_dataset(request)
+        except BopCenderError as error:  # a models-only root, or the split elsewhere: the ids are checked by score
+            print(f"warning: scenes and images not checked: {error.format()}", file=sys.stderr)
+            return
+        check_rows(rows, collect_ground_truth(dataset, progress=False), dataset, source)
+
+    return check
 
 
 def _model_diameters(root: Path) -> dict[int, float]:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import re
 import warnings
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ def convert_pvnet(
     out_csv: str | Path,
     known_obj_ids: Collection[int] | None = None,
     diameters: Mapping[int, float] | None = None,
+    check: Callable[[list[BopEstimate]], None] | None = None,
 ) -> list[BopEstimate]:
     """Read PVNet-style outputs from ``source`` (a folder of ``.npy`` or a JSON file) and write a BOP CSV.
 
@@ -64,6 +65,8 @@ def convert_pvnet(
         known_obj_ids: if given, every obj_id must be one of these.
         diameters: model diameters (mm) by obj_id, if known: the unit check (:func:`check_units`) then
             measures distances in diameters, which holds for any camera set-up.
+        check: called with the rows before anything is written (the CLI's: their scenes and images against the
+            dataset the output's name says); raises to refuse them.
 
     Returns:
         The rows written (in mm).
@@ -88,6 +91,8 @@ def convert_pvnet(
     if not rows:  # a header-only CSV that `score` would refuse later: say it now, and write nothing
         raise ResultsError("no estimates in it: nothing to convert", file=source)
     check_units(rows, source, diameters)
+    if check is not None:
+        check(rows)
     write_bop_results(out_csv, rows)
     return rows
 

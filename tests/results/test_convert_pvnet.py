@@ -190,3 +190,30 @@ def test_an_unknown_time_beside_a_known_one_in_an_image_is_refused(tmp_path: Pat
                                                  {"obj_id": 6, "pose": pose([0.0, 0.1, 0.7]).tolist()}]}))  # fmt: skip
     with pytest.raises(ResultsError, match=r"time -1.0 \(unknown: no time, or a negative one\) differs from 0.5 s"):
         read_pvnet_json(doc)
+
+
+def test_with_a_data_root_scenes_and_images_are_checked_against_the_named_split(tmp_path: Path, capsys) -> None:
+    """An unknown scene or image converted with exit 0 (score refused it later); now the split the output's name says
+    is opened and every row checked, as score checks them. A split that does not open there is said."""
+    from tests.data.bop_builder import BopSpec, build_bop
+
+    spec = BopSpec(n_scenes=1, n_images=3, pbr_scenes=0, target_fraction=1.0, models_dirs=("models_cad", "models_eval"))
+    root = build_bop(tmp_path / "tless", spec).root
+    gt = json.loads((root / "test_primesense" / "000001" / "scene_gt.json").read_text())
+    first = gt["0"][0]
+    t_m = (np.asarray(first["cam_t_m2c"]) / 1000.0).tolist()
+    R_gt = np.asarray(first["cam_R_m2c"]).reshape(3, 3)
+    entry = [{"obj_id": first["obj_id"], "pose": np.concatenate([R_gt, np.asarray(t_m)[:, None]], 1).tolist()}]
+    out = tmp_path / "pvnet_tless-test.csv"
+    for key, message in (("000009/000000", "scene_id: no scene 9 in tless test"),
+                         ("000001/000999", "im_id: scene 1 has no image 999")):  # fmt: skip
+        doc = tmp_path / "pvnet.json"
+        doc.write_text(json.dumps({key: entry}))
+        assert main(["convert-pvnet", str(doc), "--out", str(out), "--data-root", str(root)]) == 2
+        assert message in capsys.readouterr().err and not out.exists()
+    doc.write_text(json.dumps({"000001/000000": entry}))
+    assert main(["convert-pvnet", str(doc), "--out", str(out), "--data-root", str(root)]) == 0
+    assert len(read_bop_results(out)) == 1
+    other = ["convert-pvnet", str(doc), "--out", str(tmp_path / "pvnet_dimo-sim.csv"), "--data-root", str(root)]
+    assert main(other) == 0  # not DIMO's layout at that root: said, and the ids left to score
+    assert "warning: scenes and images not checked: " in capsys.readouterr().err
