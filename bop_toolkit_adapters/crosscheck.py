@@ -334,11 +334,13 @@ def crosscheck_file(
     import_toolkit(toolkit_dir)
     out_dir = Path(out_dir)
     existed = out_dir.exists()
+    exporting = False  # the export starts once our scores are written: an earlier run's stays until then
     try:
         scored = score_file(
             results_csv, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
             model_type=model_type, vsd_delta=vsd_delta, out_dir=out_dir, progress=progress, open_data=open_data,
         )  # fmt: skip
+        exporting = True
         return crosscheck(
             results_csv, scored.report, scored.dataset, out_dir / "toolkit_input", toolkit_dir, with_vsd, quiet,
             progress,
@@ -346,6 +348,6 @@ def crosscheck_file(
     except BaseException:  # a cross-check that failed leaves nothing half-written
         if not existed:
             shutil.rmtree(out_dir, ignore_errors=True)
-        else:  # the scores written are complete (and replaced an earlier run's): only the export goes
+        elif exporting:  # the scores written are complete (they replaced an earlier run's): the export goes
             shutil.rmtree(out_dir / "toolkit_input", ignore_errors=True)
         raise

@@ -210,10 +210,15 @@ def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, caps
 
 
 def test_top_k_against_the_candidates_is_judged_once_every_setting_is_in(mini_root, tmp_path) -> None:
-    """Judged per setting, --set poses.n_candidates=2 --set poses.top_k=1 was refused and the reverse order not."""
+    """Judged per setting, --set poses.n_candidates=2 --set poses.top_k=1 was refused and the reverse order not;
+    run() judges the whole config for every caller (not only the CLI's)."""
     for order in (["poses.n_candidates=2", "poses.top_k=1"], ["poses.top_k=1", "poses.n_candidates=2"]):
         config = CenDerNetConfig.for_dataset("dimo").with_settings(order)
         assert (config.poses.n_candidates, config.poses.top_k) == (2, 1)
+    too_few = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.n_candidates=2"])
+    with pytest.raises(ConfigError, match=r"poses.top_k: refines the best 3 \(poses.top_k\) of 2 candidates"):
+        run(dataclasses.replace(request(mini_root, tmp_path / "cendernet-oracle_dimo-real.csv"), config=too_few))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_settings_override_the_config():

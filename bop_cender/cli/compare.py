@@ -35,4 +35,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     )  # fmt: skip
     print(comparison.markdown())
     print("wrote " + ", ".join(str(p) for p in comparison.files.values()))
+    for source, scores in comparison.scores.items():
+        print(f"scores of {source}: {scores}")
     return 0

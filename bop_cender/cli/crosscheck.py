@@ -57,6 +57,8 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
     )
 
     out = check_output_dir(args.out or args.results.parent / f"crosscheck_{args.results.name.split('.')[0]}")
+    listed = out / "pair_differences.csv"
+    listed.unlink(missing_ok=True)  # an earlier run's list would read as this run's
     try:
         check = crosscheck_file(
             args.results, out, args.toolkit, **data_overrides(args), vsd_delta=args.vsd_delta, with_vsd=not args.no_vsd, quiet=not args.verbose,
@@ -69,7 +71,6 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         return CROSSCHECK_NOT_RUN
     print(format_crosscheck(check))
     if check.differences:
-        listed = out / "pair_differences.csv"
         write_pair_differences(listed, check.differences)
         print(f"pairs that differ, largest first: {listed}")
     disagreements = check.disagreements()

@@ -91,6 +91,8 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
             raise ConfigError(f"expected a number in (0, 1), got {args.peak_threshold}", field="--peak-threshold")
         metrics_config = replace(metrics_config, peak_threshold=args.peak_threshold)
     png_dir = out / "png" if args.png else None
+    json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"
+    listed = _listed_pngs(json_path) if png_dir is not None else []  # the PNGs of the report this run replaces
     created = [d for d in (out, png_dir) if d is not None and not d.exists()]
     earlier = set(png_dir.iterdir()) if png_dir is not None and png_dir.is_dir() else set()
     try:
@@ -100,23 +102,34 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     except BaseException:  # a scene that fails midway leaves no PNGs of a run that wrote no report
         _remove_new(png_dir, earlier, created)
         raise
-    json_path = out / f"heatmaps_{dataset.name}-{dataset.split}.json"
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(json_path, json.dumps(report.as_dict(), indent=2) + "\n")
-    split_keys = {key.replace("/", "_") for key in dataset.scene_keys}  # the PNG names of this split's views
-    stale = sorted(
-        p
-        for p in earlier
-        if p.suffix == ".png" and p not in set(report.pngs) and p.stem.rpartition("_")[0] in split_keys
-    )
-    for path in stale:  # an earlier run's views of this split that this report does not cover: they would read as
-        # this run's (another split's or dataset's PNGs in the folder stay: their reports stay too)
+    written = {p.name for p in report.pngs}
+    stale = sorted(png_dir / name for name in listed if name not in written and (png_dir / name).is_file())
+    for path in stale:  # the PNGs the report this one replaces listed, not written now: they would read as this
+        # run's (another dataset's or split's PNGs in the folder stay: their own reports list them)
         path.unlink(missing_ok=True)
     print(format_report(report))
     print(f"wrote {json_path}" + (f" and {len(report.pngs)} PNGs under {out / 'png'}" if report.pngs else ""))
     if stale:
         print(f"removed {len(stale)} PNG(s) of an earlier run under {png_dir} (views this run did not cover)")
     return 0
+
+
+def _listed_pngs(json_path) -> list[str]:
+    """The PNG names an earlier report of this dataset and split listed (none where it is absent, unreadable or
+    older than the list: its PNGs are then left as they are)."""
+    import json
+
+    try:
+        names = json.loads(json_path.read_text()).get("pngs", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return (
+        [n for n in names if isinstance(n, str) and n.endswith(".png") and "/" not in n]
+        if isinstance(names, list)
+        else []
+    )
 
 
 def _remove_new(png_dir, earlier: set, created: list) -> None:

@@ -285,7 +285,12 @@ def check_millimetres(rows: list, ds: Dataset, csv_path: Path) -> None:
         ResultsError: the objects would lie a median of under :data:`MIN_DISTANCE_IN_DIAMETERS` diameters from
             the camera.
     """
-    placed = [r for r in rows if r.obj_id in ds.models and float(np.linalg.norm(r.t)) > 0]  # t = 0: a placeholder
+    known = [r for r in rows if r.obj_id in ds.models]
+    placed = [r for r in known if float(np.linalg.norm(r.t)) > 0]  # t = 0: a method's placeholder for "not found"
+    if known and not placed:
+        raise ResultsError(
+            f"every estimate ({len(known)}) has t = 0: placeholders, no pose to score", file=csv_path, field="t"
+        )
     if not placed:
         return
     median = float(np.median([float(np.linalg.norm(r.t)) / ds.models[r.obj_id].diameter for r in placed]))

@@ -57,6 +57,7 @@ class HeatmapReport:
             "views": self.views,
             "ms_per_view": round(1000 * self.seconds_per_view, 3),
             "metrics": self.metrics,
+            "pngs": [path.name for path in self.pngs],  # what a later run into the same folder replaces
         }
 
 

@@ -508,7 +508,7 @@ def optimise_scene(
         for polish_pass in range(config.scene_polish_passes):
             before = [p.T_world_model for p in placed]
             placed = polish_on_scene(placed, judge, scene_now if polish_pass == 0 else None)
-            if all(p.T_world_model is T for p, T in zip(placed, before, strict=True)):
+            if all(np.array_equal(p.T_world_model, T) for p, T in zip(placed, before, strict=True)):
                 break  # nothing moved: another pass would repeat this one
     return placed
 

@@ -66,6 +66,7 @@ class Comparison:
     dataset: str | None
     split: str | None
     files: dict[str, Path] = field(default_factory=dict)
+    scores: dict[Path, Path] = field(default_factory=dict)  # each CSV input's scores JSON, as written
 
     def markdown(self, digits: int = 3) -> str:
         """The table in markdown: method, source, then the six scores (``–`` where not available)."""
@@ -206,6 +207,7 @@ def compare(
     _check_outputs(paths, list(comparison.files.values()))
     for scored in scored_files:  # every input scored: now the files
         write_scored(scored)
+    comparison.scores = {path: scored.scores_path for path, scored in zip(score_dirs, scored_files, strict=True)}
     write_text_atomic(comparison.files["markdown"], comparison.markdown())
     write_text_atomic(comparison.files["csv"], comparison.csv_text())
     bar_chart(comparison, comparison.files["png"])

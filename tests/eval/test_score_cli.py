@@ -7,6 +7,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bop_cender.cli import main
@@ -439,3 +440,15 @@ def test_translations_in_metres_are_refused_not_scored_zero(small_fixture, resul
     err = capsys.readouterr().err
     assert "t: implausible translations: the objects would lie a median" in err and "were they in metres?" in err
     assert not (results_dir / "scores_metres_tless-test.json").exists()
+
+
+def test_placeholder_translations_are_left_out_of_the_metres_check_and_a_file_of_them_refused(
+    small_fixture, results_dir, capsys
+) -> None:
+    rows = gt_rows(small_fixture)
+    csv_path = results_dir / "zeros_tless-test.csv"
+    write_bop_results(csv_path, [replace(r, t=np.zeros(3)) if k % 3 == 0 else r for k, r in enumerate(rows)])
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 0  # some t = 0
+    write_bop_results(csv_path, [replace(r, t=np.zeros(3)) for r in rows])
+    assert main(["score", str(csv_path), "--data-root", str(small_fixture.root), "--no-progress"]) == 2
+    assert "t: every estimate" in capsys.readouterr().err

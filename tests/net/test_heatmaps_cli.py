@@ -43,9 +43,11 @@ def test_oracle_heatmaps_score_one_and_write_their_pngs(root, tmp_path, capsys) 
     assert report["views"] == len(method_data.VIEWPOINTS) and report["metrics"]["center_f1"] == 1.0
     pngs = sorted((out / "png").glob("*.png"))
     assert len(pngs) == len(method_data.VIEWPOINTS) and pngs[0].read_bytes()[:4] == b"\x89PNG"
-    stale = out / "png" / f"{pngs[0].stem.rpartition('_')[0]}_000099.png"  # a view of this split not covered now
+    stale = out / "png" / f"{pngs[0].stem.rpartition('_')[0]}_000099.png"  # a view the earlier report listed
     stale.write_bytes(pngs[0].read_bytes())
-    other = out / "png" / "000000_00_000000.png"  # a sim view (another split, whose report stays): kept
+    report["pngs"].append(stale.name)
+    (out / "heatmaps_dimo-real.json").write_text(json.dumps(report))
+    other = out / "png" / "000000_00_000000.png"  # not in this split's report (another split's): kept
     other.write_bytes(pngs[0].read_bytes())
     code = main(["heatmaps", "--dataset", "dimo", "--data-root", str(root), "--split", "real", "--weights", "oracle",
                  "--png", "--out", str(out), "--no-progress"])  # fmt: skip

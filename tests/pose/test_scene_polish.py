@@ -238,12 +238,18 @@ def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch)
 
     def moving(placed, judge, scene_now=None):  # every pass moves every part a little
         moved.append(scene_now)
-        return [dataclasses.replace(p, T_world_model=p.T_world_model.copy()) for p in placed]
+        return [dataclasses.replace(p, T_world_model=p.T_world_model + 1e-3) for p in placed]
 
     monkeypatch.setattr(optimize, "polish_on_scene", moving)
     optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10, scene_polish_passes=3),
                    curvature_scale=1.0)  # fmt: skip
     assert len(moved) == 3 and moved[1:] == [None, None]  # later passes judge the placement afresh
+    moved.clear()
+    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, judge, scene_now=None: moved.append(1) or [
+        dataclasses.replace(p, T_world_model=p.T_world_model.copy()) for p in placed])  # fmt: skip
+    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10, scene_polish_passes=3),
+                   curvature_scale=1.0)  # fmt: skip
+    assert len(moved) == 1  # copies of the same poses: nothing moved, judged by value
 
 
 @pytest.mark.parametrize(

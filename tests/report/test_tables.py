@@ -183,6 +183,9 @@ def test_compare_never_writes_over_an_input_or_one_output_over_another(small_fix
     out = results_dir / "t"
     args = ["--data-root", str(small_fixture.root), "--no-progress"]
     assert main(["compare", str(first), str(second), *args, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"scores of {first}: {out / 'input1' / 'scores_gt_tless-test.json'}" in printed
+    assert f"scores of {second}: {out / 'input2' / 'scores_gt_tless-test.json'}" in printed
     one, two = (json.loads((out / f"input{k}" / "scores_gt_tless-test.json").read_text()) for k in (1, 2))
     assert one["AR_MSSD"] == 1.0 and two["AR_MSSD"] < 1.0  # each CSV's scores in a folder of its own
     assert not (out / "scores_gt_tless-test.json").exists()

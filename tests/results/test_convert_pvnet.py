@@ -217,3 +217,18 @@ def test_with_a_data_root_scenes_and_images_are_checked_against_the_named_split(
     other = ["convert-pvnet", str(doc), "--out", str(tmp_path / "pvnet_dimo-sim.csv"), "--data-root", str(root)]
     assert main(other) == 0  # not DIMO's layout at that root: said, and the ids left to score
     assert "warning: scenes and images not checked: " in capsys.readouterr().err
+
+
+def test_a_split_whose_ground_truth_is_withheld_converts_with_a_warning(tmp_path: Path, capsys) -> None:
+    """A BOP test split without scene_gt.json (ITODD, HB: GT withheld): its ids cannot be checked, which is said;
+    the conversion is not refused (it was, for a moment, by the id check)."""
+    from tests.data.bop_builder import BopSpec, build_bop
+
+    spec = BopSpec(n_scenes=1, n_images=3, pbr_scenes=0, target_fraction=1.0, models_dirs=("models_cad", "models_eval"))
+    root = build_bop(tmp_path / "tless", spec).root
+    (root / "test_primesense" / "000001" / "scene_gt.json").unlink()
+    doc = tmp_path / "pvnet.json"
+    doc.write_text(json.dumps({"000001/000000": [{"obj_id": 1, "pose": pose([0.0, 0.0, 0.7]).tolist()}]}))
+    out = tmp_path / "pvnet_tless-test.csv"
+    assert main(["convert-pvnet", str(doc), "--out", str(out), "--data-root", str(root)]) == 0
+    assert "warning: scenes and images not checked: " in capsys.readouterr().err and out.is_file()
