@@ -518,13 +518,7 @@ def _check_request(request: RunRequest) -> None:
             " thread (give one of the two)",
             field="--threads",
         )
-    poses = request.config.poses
-    if poses.top_k > poses.n_candidates:  # the CLI names its option first; here for every caller of run()
-        raise ConfigError(
-            f"refines the best {poses.top_k} (poses.top_k) of {poses.n_candidates} candidates (poses.n_candidates):"
-            " give at least as many candidates as starts to refine",
-            field="poses.top_k",
-        )
+    request.config.poses.check_refinable("poses.top_k")  # the CLI checked first, naming its option
     min_views = request.config.centers.min_views  # at least 1 (its bound)
     if request.max_views is not None and request.max_views < min_views:
         raise ConfigError(

@@ -115,7 +115,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bop_cender.data.registry import DEFAULT_SPLIT
-    from bop_cender.errors import ConfigError
     from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
     from bop_cender.results.files import default_result_filename
@@ -136,13 +135,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         overrides["occlusion"] = False
     overrides["seed"] = args.seed
     config = CenDerNetConfig.for_dataset(args.dataset, **overrides).with_settings(args.set or [])
-    if config.poses.top_k > config.poses.n_candidates:  # checked once every setting is in, whatever their order
-        named = "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
-        raise ConfigError(
-            f"refines the best {config.poses.top_k} (poses.top_k) of {config.poses.n_candidates} candidates"
-            " (poses.n_candidates): give at least as many candidates as starts to refine",
-            field=named,
-        )
+    config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
+        "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
+    )
     out = Path(args.out or default_result_filename(f"cendernet-{args.heatmaps}", args.dataset, split))
     if args.data_root is None:
         announce(f"no --data-root: using the embedded synthetic {args.dataset} demo")

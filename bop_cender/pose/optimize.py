@@ -299,6 +299,21 @@ class PoseConfig:
             scene_polish_passes=self.scene_polish_passes if passes is None else passes,
         )
 
+    def check_refinable(self, field: str) -> None:
+        """Refuse more starts to refine than candidates (``top_k`` > ``n_candidates``): the refinement would run fewer
+        than asked. Not in :meth:`__post_init__`: ``--set`` applies one setting at a time, and the two may come in
+        either order; checked once all are in, by ``run`` (``field``: the option to name).
+
+        Raises:
+            ConfigError: naming ``field``.
+        """
+        if self.top_k > self.n_candidates:
+            raise ConfigError(
+                f"refines the best {self.top_k} (poses.top_k) of {self.n_candidates} candidates (poses.n_candidates):"
+                " give at least as many candidates as starts to refine",
+                field=field,
+            )
+
     def __post_init__(self) -> None:
         """Every setting is checked here (named choices, types and ranges), so that a bad ``--set`` is one error
         before any scene runs."""
