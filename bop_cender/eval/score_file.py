@@ -100,25 +100,21 @@ def choose_data(
     parsed = _parse_name(csv_path)
     sidecar = read_run_sidecar(csv_path)
     origin = []
-    if dataset is not None and dataset != "bop" and parsed is not None and parsed.dataset != dataset:
-        said = (sidecar or {}).get("dataset")
-        if said in (None, parsed.dataset):  # the name (and the sidecar) say otherwise: a typo scores other data
-            raise ConfigError(
-                f"the file name{' and its run sidecar say' if said else ' says'} dataset {parsed.dataset!r}, not"
-                f" {dataset!r}: results of one dataset are not scored on another (rename the file if its results"
-                f" are of {dataset!r})",
-                field="--dataset",
-            )
-    if split is not None and parsed is not None and not names_split(parsed, split):
-        said = (sidecar or {}).get("split")
-        if said is None or names_split(
-            parsed, said
-        ):  # the name (and the sidecar) say otherwise: a typo scores other data
-            raise ConfigError(
-                f"the file name{' and its run sidecar say' if said else ' says'} split {shown_split(parsed)!r}, not"
-                f" {split!r}: results of one split are not scored on another (rename the file if its results are of {split!r})",
-                field="--split",
-            )
+    if parsed is not None:  # an option the name (and the sidecar) contradict: a typo would score other data
+        said = sidecar or {}
+        if (
+            dataset is not None
+            and dataset != "bop"
+            and parsed.dataset != dataset
+            and said.get("dataset") in (None, parsed.dataset)
+        ):
+            _refuse_option("dataset", parsed.dataset, dataset, "dataset" in said)
+        if (
+            split is not None
+            and not names_split(parsed, split)
+            and ("split" not in said or names_split(parsed, said["split"]))
+        ):
+            _refuse_option("split", shown_split(parsed), split, "split" in said)
     if sidecar is not None and parsed is not None and dataset is None and split is None:
         contradiction = name_contradiction(parsed, sidecar["dataset"], sidecar["split"])
         if contradiction is not None:  # renamed after the run: which data the rows belong to is not known
@@ -164,6 +160,19 @@ def choose_data(
     if not (isinstance(failed, dict) and all(isinstance(k, str) for k in failed)):
         raise ResultsError("extra.failed_scenes: expected an object of scene keys", file=sidecar_path(csv_path))
     return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys), tuple(failed))
+
+
+def _refuse_option(what: str, named: str, given: str, sidecar_too: bool) -> None:
+    """The error for ``--dataset`` / ``--split`` giving ``given`` where the file name (and its sidecar) say ``named``.
+
+    Raises:
+        ConfigError: always, naming the option.
+    """
+    raise ConfigError(
+        f"the file name{' and its run sidecar say' if sidecar_too else ' says'} {what} {named!r}, not {given!r}:"
+        f" results of one {what} are not scored on another (rename the file if its results are of {given!r})",
+        field=f"--{what}",
+    )
 
 
 def score_file_outputs(csv_path: str | Path, out_dir: str | Path | None = None) -> tuple[Path, Path]:
