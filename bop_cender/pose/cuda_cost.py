@@ -114,16 +114,7 @@ def _costs_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_no
             num += np.float64(curv) * np.float64(dist[v, r, s])
             den += np.float64(curv)
     sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    sums[0, tid] = num
-    sums[1, tid] = den
-    cuda.syncthreads()  # noqa: F821
-    step = threads // 2
-    while step > 0:
-        if tid < step:
-            sums[0, tid] += sums[0, tid + step]
-            sums[1, tid] += sums[1, tid + step]
-        cuda.syncthreads()  # noqa: F821
-        step //= 2
+    block_sum_pair(sums, tid, threads, num, den)  # noqa: F821
     if tid == 0:
         out[c] = (
             np.float32(sums[0, 0] / sums[1, 0])

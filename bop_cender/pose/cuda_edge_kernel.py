@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from bop_cender.pose.edge_kernel import SHARED_FUNCTIONS
-from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, simulator_enabled
+from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_functions, simulator_enabled
 
 if TYPE_CHECKING:
     from bop_cender.pose.edge_cost import EdgeModel
@@ -51,16 +51,7 @@ def _edge_kernel(T, view, Ks, dist, occ, planes, crease, edge_first, edge_count,
     num, den = edge_sums(P, ex, ey, ez, tid, threads, v, dist, occ, planes, crease, edge_first, edge_count,  # noqa: F821
                          seg_from, seg_to, frac_a, frac_b, ends, near, samples, coincidence)  # fmt: skip
     sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    sums[0, tid] = num
-    sums[1, tid] = den
-    cuda.syncthreads()  # noqa: F821
-    step = threads // 2
-    while step > 0:
-        if tid < step:
-            sums[0, tid] += sums[0, tid + step]
-            sums[1, tid] += sums[1, tid + step]
-        cuda.syncthreads()  # noqa: F821
-        step //= 2
+    block_sum_pair(sums, tid, threads, num, den)  # noqa: F821
     if tid == 0:
         H, W = dist.shape[1], dist.shape[2]
         out[c] = sums[0, 0] / sums[1, 0] if sums[1, 0] > 0.0 else math.hypot(np.float64(H), np.float64(W))
@@ -68,17 +59,9 @@ def _edge_kernel(T, view, Ks, dist, occ, planes, crease, edge_first, edge_count,
 
 @cache
 def _namespace() -> dict:
-    """Globals in which the CPU loop's shared functions are CUDA device functions (in the simulator: the plain
-    Python functions, as :func:`~bop_cender.render.cuda_loops.device_namespace` keeps them)."""
-    import numba
-    from numba import cuda
-
-    numba.config.CUDA_LOW_OCCUPANCY_WARNINGS = False  # a Nelder-Mead step launches a few blocks by design
-    namespace = {"cuda": cuda, "numba": numba, "np": np, "math": math, "BLOCK_THREADS": BLOCK_THREADS}
-    simulated = simulator_enabled()
-    for name, py_func in SHARED_FUNCTIONS.items():
-        namespace[name] = clone(py_func, namespace) if simulated else cuda.jit(device=True)(clone(py_func, namespace))
-    return namespace
+    """Globals in which the CPU loop's shared functions are CUDA device functions
+    (:func:`~bop_cender.render.cuda_loops.device_functions`)."""
+    return device_functions(SHARED_FUNCTIONS, {"BLOCK_THREADS": BLOCK_THREADS})
 
 
 def kernel_function():

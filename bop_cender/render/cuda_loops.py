@@ -75,28 +75,60 @@ def clone(py_func: types.FunctionType, namespace: dict) -> types.FunctionType:
     return types.FunctionType(py_func.__code__, namespace, py_func.__name__, py_func.__defaults__, py_func.__closure__)
 
 
-@cache
-def device_namespace() -> dict:
-    """Globals in which the rasteriser's shared functions (and a kernel cloned into them) are numba CUDA device
-    functions: :data:`~bop_cender.render.compiled_raster.SHARED_FUNCTIONS` by name, ``keep_fragment`` atomic,
-    ``cuda`` and ``numba`` bound. Compiling needs no device (``numba.cuda.compile_ptx``); launching does: callers check
-    :func:`cuda_unavailable_reason` first.
-    """
+def _block_sum_pair(sums, tid, threads, num, den):
+    """Add up every thread's ``num`` and ``den`` over the block in ``sums`` (a ``(2, >= threads)`` float64 shared
+    array the kernel allocates): each thread stores its pair, then a tree over the threads (``threads`` a power of
+    two); on return ``sums[0, 0]`` and ``sums[1, 0]`` hold the block's totals, for every thread."""
+    sums[0, tid] = num
+    sums[1, tid] = den
+    syncthreads()  # noqa: F821 (bound in device_functions)
+    step = threads // 2
+    while step > 0:
+        if tid < step:
+            sums[0, tid] += sums[0, tid + step]
+            sums[1, tid] += sums[1, tid + step]
+        syncthreads()  # noqa: F821
+        step //= 2
+
+
+def _syncthreads_simulated():
+    """``cuda.syncthreads`` in numba's simulator, for a plain function outside the kernel's swapped globals: the
+    barrier of the simulated thread's block."""
+    threading.current_thread().syncthreads()
+
+
+def device_functions(functions: dict, extra: dict | None = None) -> dict:
+    """Globals in which ``functions`` (plain Python, by name) are numba CUDA device functions, with ``cuda``,
+    ``numba``, ``np``, ``math``, ``syncthreads`` and :func:`_block_sum_pair` (as ``block_sum_pair``) bound beside
+    ``extra``; in the simulator the plain functions themselves (its device functions swap the ``cuda`` name in
+    their globals on every call, and its threads' swaps race). A kernel cloned into these globals
+    (:func:`clone`) calls them by name. Compiling needs no device (``numba.cuda.compile_ptx``); launching does:
+    callers check :func:`cuda_unavailable_reason` first."""
     import numba
     from numba import cuda
 
-    from bop_cender.render import compiled_raster
-
     # stage 3's Nelder-Mead steps launch a few blocks at a time by design: no occupancy warning per launch
     numba.config.CUDA_LOW_OCCUPANCY_WARNINGS = False
-    namespace = dict(vars(compiled_raster))
-    namespace.update(cuda=cuda, numba=numba, np=np, _SIMULATED_ATOMICS=_SIMULATED_ATOMICS)
     simulated = simulator_enabled()
-    for name, py_func in {
+    namespace = dict(extra or {})
+    namespace.update(cuda=cuda, numba=numba, np=np, math=math,
+                     syncthreads=_syncthreads_simulated if simulated else cuda.syncthreads)  # fmt: skip
+    for name, py_func in {**functions, "block_sum_pair": _block_sum_pair}.items():
+        namespace[name] = clone(py_func, namespace) if simulated else cuda.jit(device=True)(clone(py_func, namespace))
+    return namespace
+
+
+@cache
+def device_namespace() -> dict:
+    """Globals in which the rasteriser's shared functions (and a kernel cloned into them) are numba CUDA device
+    functions (:func:`device_functions`): :data:`~bop_cender.render.compiled_raster.SHARED_FUNCTIONS` by name,
+    ``keep_fragment`` atomic (in the simulator, under a lock)."""
+    from bop_cender.render import compiled_raster
+
+    simulated = simulator_enabled()
+    functions = {
         **compiled_raster.SHARED_FUNCTIONS,
         "keep_fragment": _keep_fragment_simulated if simulated else _keep_fragment_atomic,
         "sqrt32": _sqrt32_device,
-    }.items():
-        # the simulator runs plain Python functions as they are (no racing swap of `cuda`, see above)
-        namespace[name] = clone(py_func, namespace) if simulated else cuda.jit(device=True)(clone(py_func, namespace))
-    return namespace
+    }
+    return device_functions(functions, {**vars(compiled_raster), "_SIMULATED_ATOMICS": _SIMULATED_ATOMICS})
