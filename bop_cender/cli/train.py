@@ -135,12 +135,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     from bop_cender.datasets import resolve_data_root
     from bop_cender.errors import ConfigError
     from bop_cender.net.train import TrainConfig, train
+    from bop_cender.net.unet import UNetSpec
     from bop_cender.synth.demo import cache_dir
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
-    from bop_cender.net.unet import UNetSpec
-
     variant = args.variant or f"{kind}-lean"
     factored = args.factored_centers or UNetSpec.named(variant, center_channels=2).factored_centers
     if args.class_loss_weight is not None and not factored:  # it would be recorded in config.json and not used
@@ -154,14 +153,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     config = TrainConfig(
         dataset=args.dataset, data_root=str(root), split=args.split or ("train" if kind == "dimo" else "train_pbr"),
         val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
-        lr=args.lr, variant=args.variant or f"{kind}-lean", width=args.width, crop=crop,
+        lr=args.lr, variant=variant, width=args.width, crop=crop,
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
-        center_loss_weight=args.center_loss_weight,
-        class_loss_weight=0.1 if args.class_loss_weight is None else args.class_loss_weight,
-        factored_centers=args.factored_centers,
+        center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
+        **({} if args.class_loss_weight is None else {"class_loss_weight": args.class_loss_weight}),
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

@@ -186,7 +186,7 @@ def open_dimo(root: str | Path, split: str, selection: DimoSelection = PAPER_SEL
         loader=loader,
         selection=notes,
         residuals=residuals,
-        image_size=_first_image_size(folders),
+        image_size=_split_image_size(folders),
         has_depth=False,
         split_dir=camera_dir,
     )
@@ -366,7 +366,7 @@ def _variant_drop_reason(split: str, variant: int, variants: tuple[int, ...] | N
     return None
 
 
-def _first_image_size(folders: Sequence[DimoFolder]) -> tuple[int, int] | None:
+def _split_image_size(folders: Sequence[DimoFolder]) -> tuple[int, int] | None:
     """(width, height) most of the first views of the first selected folders share
     (:func:`bop_cender.data.split_size.vote_image_size`: one wrong-sized first image is not the reference),
     None where none of them exists (the scene load reports it)."""

@@ -295,15 +295,17 @@ def check_millimetres(rows: list, ds: Dataset, csv_path: Path) -> None:
             the camera.
     """
     known = [r for r in rows if r.obj_id in ds.models]
-    placed = [r for r in known if float(np.linalg.norm(r.t)) > 0]  # t = 0: a method's placeholder for "not found"
-    if known and not placed:
+    if not known:
+        return
+    distances = np.linalg.norm(np.stack([r.t for r in known]), axis=1)
+    placed = distances > 0  # t = 0: a method's placeholder for "not found"
+    if not placed.any():
         raise ResultsError(
             f"every estimate ({len(known)}) has t = 0: placeholders, no pose to score", file=csv_path, field="t"
         )
-    if not placed:
-        return
-    median = float(np.median([float(np.linalg.norm(r.t)) / ds.models[r.obj_id].diameter for r in placed]))
-    distance = float(np.median([np.linalg.norm(r.t) for r in placed]))
+    diameters = np.array([ds.models[r.obj_id].diameter for r in known])
+    median = float(np.median(distances[placed] / diameters[placed]))
+    distance = float(np.median(distances[placed]))
     if median < MIN_DISTANCE_IN_DIAMETERS and distance < MAX_METRES_LIKE_MM:
         raise ResultsError(
             f"implausible translations: the objects would lie a median {median:.3g} model diameters ({distance:.3g}"

@@ -338,7 +338,8 @@ def edge_costs(
         )
     elif layout == "cuda":
         per_view = _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback)
-        layout = "dense"  # where the kernel failed (``fallback`` only): the torch layout below
+        if per_view is None:  # the kernel failed where it was the default: the torch layout serves
+            layout = "dense"
     if per_view is None:
         dense = layout == "dense"
         per_view = torch.empty(B * V, dtype=torch.float32, device=device)

@@ -157,6 +157,7 @@ def compare(
     _check_outputs(paths, [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)])
     rows: list[MethodRow] = []
     scored_files: list[ScoredFile] = []
+    scores_paths: dict[Path, Path] = {}
     for path in paths:
         if path.suffix == ".csv":
             scored = score_file(
@@ -166,6 +167,7 @@ def compare(
                 write=False,
             )  # fmt: skip
             scored_files.append(scored)
+            scores_paths[path] = scored.scores_path
             meta = scored.report.metadata
             rows.append(
                 MethodRow(method_name(path), f"scored {path.name}", scored.report.scores, meta.dataset, meta.split)
@@ -197,7 +199,7 @@ def compare(
                 stacklevel=2,
             )
         rows += reported
-    comparison = Comparison(rows, table_dataset, table_split)
+    comparison = Comparison(rows, table_dataset, table_split, scores=scores_paths)
     stem = f"comparison_{table_dataset or 'results'}-{table_split or 'all'}"
     comparison.files = {
         "markdown": out_dir / f"{stem}.md",
@@ -207,7 +209,6 @@ def compare(
     _check_outputs(paths, list(comparison.files.values()))
     for scored in scored_files:  # every input scored: now the files
         write_scored(scored)
-    comparison.scores = {path: scored.scores_path for path, scored in zip(score_dirs, scored_files, strict=True)}
     write_text_atomic(comparison.files["markdown"], comparison.markdown())
     write_text_atomic(comparison.files["csv"], comparison.csv_text())
     bar_chart(comparison, comparison.files["png"])
@@ -215,12 +216,13 @@ def compare(
 
 
 def _score_dirs(paths: list[Path], out_dir: Path) -> dict[Path, Path]:
-    """Where each CSV input's ``scores_<stem>.json`` and ``errors_<stem>.csv`` go: ``out_dir``, or, for CSVs of one
-    file name from different folders (their rows named apart by path), ``out_dir/input<k>/`` (k: the input's
-    position, from 1), so that neither file is written over the other."""
+    """Where each CSV input's scores and errors files go: ``out_dir``, or, where two CSVs would write the same files
+    there (one file name from different folders; their rows named apart by path), ``out_dir/input<k>/`` (k: the
+    input's position, from 1)."""
     csvs = [p for p in paths if p.suffix == ".csv"]
-    stems = Counter(p.name.split(".")[0] for p in csvs)
-    return {p: out_dir / f"input{paths.index(p) + 1}" if stems[p.name.split(".")[0]] > 1 else out_dir for p in csvs}
+    writers = Counter(score_file_outputs(p, out_dir) for p in csvs)
+    return {p: out_dir / f"input{paths.index(p) + 1}" if writers[score_file_outputs(p, out_dir)] > 1 else out_dir
+            for p in csvs}  # fmt: skip
 
 
 def _check_outputs(inputs: list[Path], outputs: list[Path]) -> None:
@@ -291,8 +293,7 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
         raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
     records = []
-    first: dict[tuple[str, str, str, str], dict[str, str]] = {}
-    first_row: dict[tuple[str, str, str, str], int] = {}
+    first: dict[tuple[str, str, str, str], tuple[str, int]] = {}  # each figure's first value and its row
     for n, rec in enumerate(csv.DictReader(lines), start=2):
         try:
             if not is_recall(float(rec["value"])):
@@ -309,15 +310,13 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
             raise ConfigError(
                 f"unknown metric {rec['metric']!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
             )
-        key = (rec["dataset"], rec["split"], rec["method"], rec["metric"])
-        if key in first_row and float(first[key]["value"]) != float(rec["value"]):  # one would be dropped unsaid
+        value, row = first.setdefault((rec["dataset"], rec["split"], rec["method"], rec["metric"]), (rec["value"], n))
+        if float(value) != float(rec["value"]):  # one would be dropped unsaid
             raise ConfigError(
                 f"{rec['method']} on {rec['dataset']} {rec['split']} has two values of {rec['metric']}:"
-                f" {first[key]['value']} (row {first_row[key]}) and {rec['value']}",
+                f" {value} (row {row}) and {rec['value']}",
                 field=f"{path}: row {n}",
             )
-        first.setdefault(key, rec)
-        first_row.setdefault(key, n)
         records.append(rec)
     return records
 

@@ -386,12 +386,13 @@ def _warn_repeats(keys: np.ndarray, numbers: np.ndarray, path: Path) -> None:
     if len(keys) < 2:
         return
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    repeats = np.flatnonzero(first[inverse.reshape(-1)] != np.arange(len(keys)))
+    original = first[inverse.reshape(-1)]  # per row, the first row with its keys
+    repeats = np.flatnonzero(original != np.arange(len(keys)))
     if repeats.size:
         k = int(repeats[0])
         warnings.warn(
             f"{path}: {repeats.size} row(s) repeat an earlier row's image, object and pose (first: line"
-            f" {numbers[k]} repeats line {numbers[first[inverse.reshape(-1)[k]]]}); each is scored as an estimate,"
+            f" {numbers[k]} repeats line {numbers[original[k]]}); each is scored as an estimate,"
             " as the toolkit scores them",
             ResultsWarning,
             stacklevel=3,
