@@ -4,7 +4,7 @@ Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUM
 thread a Python thread, the shared device functions the plain Python ones), where it must give the CPU loop's costs
 to float64 rounding (the threads' sums are added in another order): poses near the part, out of some views, behind
 the cameras, non-finite, with and without placed objects, for the full and a sparse edge model. On a GPU
-(``-m cuda``) ``edge_costs`` takes it by default and must give the CPU's costs to float32 rounding.
+``tests/pose/test_edge_cost.py::test_cuda_gives_the_cpu_costs`` (``-m cuda``) checks it as CUDA's default layout.
 """
 
 from __future__ import annotations
@@ -121,31 +121,3 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
     K = torch.tensor([[[100.0, 0.0, 16.0], [0.0, 100.0, 16.0], [0.0, 0.0, 1.0]]])
     with pytest.raises(ValueError, match="CUDA tensors"):
         edge_costs(model, T, K, torch.zeros(1, 32, 32), torch.ones(1), layout="cuda")
-
-
-@pytest.mark.cuda
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
-def test_on_cuda_the_default_is_the_kernel_and_gives_the_cpu_costs(mini) -> None:
-    from method_data import gt_of, perturb
-
-    from bop_cender.pose import cuda_edge_kernel
-    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
-
-    if cuda_edge_kernel.kernel_available() is not None:
-        pytest.skip(f"numba's CUDA target: {cuda_edge_kernel.kernel_available()}")
-    ds, scene, meshes, maps, cams, dist = mini
-    g = gt_of(scene, 3)
-    poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12))])
-    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, poses), dtype=torch.float32)
-    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
-    model = edge_model_of(meshes(3))
-    occ = torch.zeros_like(dist)
-    occ[:, :, : occ.shape[2] // 2] = 300.0
-    for o in (None, occ):
-        cpu = edge_costs(model, T, K, dist, w, occluder_depth=o)
-        args = (model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())
-        gpu = edge_costs(*args, occluder_depth=None if o is None else o.cuda())
-        named = edge_costs(*args, occluder_depth=None if o is None else o.cuda(), layout="cuda")
-        assert gpu.device.type == "cuda" and torch.equal(gpu, named)
-        torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-4)

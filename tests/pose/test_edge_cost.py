@@ -239,17 +239,28 @@ def test_wrong_shapes_are_named():
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_cuda_gives_the_cpu_costs(mini):
+    """CUDA's default layout (the CUDA kernel where numba's CUDA target works, :mod:`bop_cender.pose.cuda_edge_kernel`;
+    else dense) and the dense one give the CPU's costs, with and without placed objects."""
+    from bop_cender.pose import cuda_edge_kernel
+
     ds, scene, meshes, maps, cams, dist = mini
     g = gt_of(scene, 3)
     poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12))])
-    T = torch.as_tensor(np.einsum("vij,njk->nvik", cams.T_cam_world, poses), dtype=torch.float32)
-    K = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
+    T, K, w = _camera_poses(mini, poses)
     model = edge_model_of(meshes(3))
-    cpu = edge_costs(model, T, K, dist, w)
-    gpu = edge_costs(model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())
-    assert gpu.device.type == "cuda"
-    torch.testing.assert_close(gpu.cpu(), cpu, rtol=1e-4, atol=1e-4)
+    occ = torch.zeros_like(dist)
+    occ[:, :, : occ.shape[2] // 2] = 300.0
+    layouts = ["dense"] + (["cuda"] if cuda_edge_kernel.kernel_available() is None else [])
+    for o in (None, occ):
+        cpu = edge_costs(model, T, K, dist, w, occluder_depth=o)
+        args = (model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())
+        gpu_o = None if o is None else o.cuda()
+        default = edge_costs(*args, occluder_depth=gpu_o)
+        assert default.device.type == "cuda" and torch.equal(default, edge_costs(*args, occluder_depth=gpu_o,
+                                                                                  layout=layouts[-1]))  # fmt: skip
+        for layout in layouts:
+            torch.testing.assert_close(edge_costs(*args, occluder_depth=gpu_o, layout=layout).cpu(), cpu, rtol=1e-4,
+                                       atol=1e-4)  # fmt: skip
 
 
 def test_a_candidate_that_duplicates_a_placed_object_draws_almost_nothing(mini):
