@@ -274,14 +274,21 @@ def scene_polish_costs(
     K = torch.as_tensor(Ks, dtype=torch.float32, device=device)
     rows = [(f"full scene cost ({len(parts)} parts, {len(Ks)} views)", 1,
              *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold), device, 1, seconds))]  # fmt: skip
+    if device.type == "cuda":  # the kernel (the default) against the torch steps it replaced
+        rows.append((f"full scene cost ({len(parts)} parts, {len(Ks)} views), torch steps (no kernel)", 1,
+                     *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold, compiled=False),
+                                        device, 1, seconds)))  # fmt: skip
     for batch in (1, 7):
         T = np.repeat(parts[0].T_world_model[None], batch, 0)
         rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}", batch,
                      *_calls_per_second(lambda T=T: window.costs(T), device, batch, seconds)))  # fmt: skip
-    if device.type == "cpu":  # the same call with its post-render steps as torch operators (CUDA's path)
-        T = parts[0].T_world_model[None]
-        rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}, torch steps after the render", 1,
-                     *_calls_per_second(lambda: window.costs(T, compiled=False), device, 1, seconds)))  # fmt: skip
+    # the same call as torch operators (on the CPU after the compiled render; on CUDA all of it, the path before
+    # the CUDA window kernel, and still the fallback where numba's CUDA target is missing)
+    T = parts[0].T_world_model[None]
+    how = "torch steps after the render" if device.type == "cpu" else "torch steps (no kernel)"
+    rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}, {how}", 1,
+                 *_calls_per_second(lambda: window.costs(T, compiled=False), device, 1, seconds)))  # fmt: skip
+    if device.type == "cpu":
         # the renders alone, torch pipeline against the compiled loop (render_scene's CPU default; the same bits)
         h, w = window.size
         T_win = torch.as_tensor(np.einsum("vij,jk->vik", window.T_cam_world, parts[0].T_world_model)[:, None],

@@ -1,4 +1,4 @@
-"""Compile the CUDA kernels (the render cost's and the edge proxy's) to PTX without a GPU: do they still build for the
+"""Compile the CUDA kernels (the render cost's, the edge proxy's and the scene polish's) to PTX without a GPU: do they still build for the
 device, and how lean are they?
 
 Why. Most sessions have no GPU, and numba's CUDA simulator (what the tests run) executes the kernel as plain Python:
@@ -61,12 +61,13 @@ def main() -> int:
         compute_capability = cc
 
     dispatcher.get_current_device = lambda: _Capability()
-    from bop_cender.pose import cuda_cost, cuda_edge_kernel
+    from bop_cender.pose import cuda_cost, cuda_edge_kernel, cuda_window_kernel
 
     status = 0
     for name, kernel_function, arguments in (
         ("cost kernel", cuda_cost.kernel_function, _launch_arguments),
         ("edge kernel", cuda_edge_kernel.kernel_function, _edge_arguments),
+        ("window kernel", cuda_window_kernel.kernel_function, _window_arguments),
     ):
         signature = tuple(typeof(a) for a in arguments())
         try:
@@ -114,6 +115,28 @@ def _edge_arguments() -> list:
                first, count, proj.seg_from, proj.seg_to, proj.frac_a, proj.frac_b, proj.ends]  # fmt: skip
     arrays = [x.contiguous().numpy() for x in tensors]
     return [*arrays, 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM, np.zeros(2)]
+
+
+def _window_arguments() -> list:
+    """The scene polish kernel's arguments of a small real call (a box beside another in two views' windows)."""
+    import torch
+    import trimesh
+
+    from bop_cender.pose.cuda_window_kernel import kernel_arguments, window_arguments
+    from bop_cender.pose.scene_polish import scene_window
+    from bop_cender.render.mesh import prepare_mesh
+
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    T_cw = np.eye(4)[None].repeat(2, 0)
+    T_cw[:, 2, 3] = 300.0
+    Ks = np.array([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]])[None].repeat(2, 0)
+    other = np.eye(4)
+    other[0, 3] = 45.0
+    edges = torch.zeros(2, 96, 128, dtype=torch.bool)
+    edges[:, 40:50, 60] = True
+    window = scene_window(mesh, np.eye(4), [(mesh, other)], Ks, T_cw, edges, torch.ones(2, 96, 128), 3.0, 12)
+    arguments, _ = kernel_arguments(*window_arguments(window, np.eye(4)[None]))
+    return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
 
 
 if __name__ == "__main__":

@@ -125,10 +125,11 @@ def scene_cost(
         meshes: the M placed objects' meshes.
         T_cam_model: ``(V, M, 4, 4)`` their poses in each view's camera frame (mm).
         K, target_edges, dist_maps, edge_threshold: as :func:`two_sided_costs`.
-        compiled: the steps after the render in one compiled pass
+        compiled: on the CPU the steps after the render in one compiled pass
             (:func:`~bop_cender.pose.window_kernel.window_costs`, the full frame as one window with nothing else in
-            it; CPU only) instead of torch operators; None (default): compiled on the CPU. Equal to float32
-            rounding.
+            it), on CUDA all of it in one kernel (:func:`~bop_cender.pose.cuda_window_kernel.cuda_scene_cost`), instead
+            of torch operators; None (default): compiled on the CPU, the kernel on CUDA where numba's CUDA target
+            works (else the torch steps, warned once). Equal to float32 rounding.
 
     Returns:
         The mean over the V views of forward plus backward, in pixels (a view where the composite draws no
@@ -137,6 +138,16 @@ def scene_cost(
     V = int(T_cam_model.shape[0])
     _, H, W = target_edges.shape
     device = dist_maps.device
+    if device.type == "cuda" and compiled is not False:
+        from bop_cender.pose import cuda_window_kernel
+
+        cost = cuda_window_kernel.kernel_or_none(
+            lambda: cuda_window_kernel.cuda_scene_cost(meshes, T_cam_model, K, target_edges, dist_maps, edge_threshold),
+            compiled,
+        )
+        if cost is not None:
+            return cost
+        compiled = False  # the torch steps (a vertex behind the near plane, or no kernel)
     render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
     offsets = torch.zeros((V, 2), dtype=torch.int64, device=device)
     if compiled if compiled is not None else device.type == "cpu":

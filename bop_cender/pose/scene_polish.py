@@ -23,7 +23,9 @@ only where the full scene cost falls. On the CPU the steps after the render (com
 run as one compiled pass (:mod:`bop_cender.pose.window_kernel`; ``python scripts/bench_run.py``, section "Scene
 polish", times a call both ways), and the render itself is the compiled loop of
 :mod:`bop_cender.render.compiled_raster` (the torch pipeline's bits without its fixed cost of about 2,000
-operators a call: ``scripts/bench_run.py``, section "Scene polish", times both renders).
+operators a call: ``scripts/bench_run.py``, section "Scene polish", times both renders). On CUDA the whole call, render
+included, is one kernel (:mod:`bop_cender.pose.cuda_window_kernel`: the torch steps cost 15 ms a call on an H200,
+launch bound), where numba's CUDA target works; else the torch steps.
 
 Target edges within ``WINDOW_BORDER_PX`` of a window side that lies inside the image are left out of the
 backward term: they are mostly a neighbour's edges spilling across the side, which the windowed composite
@@ -49,7 +51,7 @@ import torch
 from bop_cender.pose.cost import view_costs
 from bop_cender.pose.coverage import mean_distance_to_own_edges
 from bop_cender.render.curvature import curvature
-from bop_cender.render.mesh import RenderMesh
+from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
 from bop_cender.render.rasterizer import render_scene
 
 WINDOW_BORDER_PX = 2  # target edges this close to a window side inside the image are not the moving part's
@@ -72,14 +74,26 @@ class SceneWindow:
     target_edges: torch.Tensor
     dist: torch.Tensor
     edge_threshold: float
+    packed: PackedMeshes | None = None
 
     def costs(self, T_world_model: np.ndarray, compiled: bool | None = None) -> np.ndarray:
         """``(m,)`` windowed scene costs (pixels, the mean over the views of forward plus backward, as
         :func:`~bop_cender.pose.coverage.scene_cost`) of poses ``(m, 4, 4)`` of the object.
 
-        ``compiled``: after the render, composite and cost in one compiled pass
-        (:func:`~bop_cender.pose.window_kernel.window_costs`, CPU only) instead of torch operators; None (default):
-        compiled on the CPU, torch elsewhere. The two agree to float32 rounding."""
+        ``compiled``: on the CPU, after the render, composite and cost in one compiled pass
+        (:func:`~bop_cender.pose.window_kernel.window_costs`); on CUDA, all of it in one kernel
+        (:func:`~bop_cender.pose.cuda_window_kernel.cuda_window_costs`); False: the torch steps. None (default): the
+        compiled pass on the CPU, the kernel on CUDA where numba's CUDA target works (else the torch steps, with one
+        warning saying why). They agree to float32 rounding.
+
+        Raises:
+            RuntimeError: ``compiled=True`` on CUDA where the kernel cannot run.
+        """
+        if self.dist.device.type == "cuda" and compiled is not False:
+            costs = self._kernel_costs(T_world_model, compiled)
+            if costs is not None:
+                return costs
+            compiled = False
         m, V = len(T_world_model), len(self.T_cam_world)
         h, w = self.size
         T_cm = np.einsum("vij,mjk->mvik", self.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
@@ -98,6 +112,15 @@ class SceneWindow:
         forward = view_costs(curv, self.dist, self.offsets.repeat(m, 1))
         backward = mean_distance_to_own_edges(curv, self.target_edges.repeat(m, 1, 1), self.edge_threshold)
         return (forward + backward).view(m, V).mean(1).double().cpu().numpy()
+
+    def _kernel_costs(self, T_world_model: np.ndarray, compiled: bool | None) -> np.ndarray | None:
+        """The CUDA kernel's costs; None where the torch steps are to run
+        (:func:`~bop_cender.pose.cuda_window_kernel.kernel_or_none`)."""
+        from bop_cender.pose import cuda_window_kernel
+
+        return cuda_window_kernel.kernel_or_none(
+            lambda: cuda_window_kernel.cuda_window_costs(self, T_world_model), compiled
+        )
 
 
 def scene_window(
@@ -146,8 +169,9 @@ def scene_window(
         other_depth = torch.zeros((V, h, w), device=device)
         other_normals = torch.zeros((V, h, w, 3), device=device)
     offsets = torch.stack([top_t, left_t], dim=1)
+    packed = pack_meshes([mesh.to(device)]) if device.type == "cuda" else None  # the CUDA kernel's faces, once
     return SceneWindow(
-        mesh, T_cam_world, K, offsets, (h, w), other_depth, other_normals, edges, dist, float(edge_threshold)
+        mesh, T_cam_world, K, offsets, (h, w), other_depth, other_normals, edges, dist, float(edge_threshold), packed
     )
 
 

@@ -78,7 +78,9 @@ def clone(py_func: types.FunctionType, namespace: dict) -> types.FunctionType:
 def _block_sum_pair(sums, tid, threads, num, den):
     """Add up every thread's ``num`` and ``den`` over the block in ``sums`` (a ``(2, >= threads)`` float64 shared
     array the kernel allocates): each thread stores its pair, then a tree over the threads (``threads`` a power of
-    two); on return ``sums[0, 0]`` and ``sums[1, 0]`` hold the block's totals, for every thread."""
+    two); on return ``sums[0, 0]`` and ``sums[1, 0]`` hold the block's totals, for every thread. It stores before its
+    first barrier: a second sum into the same ``sums`` would race with threads still reading the first's totals
+    (use another array, or a barrier between)."""
     sums[0, tid] = num
     sums[1, tid] = den
     syncthreads()  # noqa: F821 (bound in device_functions)
@@ -118,17 +120,44 @@ def device_functions(functions: dict, extra: dict | None = None) -> dict:
     return namespace
 
 
+#: Low bits of an exact z-buffer key on CUDA that hold the face id (above them: 1/z's float32 bits).
+FACE_ID_BITS = 32
+
+
+def _keep_fragment_exact_atomic(best_key, best_w, p, q, key, f, quantised):
+    """The exact z-buffer test on CUDA (the CPU's rule for packed meshes): the larger 1/z ``q`` wins, ties to the
+    larger face id ``f``, as one 64-bit atomic maximum of ``q``'s float32 bits above the face id in an int64
+    ``best_key`` (a non-negative float's bits order as the float; a negative or NaN 1/z never wins, as on the CPU)."""
+    if q >= 0:  # + 0: a -0.0 (>= 0, wins on the CPU) gets the bits of +0.0
+        bits = np.int64(float_as_int(np.float32(q) + np.float32(0.0)))  # noqa: F821 (bound in device_namespace)
+        cuda.atomic.max(best_key, p, (bits << FACE_ID_BITS) | np.int64(f))  # noqa: F821
+
+
+def _keep_fragment_exact_simulated(best_key, best_w, p, q, key, f, quantised):
+    """:func:`_keep_fragment_exact_atomic` in numba's simulator: plain Python under the simulated atomics' lock."""
+    if q >= 0:
+        packed = (int((np.float32(q) + np.float32(0.0)).view(np.int32)) << FACE_ID_BITS) | int(f)
+        with _SIMULATED_ATOMICS:
+            best_key[p] = max(int(best_key[p]), packed)
+
+
 @cache
-def device_namespace() -> dict:
+def device_namespace(exact_keys: bool = False) -> dict:
     """Globals in which the rasteriser's shared functions (and a kernel cloned into them) are numba CUDA device
     functions (:func:`device_functions`): :data:`~bop_cender.render.compiled_raster.SHARED_FUNCTIONS` by name,
-    ``keep_fragment`` atomic (in the simulator, under a lock)."""
+    ``keep_fragment`` atomic (in the simulator, under a lock): an int32 maximum of quantised keys, or with
+    ``exact_keys`` an int64 maximum of the exact keys (:data:`FACE_ID_BITS`: a face id is ``key & (2^32 - 1)``)."""
     from bop_cender.render import compiled_raster
 
     simulated = simulator_enabled()
-    functions = {
-        **compiled_raster.SHARED_FUNCTIONS,
-        "keep_fragment": _keep_fragment_simulated if simulated else _keep_fragment_atomic,
-        "sqrt32": _sqrt32_device,
-    }
-    return device_functions(functions, {**vars(compiled_raster), "_SIMULATED_ATOMICS": _SIMULATED_ATOMICS})
+    if exact_keys:
+        keep = _keep_fragment_exact_simulated if simulated else _keep_fragment_exact_atomic
+    else:
+        keep = _keep_fragment_simulated if simulated else _keep_fragment_atomic
+    functions = {**compiled_raster.SHARED_FUNCTIONS, "keep_fragment": keep, "sqrt32": _sqrt32_device}
+    extra = {**vars(compiled_raster), "_SIMULATED_ATOMICS": _SIMULATED_ATOMICS, "FACE_ID_BITS": FACE_ID_BITS}
+    if exact_keys and not simulated:
+        from numba.cuda import libdevice
+
+        extra["float_as_int"] = libdevice.float_as_int
+    return device_functions(functions, extra)

@@ -203,13 +203,17 @@ def test_the_compile_check_records_a_real_calls_arguments_and_compiles_or_says_w
     import importlib.util
 
     from bop_cender.pose.cuda_cost import _costs_kernel
+    from bop_cender.pose.cuda_edge_kernel import _edge_kernel
+    from bop_cender.pose.cuda_window_kernel import _window_kernel
 
     sys.path.insert(0, str(ROOT / "scripts"))
     import check_cuda_compile
 
-    arguments = check_cuda_compile._launch_arguments()
-    assert len(arguments) == _costs_kernel.__code__.co_argcount
-    assert all(isinstance(a, np.ndarray) or np.isscalar(a) for a in arguments)
+    for arguments, kernel in ((check_cuda_compile._launch_arguments(), _costs_kernel),
+                              (check_cuda_compile._edge_arguments(), _edge_kernel),
+                              (check_cuda_compile._window_arguments(), _window_kernel)):  # fmt: skip
+        assert len(arguments) == kernel.__code__.co_argcount, kernel.__name__
+        assert all(isinstance(a, np.ndarray) or np.isscalar(a) or isinstance(a, bool) for a in arguments)
     done = subprocess.run([sys.executable, str(ROOT / "scripts" / "check_cuda_compile.py")], capture_output=True,
                           text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
     assert "Traceback" not in done.stderr

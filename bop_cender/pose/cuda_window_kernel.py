@@ -1,0 +1,408 @@
+"""The scene polish's windowed cost (and the full scene cost) as one CUDA kernel: a thread block per window.
+
+Why. The scene polish (:mod:`bop_cender.pose.scene_polish`) costs one to seven trial poses of one part per Nelder-Mead
+step, about a hundred steps per part and pass. On CUDA it ran the torch steps (render, composite, curvature, both
+terms): 15 ms a call on an H200 whatever its size (``results/bench/run_*nvidia-h200.md``, "Scene polish"), launch
+bound, so that the polish alone would take about 15 s of a scene against issue 11's goal of 2 s. Here a call is one
+launch. Block ``c`` takes canvas ``c`` (trial ``c // V`` in view ``c % V``) and does what the CPU does per canvas
+(the compiled render of :mod:`bop_cender.render.compiled_raster`, then :mod:`bop_cender.pose.window_kernel`):
+
+1. scans the part's drawn faces into the window's z-buffer with the CPU's exact keys (1/z, ties to the larger face
+   id: the render of one packed mesh), as 64-bit atomic maxima of 1/z's float bits and the face id;
+2. shades the covered pixels and composites them over the other parts by depth;
+3. takes the curvature of the composite (replicated border) and the forward sums in float64, and marks the
+   composite's own edges (curvature above the threshold);
+4. the backward term, the mean over the window's target edges of the distance to the nearest own edge: the exact
+   Euclidean distance, by rows (each row's distance to its nearest own edge, one thread a row) and then, at each
+   target pixel only, the least ``g(k, j)^2 + (i - k)^2`` over the rows ``k``: the exact distance, which OpenCV's
+   precise transform gives to its last float32 bit (its vectorised square root), without a transform of the window.
+
+The same kernel gives the full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`, the sweeps' judge and the
+polish's acceptance: 19 ms a call in torch on the H200): every placed part in every full frame, each view one window
+with nothing else in it (:func:`cuda_scene_cost`).
+
+The host waits once per call, for the costs and the nearest vertex together; where a vertex lies behind the near
+plane the costs are dropped and the torch steps run (the torch renderer cuts the faces there).
+
+Rounding. On a GPU NVVM contracts float32 multiply-adds, so the costs agree with the CPU's to float32 rounding. In
+numba's CUDA simulator (the tests, without a GPU) the device functions are the CPU's plain Python ones and the
+costs repeat the CPU's but for the order of the float64 sums and OpenCV's last bit of some distances.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+from collections.abc import Callable
+from functools import cache
+from typing import TYPE_CHECKING, TypeVar
+
+import numpy as np
+import torch
+
+from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
+
+if TYPE_CHECKING:
+    from bop_cender.pose.scene_polish import SceneWindow
+    from bop_cender.render.mesh import PackedMeshes, RenderMesh
+
+T_out = TypeVar("T_out")
+
+#: Threads per block (one block per window); a power of two, the size of the float64 reductions' shared arrays.
+BLOCK_THREADS = 128
+
+
+def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, fused, z_range,
+                   near, other_depth, other_normals, dist, offsets, target_edges, threshold, keys, comp,
+                   out):  # fmt: skip
+    """``out[c]`` = forward plus backward cost of canvas ``c = blockIdx.x`` (view ``c % V``). The first nine
+    arguments: :func:`~bop_cender.render.compiled_raster.loop_tensors` (exact keys); ``z_range (C, 2)`` the canvas's
+    least and greatest vertex z; ``other_depth (V, h, w)`` and ``other_normals (V, h, w, 3)`` the other parts (no
+    rows: none); ``dist (V, H, W)``; ``offsets (V, 2)`` each window's origin (row, column); ``target_edges (V, h, w)``
+    uint8; scratch ``keys (C, h * w)`` int64 and ``comp (C, h, w, 3)`` float32."""
+    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
+    tid = cuda.threadIdx.x  # noqa: F821
+    threads = cuda.blockDim.x  # noqa: F821
+    V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
+    h, w = comp.shape[1], comp.shape[2]
+    v = c % V
+    n_pixels = h * w
+    key = keys[c]
+    nrm = comp[c]
+    for p in range(tid, n_pixels, threads):
+        key[p] = -1
+    cuda.syncthreads()  # noqa: F821
+    # 1. the z-buffer: exact keys (levels 0: the CPU's rule for packed meshes)
+    levels = key_levels(0, False)  # noqa: F821
+    w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
+    row = cuda.local.array(12, numba.float32)  # noqa: F821
+    cam, px, py, Rc, Kc = cam_all[c], px_all[c], py_all[c], R[c], K_inv[c]
+    for f in range(tid, faces.shape[0], threads):
+        if draw[c, f]:
+            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)  # noqa: F821
+            qa, qb, qc = key_plane(row, False, scale, w_lo)  # noqa: F821
+            scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, 0, 0, h, w, False, levels, 0,  # noqa: F821
+                      fused, key, z_range[c])  # fmt: skip
+    cuda.syncthreads()  # noqa: F821
+    # 2. shade and composite over the other parts (window_kernel._composite_costs)
+    has_other = other_depth.shape[0] > 0
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    for p in range(tid, n_pixels, threads):
+        i = p // w
+        j = p - i * w
+        d = zero
+        n0 = n1 = n2 = zero
+        k = key[p]
+        if k >= 0:
+            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, k & 0xFFFFFFFF, fused, row)  # noqa: F821
+            d, n0, n1, n2 = shade(row, np.float32(j) + half, np.float32(i) + half, fused)  # noqa: F821
+        o = other_depth[v, i, j] if has_other else zero
+        if not (d > 0 and (o == 0 or d < o)):
+            n0 = other_normals[v, i, j, 0] if has_other else zero
+            n1 = other_normals[v, i, j, 1] if has_other else zero
+            n2 = other_normals[v, i, j, 2] if has_other else zero
+        nrm[i, j, 0] = n0
+        nrm[i, j, 1] = n1
+        nrm[i, j, 2] = n2
+    cuda.syncthreads()  # noqa: F821
+    # 3. curvature, forward sums, own edges (the key array now holds 0 at an own edge, `far` elsewhere)
+    top, left = offsets[v, 0], offsets[v, 1]
+    far = 2 * (h + w)
+    num = 0.0
+    den = 0.0
+    own = 0.0
+    for p in range(tid, n_pixels, threads):
+        i = p // w
+        j = p - i * w
+        curv = pixel_curvature(nrm, max(i - 1, 0), i, min(i + 1, h - 1), max(j - 1, 0), j, min(j + 1, w - 1), fused)  # noqa: F821
+        r, s = top + i, left + j
+        if 0 <= r < H and 0 <= s < W:
+            num += np.float64(curv) * np.float64(dist[v, r, s])
+            den += np.float64(curv)
+        if curv > threshold:
+            key[p] = 0
+            own += 1.0
+        else:
+            key[p] = far
+    sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
+    block_sum_pair(sums, tid, threads, num, den)  # noqa: F821
+    forward = sums[0, 0] / sums[1, 0] if sums[1, 0] > 0.0 else math.hypot(np.float64(H), np.float64(W))
+    counts = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
+    block_sum_pair(counts, tid, threads, own, 0.0)  # noqa: F821  (also the barrier before the rows)
+    own_edges = counts[0, 0]
+    # 4a. each row's distance to its nearest own edge (`far` where the row has none)
+    for i in range(tid, h, threads):
+        base = i * w
+        last = -1
+        for j in range(w):
+            if key[base + j] == 0:
+                last = j
+            elif last >= 0:
+                key[base + j] = j - last
+        nxt = -1
+        for j in range(w - 1, -1, -1):
+            if key[base + j] == 0:
+                nxt = j
+            elif nxt >= 0 and nxt - j < key[base + j]:
+                key[base + j] = nxt - j
+    cuda.syncthreads()  # noqa: F821
+    # 4b. at each target edge, the nearest own edge over the rows
+    total = 0.0
+    targets = 0.0
+    for p in range(tid, n_pixels, threads):
+        i = p // w
+        j = p - i * w
+        if target_edges[v, i, j] != 0:
+            targets += 1.0
+            if own_edges > 0.0:
+                best = far * far
+                for k in range(h):
+                    g = key[k * w + j]
+                    d2 = g * g + (i - k) * (i - k)
+                    if d2 < best:
+                        best = d2
+                total += np.float64(sqrt32(np.float32(best)))  # noqa: F821
+    sums2 = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
+    block_sum_pair(sums2, tid, threads, total, targets)  # noqa: F821
+    if tid == 0:
+        backward = 0.0
+        if sums2[1, 0] > 0.0:
+            backward = sums2[0, 0] / sums2[1, 0] if own_edges > 0.0 else np.float64(np.float32(math.hypot(h, w)))
+        out[c] = forward + backward
+
+
+def kernel_function():
+    """The kernel's Python function with the device functions as its globals (not compiled yet:
+    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
+    return clone(_window_kernel, {**device_namespace(exact_keys=True), "BLOCK_THREADS": BLOCK_THREADS})
+
+
+@cache
+def _kernel():
+    """The kernel compiled by numba's CUDA target (on first use)."""
+    from numba import cuda
+
+    return cuda.jit(kernel_function())
+
+
+#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch steps.
+_KERNEL_FAILED: list[str] = []
+
+
+def kernel_available() -> str | None:
+    """Why :meth:`SceneWindow.costs`' CUDA default cannot be this kernel (None: it can)."""
+    return cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
+
+
+def note_failure(error: Exception) -> None:
+    """Record that the kernel failed (later calls take the torch steps) and warn once."""
+    _KERNEL_FAILED.append(f"the CUDA window kernel failed ({type(error).__name__}: {error})")
+    warn_once(f"the scene costs run their torch steps on CUDA: {_KERNEL_FAILED[0]}")
+
+
+@functools.cache
+def warn_once(message: str) -> None:
+    warnings.warn(message, RuntimeWarning, stacklevel=2)
+
+
+def kernel_or_none(compute: Callable[[], T_out | None], compiled: bool | None) -> T_out | None:
+    """``compute()`` (a call of this kernel) where it can run, None where the caller's torch steps are to serve:
+    ``compute`` returned None (a vertex behind the near plane), or, with ``compiled=None``, numba's CUDA target is
+    unavailable or the kernel failed in this process (warned once; later calls take the torch steps at once).
+
+    Raises:
+        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable; the kernel's own error where it
+            failed with ``compiled=True``.
+    """
+    reason = kernel_available()
+    if reason is not None:
+        if compiled:
+            hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
+            raise RuntimeError(f"compiled=True on CUDA needs the CUDA window kernel: {reason}{hint}")
+        warn_once(f"the scene costs run their torch steps on CUDA: {reason}")
+        return None
+    try:
+        return compute()
+    except Exception as error:  # the torch steps stay available
+        if compiled:
+            raise
+        if _is_kernel_error(error):  # numba's compilation, the driver or the launch: for the rest of the process
+            note_failure(error)
+        else:  # e.g. out of memory for this call's scratch: this call only
+            warn_once(f"a scene cost ran its torch steps on CUDA: the window kernel's call failed "
+                      f"({type(error).__name__}: {error})")  # fmt: skip
+        return None
+
+
+def _is_kernel_error(error: Exception) -> bool:
+    """Whether ``error`` is numba's or the CUDA driver's (compilation, linking, launch), not the call's own (its
+    inputs, torch's memory)."""
+    return type(error).__module__.split(".")[0] in ("numba", "numba_cuda", "cuda")
+
+
+def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: int = BLOCK_THREADS,
+                      fused: bool = True) -> np.ndarray | None:  # fmt: skip
+    """``(m,)`` windowed scene costs of trial poses ``T_world_model (m, 4, 4)`` of the window's part, as
+    :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` gives them on the CPU, by the CUDA kernel; None where a
+    vertex lies behind the near plane in some canvas (use the torch steps, whose renderer cuts the faces there).
+
+    Args:
+        window: the part's :class:`~bop_cender.pose.scene_polish.SceneWindow`, its tensors on a CUDA device (or the
+            CPU under numba's CUDA simulator).
+        T_world_model: the trial poses (mm).
+        threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
+            runs each thread as a Python thread).
+        fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
+
+    Raises:
+        ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
+    """
+    m, V = len(T_world_model), len(window.T_cam_world)
+    if m == 0 or V == 0:
+        _check_launch(window.dist.device, threads)
+        return np.zeros(m) if V else None  # no view: the torch steps say what that costs
+    costs = canvas_costs(*window_arguments(window, T_world_model), threads=threads, fused=fused)
+    return None if costs is None else costs.reshape(m, V).mean(1)
+
+
+def cuda_scene_cost(meshes: list[RenderMesh], T_cam_model: torch.Tensor, K: torch.Tensor, target_edges: torch.Tensor,
+                    dist_maps: torch.Tensor, edge_threshold: float, threads: int = BLOCK_THREADS,
+                    fused: bool = True) -> float | None:  # fmt: skip
+    """The full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`: every placed part rendered into every full
+    frame, forward plus backward, the mean over the views) by the same kernel, each view one canvas, the frame its
+    window, nothing else in it; None where a vertex lies behind the near plane (use the torch steps).
+
+    Args:
+        meshes, T_cam_model ``(V, M, 4, 4)``, K ``(V, 3, 3)``, target_edges ``(V, H, W)``, dist_maps ``(V, H, W)``,
+            edge_threshold: as ``scene_cost``, the tensors on a CUDA device (or the CPU under the simulator).
+        threads, fused: as :func:`cuda_window_costs`.
+    """
+    from bop_cender.render.mesh import pack_meshes
+    from bop_cender.render.raster import camera_vertices
+
+    device = dist_maps.device
+    V, H, W = (int(x) for x in target_edges.shape)
+    if V == 0 or not meshes:
+        _check_launch(device, threads)
+        return None  # nothing to launch: the torch steps say what such a placement costs
+    on_device = [mesh.to(device) for mesh in meshes]
+    T = T_cam_model.to(device, torch.float32)
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    # each mesh's vertices as camera_vertices computes a packed mesh's, part by part, without its split's wait
+    verts = torch.cat([camera_vertices(mesh, R[:, i : i + 1], t[:, i : i + 1]) for i, mesh in enumerate(on_device)], 2)
+    costs = canvas_costs(
+        pack_meshes(on_device), R, t, K.to(device, torch.float32), (H, W),
+        torch.zeros((V, 2), dtype=torch.int64, device=device), None, None, dist_maps.to(device),
+        target_edges.to(device), edge_threshold, verts, threads=threads, fused=fused,
+    )  # fmt: skip
+    return None if costs is None else float(costs.mean())
+
+
+def window_arguments(window: SceneWindow, T_world_model: np.ndarray) -> tuple:
+    """:func:`canvas_costs`' arguments (before ``threads``) for trial poses ``T_world_model (m, 4, 4)`` of a window's
+    part: canvas ``c`` = trial ``c // V`` in view ``c % V``."""
+    from bop_cender.render.raster import camera_vertices
+
+    device = window.dist.device
+    m, V = len(T_world_model), len(window.T_cam_world)
+    T_cm = np.einsum("vij,mjk->mvik", window.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
+    T = torch.as_tensor(T_cm, dtype=torch.float32, device=device)
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    mesh = window.mesh.to(device)
+    packed = window.packed if window.packed is not None else _packed(mesh)
+    # the packed mesh's faces and culling (the CPU renders the part as packed meshes: exact keys); its vertices as
+    # the plain mesh's (the same arithmetic for one part, without the packed split's wait for the device)
+    verts = camera_vertices(mesh, R, t)
+    other = (window.other_depth, window.other_normals) if window.other_depth.shape[0] > 0 else (None, None)
+    return (packed, R, t, window.K.repeat(m, 1, 1), window.size, window.offsets, *other, window.dist,
+            window.target_edges, window.edge_threshold, verts)  # fmt: skip
+
+
+def _packed(mesh: RenderMesh) -> PackedMeshes:
+    from bop_cender.render.mesh import pack_meshes
+
+    return pack_meshes([mesh])
+
+
+def _check_launch(device: torch.device, threads: int) -> None:
+    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
+        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    if device.type != "cuda" and not simulator_enabled():
+        raise ValueError(f"the CUDA window kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+
+
+def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
+                 offsets: torch.Tensor, other_depth: torch.Tensor | None, other_normals: torch.Tensor | None,
+                 dist: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float,
+                 verts: torch.Tensor | None = None, threads: int = BLOCK_THREADS,
+                 fused: bool = True) -> np.ndarray | None:  # fmt: skip
+    """Forward plus backward cost ``(C,)`` float64 of C canvases (canvas ``c`` in view ``c % V``) by the kernel, as
+    :func:`~bop_cender.pose.window_kernel.window_costs` gives them after the CPU's render; None where a vertex lies
+    behind the near plane in some canvas.
+
+    Args:
+        packed: the meshes drawn in every canvas (their instances' poses ``R (C, I, 3, 3)``, ``t (C, I, 3)`` in the
+            canvas's camera frame, mm); K: ``(C, 3, 3)`` the windows' intrinsics (principal point shifted to the
+            window); size: the windows' ``(h, w)``; offsets: ``(V, 2)`` each view's window origin in its image.
+        other_depth, other_normals: ``(V, h, w)``, ``(V, h, w, 3)`` what else is in the windows (None: nothing).
+        dist: ``(V, H, W)`` the target's distance maps; target_edges: ``(V, h, w)`` bool, the edges the backward term
+            measures; edge_threshold: raw curvature above which a composite pixel is one of its own edges.
+        verts: ``(3, C, N)`` the camera-space vertices if computed already (:func:`~bop_cender.render.raster.
+            camera_vertices`).
+        threads, fused: as :func:`cuda_window_costs`.
+
+    Raises:
+        ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
+    """
+    from bop_cender.render.raster import DEFAULT_NEAR
+
+    device = dist.device
+    _check_launch(device, threads)
+    C = int(R.shape[0])
+    arguments, z_min = kernel_arguments(packed, R, t, K, size, offsets, other_depth, other_normals, dist, target_edges,
+                                        edge_threshold, verts, fused)  # fmt: skip
+    out = arguments[-1]
+    kernel = _kernel()
+    if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
+        kernel[C, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
+    else:
+        from numba import cuda
+
+        with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
+            # the arrays and the stream inside the device's context: on cuda:1 they would otherwise bind device 0's
+            arrays = [cuda.as_cuda_array(x.detach()) if isinstance(x, torch.Tensor) else x for x in arguments]
+            stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
+            kernel[C, threads, stream](*arrays)
+    read = torch.cat([out, z_min.double().reshape(1)]).cpu().numpy()  # the call's one wait for the device
+    return None if read[-1] < DEFAULT_NEAR else read[:-1]
+
+
+def kernel_arguments(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
+                     offsets: torch.Tensor, other_depth: torch.Tensor | None, other_normals: torch.Tensor | None,
+                     dist: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float,
+                     verts: torch.Tensor | None = None, fused: bool = True) -> tuple[list, torch.Tensor]:  # fmt: skip
+    """The kernel's arguments (:func:`canvas_costs`' inputs on their device, in the kernel's order, scratch
+    allocated, the last one ``out (C,)`` float64, which the launch fills) and the least vertex z over the canvases (a
+    0-d tensor: nothing is read back here, where ``verts`` is given; else ``camera_vertices`` of packed meshes waits
+    for their split)."""
+    from bop_cender.render.compiled_raster import loop_tensors
+    from bop_cender.render.raster import DEFAULT_NEAR
+
+    device = dist.device
+    C = int(R.shape[0])
+    h, w = size
+    inputs = loop_tensors(packed, R, t, K, DEFAULT_NEAR, verts=verts, check_near=False)
+    z = inputs[0][..., 2]  # (C, N) camera-space vertex depths
+    z_range = torch.stack([z.amin(1), z.amax(1)], 1).contiguous()
+    if other_depth is None or other_normals is None:
+        other = (torch.zeros((0, 1, 1), device=device), torch.zeros((0, 1, 1, 3), device=device))
+    else:
+        other = (other_depth.float().contiguous(), other_normals.float().contiguous())
+    arguments = [*(x.contiguous() for x in inputs[:9]), bool(fused), z_range, np.float32(DEFAULT_NEAR), *other,
+                 dist.float().contiguous(), offsets.contiguous(), target_edges.to(torch.uint8).contiguous(),
+                 np.float32(edge_threshold), torch.empty((C, h * w), dtype=torch.int64, device=device),
+                 torch.empty((C, h, w, 3), dtype=torch.float32, device=device),
+                 torch.empty(C, dtype=torch.float64, device=device)]  # fmt: skip
+    return arguments, z_range[:, 0].amin()
