@@ -1,4 +1,4 @@
-"""Compile the CUDA kernels (the render cost's, the edge proxy's and the scene polish's) to PTX without a GPU: do they still build for the
+"""Compile the CUDA kernels (the render cost's, the edge proxy's, the scene costs' and the renderer's) to PTX without a GPU: do they still build for the
 device, and how lean are they?
 
 Why. Most sessions have no GPU, and numba's CUDA simulator (what the tests run) executes the kernel as plain Python:
@@ -62,12 +62,14 @@ def main() -> int:
 
     dispatcher.get_current_device = lambda: _Capability()
     from bop_cender.pose import cuda_cost, cuda_edge_kernel, cuda_window_kernel
+    from bop_cender.render import cuda_render
 
     status = 0
     for name, kernel_function, arguments in (
         ("cost kernel", cuda_cost.kernel_function, _launch_arguments),
         ("edge kernel", cuda_edge_kernel.kernel_function, _edge_arguments),
         ("window kernel", cuda_window_kernel.kernel_function, _window_arguments),
+        ("render kernel", cuda_render.kernel_function, _render_arguments),
     ):
         signature = tuple(typeof(a) for a in arguments())
         try:
@@ -137,6 +139,37 @@ def _window_arguments() -> list:
     window = scene_window(mesh, np.eye(4), [(mesh, other)], Ks, T_cw, edges, torch.ones(2, 96, 128), 3.0, 12)
     arguments, _ = kernel_arguments(*window_arguments(window, np.eye(4)[None]))
     return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
+
+
+def _render_arguments() -> list:
+    """The render kernel's arguments of a small real call (two boxes packed, two canvases), as the kernel takes them."""
+    import torch
+    import trimesh
+
+    from bop_cender.render.compiled_raster import loop_tensors
+    from bop_cender.render.mesh import pack_meshes, prepare_mesh
+
+    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
+    packed = pack_meshes([mesh, mesh])
+    T = torch.eye(4).repeat(2, 2, 1, 1)
+    T[..., 2, 3] = 300.0
+    T[:, 1, 0, 3] = 45.0
+    K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
+    inputs = loop_tensors(packed, T[..., :3, :3], T[..., :3, 3], K, 1.0, check_near=False)
+    arrays = [x.contiguous().numpy() for x in inputs[:9]]
+    z = inputs[0][..., 2]
+    z_range = torch.stack([z.amin(1), z.amax(1)], 1).numpy()
+    return [
+        *arrays,
+        True,
+        z_range,
+        np.float32(1.0),
+        np.zeros((2, 2), np.int64),
+        np.zeros((2, 96 * 128), np.int64),
+        np.zeros((2, 96, 128), np.float32),
+        np.zeros((2, 96, 128, 3), np.float32),
+        np.zeros((2, 96, 128), np.int64),
+    ]
 
 
 if __name__ == "__main__":

@@ -70,24 +70,12 @@ def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_n
     n_pixels = h * w
     key = keys[c]
     nrm = comp[c]
-    for p in range(tid, n_pixels, threads):
-        key[p] = -1
-    cuda.syncthreads()  # noqa: F821
-    # 1. the z-buffer: exact keys (levels 0: the CPU's rule for packed meshes)
-    levels = key_levels(0, False)  # noqa: F821
-    w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
     row = cuda.local.array(12, numba.float32)  # noqa: F821
-    cam, px, py, Rc, Kc = cam_all[c], px_all[c], py_all[c], R[c], K_inv[c]
-    for f in range(tid, faces.shape[0], threads):
-        if draw[c, f]:
-            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)  # noqa: F821
-            qa, qb, qc = key_plane(row, False, scale, w_lo)  # noqa: F821
-            scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, 0, 0, h, w, False, levels, 0,  # noqa: F821
-                      fused, key, z_range[c])  # fmt: skip
-    cuda.syncthreads()  # noqa: F821
+    # 1. the z-buffer: exact keys (the CPU's rule for packed meshes)
+    scan_canvas_exact(c, tid, threads, cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
+                      fused, z_range, near, 0, 0, h, w, key, row)  # fmt: skip
     # 2. shade and composite over the other parts (window_kernel._composite_costs)
     has_other = other_depth.shape[0] > 0
-    half = np.float32(0.5)
     zero = np.float32(0.0)
     for p in range(tid, n_pixels, threads):
         i = p // w
@@ -96,8 +84,8 @@ def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_n
         n0 = n1 = n2 = zero
         k = key[p]
         if k >= 0:
-            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, k & 0xFFFFFFFF, fused, row)  # noqa: F821
-            d, n0, n1, n2 = shade(row, np.float32(j) + half, np.float32(i) + half, fused)  # noqa: F821
+            d, n0, n1, n2 = shade_key(c, k, i, j, 0, 0, cam_all, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
+                                      fused, row)  # fmt: skip
         o = other_depth[v, i, j] if has_other else zero
         if not (d > 0 and (o == 0 or d < o)):
             n0 = other_normals[v, i, j, 0] if has_other else zero

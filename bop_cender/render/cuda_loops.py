@@ -141,6 +141,39 @@ def _keep_fragment_exact_simulated(best_key, best_w, p, q, key, f, quantised):
             best_key[p] = max(int(best_key[p]), packed)
 
 
+def _scan_canvas_exact(c, tid, threads, cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv,
+                       fused, z_range, near, v0, u0, h, w, key, row):  # fmt: skip
+    """Canvas ``c``'s exact z-buffer over its window (rows ``v0 ..``, columns ``u0 ..``, ``h x w``): ``key (h * w,)``
+    int64 set empty (-1), then every drawn face scanned into it by the block's threads in turn, barriers after each
+    step; ``row`` a 12-float local array. On return a covered pixel's key holds its face id in the low
+    :data:`FACE_ID_BITS` (the CPU's ``raster_window`` with exact keys, the render of packed meshes)."""
+    for p in range(tid, h * w, threads):
+        key[p] = -1
+    syncthreads()  # noqa: F821 (bound in device_functions)
+    levels = key_levels(0, False)  # noqa: F821
+    w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
+    cam, px, py, Rc, Kc = cam_all[c], px_all[c], py_all[c], R[c], K_inv[c]
+    for f in range(tid, faces.shape[0], threads):
+        if draw[c, f]:
+            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)  # noqa: F821
+            qa, qb, qc = key_plane(row, False, scale, w_lo)  # noqa: F821
+            scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, v0, u0, h, w, False, levels, 0,  # noqa: F821
+                      fused, key, z_range[c])  # fmt: skip
+    syncthreads()  # noqa: F821
+
+
+def _shade_key(c, k, i, j, v0, u0, cam_all, faces, face_instance, corner_normals, R, K_inv, fused, row):
+    """``(depth, n0, n1, n2)`` at pixel ``(i, j)`` of canvas ``c``'s window (origin ``v0, u0``) whose exact key ``k``
+    (>= 0) names its face, at the pixel's centre in image coordinates (the CPU's ``raster_window``)."""
+    face_row(cam_all[c], faces, face_instance, corner_normals, R[c], K_inv[c], k & FACE_ID_MASK, fused, row)  # noqa: F821
+    half = np.float32(0.5)
+    return shade(row, np.float32(u0 + j) + half, np.float32(v0 + i) + half, fused)  # noqa: F821
+
+
+#: A face id's bits in an exact key.
+FACE_ID_MASK = (1 << 32) - 1
+
+
 @cache
 def device_namespace(exact_keys: bool = False) -> dict:
     """Globals in which the rasteriser's shared functions (and a kernel cloned into them) are numba CUDA device
@@ -155,7 +188,10 @@ def device_namespace(exact_keys: bool = False) -> dict:
     else:
         keep = _keep_fragment_simulated if simulated else _keep_fragment_atomic
     functions = {**compiled_raster.SHARED_FUNCTIONS, "keep_fragment": keep, "sqrt32": _sqrt32_device}
-    extra = {**vars(compiled_raster), "_SIMULATED_ATOMICS": _SIMULATED_ATOMICS, "FACE_ID_BITS": FACE_ID_BITS}
+    if exact_keys:  # a canvas's z-buffer and shading, shared by the kernels that render with exact keys
+        functions.update(scan_canvas_exact=_scan_canvas_exact, shade_key=_shade_key)
+    extra = {**vars(compiled_raster), "_SIMULATED_ATOMICS": _SIMULATED_ATOMICS, "FACE_ID_BITS": FACE_ID_BITS,
+             "FACE_ID_MASK": FACE_ID_MASK}  # fmt: skip
     if exact_keys and not simulated:
         from numba.cuda import libdevice
 

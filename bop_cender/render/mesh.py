@@ -79,6 +79,8 @@ class PackedMeshes:
         face_instance: ``(F,)`` int64 index of the mesh each face belongs to.
         face_local: ``(F,)`` int64 index of each face within its own mesh.
         radii: ``(M,)`` float32 bounding-sphere radius of each mesh about its origin.
+        vertex_counts: each mesh's number of vertices, on the host (None: count them from ``vertex_instance``, a
+            wait for the device where the meshes are on a GPU).
     """
 
     vertices: torch.Tensor
@@ -89,6 +91,7 @@ class PackedMeshes:
     face_instance: torch.Tensor
     face_local: torch.Tensor
     radii: torch.Tensor
+    vertex_counts: tuple[int, ...] | None = None
 
     @property
     def num_meshes(self) -> int:
@@ -152,6 +155,7 @@ def pack_meshes(meshes: Sequence[RenderMesh]) -> PackedMeshes:
         face_instance=face_instance,
         face_local=torch.arange(faces.shape[0], device=device) - face_start[face_instance],
         radii=torch.tensor([m.radius for m in meshes], dtype=torch.float32, device=device),
+        vertex_counts=tuple(int(m.vertices.shape[0]) for m in meshes),
     )
 
 

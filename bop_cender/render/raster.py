@@ -226,7 +226,10 @@ def camera_vertices(mesh: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.T
     if vertex_instance is None:
         parts = [mesh.vertices]
     else:  # packed meshes are contiguous, instance after instance
-        parts = torch.split(mesh.vertices, torch.bincount(vertex_instance, minlength=R.shape[1]).tolist())
+        counts = mesh.vertex_counts
+        if counts is None:  # counted on the device: a wait for it
+            counts = torch.bincount(vertex_instance, minlength=R.shape[1]).tolist()
+        parts = torch.split(mesh.vertices, list(counts))
     out = [torch.matmul(R[:, i], v.T) + t[:, i, :, None] for i, v in enumerate(parts)]  # (C, 3, n_i)
     return torch.cat(out, 2).transpose(0, 1).contiguous()
 

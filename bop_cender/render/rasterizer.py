@@ -9,7 +9,7 @@ mesh's device does); batches are cut into chunks so that memory stays bounded.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -125,9 +125,11 @@ def render_scene(
         height, width: image size.
         near: near plane (mm); nothing closer is drawn.
         compiled: on the CPU, render with the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same
-            bits, without the torch pipeline's fixed cost of about 2,000 operators a call); None (default): on the
-            CPU where the loops can repeat torch's rounding (``compiled_raster.AVAILABLE``), unless a vertex is
-            behind the near plane (the torch pipeline cuts faces there).
+            bits, without the torch pipeline's fixed cost of about 2,000 operators a call), on CUDA with its kernel
+            (:mod:`bop_cender.render.cuda_render`: one launch, the same maps to float32 rounding); None (default): on
+            the CPU where the loops can repeat torch's rounding (``compiled_raster.AVAILABLE``), on CUDA where numba's
+            CUDA target works (else warned once), unless a vertex is behind the near plane (the torch pipeline cuts
+            faces there); False: the torch pipeline.
 
     Returns:
         Depth, normals, instance and face maps ``(V, H, W, ...)``.
@@ -143,6 +145,13 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
+    if device.type == "cuda" and compiled is not False and V > 0:
+        from bop_cender.render import cuda_render  # numba: imported where it is used
+
+        maps = cuda_render.render_or_none(packed, R, t, Ks, height, width, near, compiled)
+        if maps is not None:
+            return SceneRender(*maps, packed.face_instance, packed.face_local)
+        compiled = False  # the torch pipeline (a vertex behind the near plane, or no kernel)
     from bop_cender.render import compiled_raster  # numba: imported where it is used
 
     if compiled_raster.use_compiled(compiled, device) and V > 0:
@@ -311,4 +320,4 @@ def _as_f32(x: TensorLike, device: torch.device) -> torch.Tensor:
 def _packed_to(p: PackedMeshes, device: torch.device) -> PackedMeshes:
     if p.device == device:
         return p
-    return PackedMeshes(*(getattr(p, f).to(device) for f in p.__dataclass_fields__))
+    return replace(p, **{f: getattr(p, f).to(device) for f in p.__dataclass_fields__ if f != "vertex_counts"})

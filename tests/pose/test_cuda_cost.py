@@ -205,13 +205,15 @@ def test_the_compile_check_records_a_real_calls_arguments_and_compiles_or_says_w
     from bop_cender.pose.cuda_cost import _costs_kernel
     from bop_cender.pose.cuda_edge_kernel import _edge_kernel
     from bop_cender.pose.cuda_window_kernel import _window_kernel
+    from bop_cender.render.cuda_render import _render_kernel
 
     sys.path.insert(0, str(ROOT / "scripts"))
     import check_cuda_compile
 
     for arguments, kernel in ((check_cuda_compile._launch_arguments(), _costs_kernel),
                               (check_cuda_compile._edge_arguments(), _edge_kernel),
-                              (check_cuda_compile._window_arguments(), _window_kernel)):  # fmt: skip
+                              (check_cuda_compile._window_arguments(), _window_kernel),
+                              (check_cuda_compile._render_arguments(), _render_kernel)):  # fmt: skip
         assert len(arguments) == kernel.__code__.co_argcount, kernel.__name__
         assert all(isinstance(a, np.ndarray) or np.isscalar(a) or isinstance(a, bool) for a in arguments)
     done = subprocess.run([sys.executable, str(ROOT / "scripts" / "check_cuda_compile.py")], capture_output=True,

@@ -175,13 +175,13 @@ def test_the_rounding_of_addcmul_is_probed_not_assumed() -> None:
     )
 
 
-def test_compiled_true_on_cuda_inputs_is_refused(device) -> None:
-    if device.type == "cpu":
-        pytest.skip("the refusal is of non-CPU inputs")
-    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)), device=device)
-    T_t = torch.as_tensor(_poses(1, 1, seed=1), dtype=torch.float32, device=device)
+def test_the_compiled_loop_refuses_inputs_on_another_device() -> None:
+    """``use_compiled(True, ...)`` is for CPU inputs (``render_scene`` takes its CUDA kernel on CUDA instead)."""
+    from bop_cender.render.compiled_raster import use_compiled
+
     with pytest.raises(ValueError, match="runs on the CPU"):
-        render_scene([mesh], T_t, torch.as_tensor(K[None], dtype=torch.float32, device=device), H, W, compiled=True)
+        use_compiled(True, torch.device("cuda"))
+    assert use_compiled(False, torch.device("cpu")) is False
 
 
 def test_objects_alone_and_candidate_windows_are_the_torch_render_bit_for_bit(monkeypatch) -> None:

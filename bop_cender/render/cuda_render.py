@@ -1,0 +1,191 @@
+"""The renderer on CUDA as one kernel: depth, normals and face ids of packed meshes, a thread block per canvas.
+
+Why. :func:`~bop_cender.render.rasterizer.render_scene` runs the torch pipeline on CUDA: about 2,000 operators a
+call whatever its size, so that a render of a few parts in seven views costs about 20 ms on an H200, launch bound
+(``results/bench/run_*nvidia-h200.md``: the full scene cost, a render and a few steps, 19 ms). Stage 3 renders the
+placed parts as occluders of every object it searches, and the scene polish renders each part's neighbours into its
+windows: on CUDA those renders are the last torch pipeline left in a search's loop. Here a call is one launch,
+block ``c`` drawing canvas ``c`` as the CPU's compiled loop does (:func:`~bop_cender.render.compiled_raster.
+raster_window` with exact keys: 1/z, ties to the larger face id), with its source
+(:func:`~bop_cender.render.cuda_loops.device_namespace`): the window's z-buffer as 64-bit atomic maxima, then the
+covered pixels shaded at their centres.
+
+Rounding. On a GPU NVVM contracts float32 multiply-adds, as nvcc does for torch's CUDA kernels: the maps agree with
+the CPU's to float32 rounding, and a pixel where two faces' depths are within that rounding may show the other face.
+In numba's CUDA simulator (the tests, without a GPU) the device functions are the CPU's plain Python ones and the
+maps are the CPU's bit for bit.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from functools import cache
+
+import numpy as np
+import torch
+
+from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
+from bop_cender.render.mesh import PackedMeshes
+
+#: Threads per block (one block per canvas).
+BLOCK_THREADS = 128
+#: Pixels of canvases per launch (their maps and scratch: 32 bytes a pixel, so about 1 GiB).
+CHUNK_PIXELS = 1 << 25
+
+
+def _render_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, fused, z_range, near,
+                   offsets, keys, depth, normals, face_map):  # fmt: skip
+    """Canvas ``c = blockIdx.x`` into ``depth[c] (h, w)``, ``normals[c] (h, w, 3)`` and ``face_map[c] (h, w)`` (0, 0
+    and -1 where nothing is drawn), its window at ``offsets[c]`` (row, column). The first nine arguments:
+    :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` the canvas's least and greatest vertex
+    z; scratch ``keys (C, h * w)`` int64."""
+    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
+    tid = cuda.threadIdx.x  # noqa: F821
+    threads = cuda.blockDim.x  # noqa: F821
+    h, w = depth.shape[1], depth.shape[2]
+    v0, u0 = offsets[c, 0], offsets[c, 1]
+    key = keys[c]
+    row = cuda.local.array(12, numba.float32)  # noqa: F821
+    scan_canvas_exact(c, tid, threads, cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
+                      fused, z_range, near, v0, u0, h, w, key, row)  # fmt: skip
+    zero = np.float32(0.0)
+    for p in range(tid, h * w, threads):
+        i = p // w
+        j = p - i * w
+        k = key[p]
+        d = n0 = n1 = n2 = zero
+        f = -1
+        if k >= 0:
+            d, n0, n1, n2 = shade_key(c, k, i, j, v0, u0, cam_all, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
+                                      fused, row)  # fmt: skip
+            f = k & FACE_ID_MASK  # noqa: F821
+        depth[c, i, j] = d
+        normals[c, i, j, 0] = n0
+        normals[c, i, j, 1] = n1
+        normals[c, i, j, 2] = n2
+        face_map[c, i, j] = f
+
+
+def kernel_function():
+    """The kernel's Python function with the device functions as its globals (not compiled yet:
+    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
+    return clone(_render_kernel, dict(device_namespace(exact_keys=True)))
+
+
+@cache
+def _kernel():
+    """The kernel compiled by numba's CUDA target (on first use)."""
+    from numba import cuda
+
+    return cuda.jit(kernel_function())
+
+
+#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch pipeline.
+_KERNEL_FAILED: list[str] = []
+
+
+def kernel_available() -> str | None:
+    """Why ``render_scene``'s CUDA default cannot be this kernel (None: it can)."""
+    return cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
+
+
+@functools.cache
+def _warn_once(message: str) -> None:
+    warnings.warn(message, RuntimeWarning, stacklevel=2)
+
+
+def render_or_none(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
+                   near: float, compiled: bool | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
+    """:func:`cuda_render` as ``render_scene`` takes it on CUDA: None where the torch pipeline is to run instead: a
+    vertex behind the near plane, or (with ``compiled=None``) numba's CUDA target unavailable or the kernel failed in
+    this process (warned once; a failure of numba or the driver keeps later calls on the torch pipeline).
+
+    Raises:
+        RuntimeError: ``compiled=True`` and the kernel cannot run here.
+    """
+    reason = kernel_available()
+    if reason is not None:
+        if compiled:
+            hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
+            raise RuntimeError(f"compiled=True on CUDA needs the CUDA render kernel: {reason}{hint}")
+        _warn_once(f"render_scene runs the torch pipeline on CUDA: {reason}")
+        return None
+    try:
+        return cuda_render(packed, R, t, K, height, width, near)
+    except Exception as error:  # the torch pipeline stays available
+        if compiled:
+            raise
+        if type(error).__module__.split(".")[0] in ("numba", "numba_cuda", "cuda"):  # numba's or the driver's
+            _KERNEL_FAILED.append(f"the CUDA render kernel failed ({type(error).__name__}: {error})")
+            _warn_once(f"render_scene runs the torch pipeline on CUDA: {_KERNEL_FAILED[0]}")
+        else:  # the call's own (e.g. out of memory for its maps): this call only
+            _warn_once(f"a render ran the torch pipeline on CUDA: the kernel's call failed ({type(error).__name__}: "
+                       f"{error})")  # fmt: skip
+        return None
+
+
+def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
+                near: float, offsets: torch.Tensor | None = None,
+                threads: int = BLOCK_THREADS) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
+    """Depth ``(C, H, W)`` (z in mm, 0 on background), unit normals ``(C, H, W, 3)`` and face ids ``(C, H, W)`` int64
+    (packed index, -1 on background) of packed meshes in C canvases, as the CPU's
+    :func:`~bop_cender.render.compiled_raster.render_compiled` gives them; None where a vertex lies behind the near
+    plane in some canvas (the torch renderer cuts the faces there: use it).
+
+    Args:
+        packed: the meshes (on the inputs' device; ``vertex_counts`` known, or counting them waits for the device).
+        R: ``(C, I, 3, 3)`` float32 model-to-camera rotations of the I instances, ``t``: ``(C, I, 3)`` (mm).
+        K: ``(C, 3, 3)`` float32 intrinsics; height, width: the canvas size; near: the near plane (mm).
+        offsets: ``(C, 2)`` int64 each canvas's window origin (row, column) in its image; None: the full frame.
+        threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
+            runs each thread as a Python thread).
+
+    Raises:
+        ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
+    """
+    from bop_cender.render.compiled_raster import loop_tensors
+
+    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
+        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    device = R.device
+    if device.type != "cuda" and not simulator_enabled():
+        raise ValueError(f"the CUDA render kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    C = int(R.shape[0])
+    depth = torch.empty((C, height, width), dtype=torch.float32, device=device)
+    normals = torch.empty((C, height, width, 3), dtype=torch.float32, device=device)
+    face_map = torch.empty((C, height, width), dtype=torch.int64, device=device)
+    if C == 0:
+        return depth, normals, face_map
+    fused = True  # the GPU's torch rounds multiply-adds once; the simulator repeats the CPU's probed rounding
+    if simulator_enabled():
+        from bop_cender.render.compiled_raster import ADDCMUL_FUSED
+
+        fused = bool(ADDCMUL_FUSED)
+    origins = torch.zeros((C, 2), dtype=torch.int64, device=device) if offsets is None else offsets.to(torch.int64)
+    chunk = max(1, CHUNK_PIXELS // max(1, height * width))
+    keys = torch.empty((min(C, chunk), height * width), dtype=torch.int64, device=device)
+    z_lows = []
+    kernel = _kernel()
+    for start in range(0, C, chunk):  # canvases in chunks: the scratch and the maps' memory stay bounded
+        rows = slice(start, min(C, start + chunk))
+        inputs = loop_tensors(packed, R[rows], t[rows], K[rows], near, check_near=False)
+        z = inputs[0][..., 2]  # (c, N) camera-space vertex depths
+        z_range = torch.stack([z.amin(1), z.amax(1)], 1).contiguous()
+        z_lows.append(z_range[:, 0].amin())
+        arguments = [*(x.contiguous() for x in inputs[:9]), fused, z_range, np.float32(near),
+                     origins[rows].contiguous(), keys, depth[rows], normals[rows], face_map[rows]]  # fmt: skip
+        n = rows.stop - rows.start
+        if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
+            kernel[n, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
+        else:
+            from numba import cuda
+
+            with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
+                # the arrays and the stream inside the device's context: on cuda:1 they would bind device 0's
+                arrays = [cuda.as_cuda_array(x.detach()) if isinstance(x, torch.Tensor) else x for x in arguments]
+                stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
+                kernel[n, threads, stream](*arrays)
+    if float(torch.stack(z_lows).amin()) < near:  # the call's one wait for the device
+        return None
+    return depth, normals, face_map

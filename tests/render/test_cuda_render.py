@@ -1,0 +1,170 @@
+"""The renderer's CUDA kernel (``bop_cender.render.cuda_render``): the CPU's compiled maps, one launch a call.
+
+Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
+thread a Python thread, the shared device functions the CPU's plain Python ones), where it must give the CPU's
+compiled render (packed meshes, exact keys: ``render_compiled``) bit for bit: a pile of parts that occlude each
+other (an L-bracket among them), parts cut by the frame, windows at an origin, canvases in several launches; a
+vertex behind the near plane leaves the call to the torch pipeline (None). On a GPU (``-m cuda``) ``render_scene``
+takes it by default and ``tests/render/test_rasterizer.py`` checks its maps against ray casting.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from bop_cender.render.mesh import pack_meshes, prepare_mesh
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: What the simulated run checks, printed line by line ("ok ...") for the test to read.
+_SIMULATED = textwrap.dedent(
+    """
+    import sys
+    sys.path[:0] = [{tests!r} + "/render"]
+    import numpy as np, torch, trimesh
+    from reference import K_matrix, bracket
+    from test_compiled_raster import _poses
+    from bop_cender.render import cuda_render
+    from bop_cender.render.compiled_raster import render_compiled
+    from bop_cender.render.mesh import pack_meshes, prepare_mesh
+
+    H, W = 40, 56
+    K = K_matrix(120.0, 118.0, 27.3, 19.6)
+    meshes = [prepare_mesh(bracket()), prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0))),
+              prepare_mesh(trimesh.creation.icosphere(subdivisions=1, radius=15.0))]
+    packed = pack_meshes(meshes)
+    T = torch.as_tensor(_poses(3, 3, seed=5, spread=25.0), dtype=torch.float32)  # (V, M, 4, 4): a pile per view
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    Ks = torch.as_tensor(np.repeat(K[None], 3, 0), dtype=torch.float32)
+    offsets = torch.tensor([[0, 0], [5, 9], [-4, 30]])  # windows: the frame, inside it, cut by its border
+    for name, size, origins, launch_pixels in (("frame", (H, W), None, 1 << 25), ("windows", (24, 30), offsets, 800)):
+        cuda_render.CHUNK_PIXELS = launch_pixels  # 800: a canvas per launch
+        cpu = render_compiled(packed, R, t, Ks, *size, 1.0, origins)
+        sim = cuda_render.cuda_render(packed, R, t, Ks, *size, 1.0, origins, threads=8)
+        same = [bool(torch.equal(a, b)) for a, b in zip(cpu, sim)]
+        print("ok", name, same, int((cpu[2] >= 0).sum()), len(torch.unique(cpu[2][cpu[2] >= 0] >= meshes[0].num_faces)))
+    T_near = T.clone()
+    T_near[0, 0, 2, 3] = 5.0  # a vertex behind the near plane
+    print("ok near", cuda_render.cuda_render(packed, T_near[..., :3, :3], T_near[..., :3, 3], Ks, H, W, 1.0,
+                                             threads=8) is None)
+    empty = cuda_render.cuda_render(packed, R[:0], t[:0], Ks[:0], H, W, 1.0, threads=8)
+    print("ok empty", [tuple(x.shape) for x in empty])
+    for threads in (0, 3, 256):
+        try:
+            cuda_render.cuda_render(packed, R, t, Ks, H, W, 1.0, threads=threads)
+        except ValueError as error:
+            print("ok threads", threads, error)
+    """
+)
+
+
+def test_the_kernel_gives_the_cpu_maps_bit_for_bit_in_numbas_cuda_simulator() -> None:
+    from bop_cender.render.compiled_raster import AVAILABLE
+
+    if not AVAILABLE:
+        pytest.skip("the CPU loops cannot repeat torch's addcmul rounding here: nothing to compare the kernel with")
+    script = _SIMULATED.format(tests=str(ROOT / "tests"))
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
+    assert [line.split()[1] for line in lines] == ["frame", "windows", "near", "empty", "threads", "threads", "threads"]
+    for line in lines[:2]:
+        assert "[True, True, True]" in line, line  # depth, normals, face ids: the CPU's bits
+        covered, parts = (int(x) for x in line.rsplit(" ", 2)[1:])
+        assert covered > 100 and parts == 2, line  # drawn, by the bracket and by the other parts
+    assert lines[2].endswith("True")
+    assert lines[3] == "ok empty [(0, 40, 56), (0, 40, 56, 3), (0, 40, 56)]"
+
+
+def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
+    from bop_cender.render.cuda_loops import simulator_enabled
+    from bop_cender.render.cuda_render import cuda_render
+
+    if simulator_enabled():
+        pytest.skip("the simulator takes CPU tensors")
+    packed = pack_meshes([prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))])
+    with pytest.raises(ValueError, match="CUDA tensors"):
+        cuda_render(packed, torch.eye(3)[None, None], torch.zeros(1, 1, 3), torch.eye(3)[None], 8, 8, 1.0)
+
+
+def test_render_or_none_falls_back_and_warns_once(monkeypatch) -> None:
+    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else one warning, and the torch
+    pipeline), True insists; a failure of numba or the driver keeps the process on the torch pipeline, a failure of
+    the call alone (out of memory) that call only."""
+    from numba.core.errors import NumbaError
+
+    from bop_cender.render import cuda_render
+
+    cuda_render._warn_once.cache_clear()
+    monkeypatch.setattr(cuda_render, "_KERNEL_FAILED", [])
+    maps = (torch.zeros(1), torch.zeros(1), torch.zeros(1))
+    monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: maps)
+    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: None)
+    args = (None, None, None, None, 8, 8, 1.0)
+    assert cuda_render.render_or_none(*args, None) is maps is cuda_render.render_or_none(*args, True)
+    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver")
+    with pytest.raises(RuntimeError, match="needs the CUDA render kernel: numba.cuda finds no CUDA driver"):
+        cuda_render.render_or_none(*args, True)
+    with pytest.warns(RuntimeWarning, match="torch pipeline on CUDA: numba.cuda finds no CUDA driver"):
+        assert cuda_render.render_or_none(*args, None) is None
+    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: None)
+
+    def raising(error):
+        def render(*a):
+            raise error
+
+        return render
+
+    monkeypatch.setattr(cuda_render, "cuda_render", raising(torch.cuda.OutOfMemoryError("CUDA out of memory")))
+    with pytest.warns(RuntimeWarning, match="the kernel's call failed .OutOfMemoryError"):
+        assert cuda_render.render_or_none(*args, None) is None
+    assert cuda_render._KERNEL_FAILED == []
+    monkeypatch.setattr(cuda_render, "cuda_render", raising(NumbaError("NVVM_ERROR_COMPILATION")))
+    with pytest.raises(NumbaError):
+        cuda_render.render_or_none(*args, True)
+    with pytest.warns(RuntimeWarning, match=r"the CUDA render kernel failed \(NumbaError"):
+        assert cuda_render.render_or_none(*args, None) is None
+    monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: maps)  # works again, but
+    assert cuda_render.render_or_none(*args, None) is None  # the process stays on the torch pipeline
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_on_cuda_render_scene_takes_the_kernel_and_gives_the_cpu_maps() -> None:
+    try:
+        from tests.render.reference import K_matrix, bracket
+        from tests.render.test_compiled_raster import _poses
+    except ImportError:
+        sys.path[:0] = [str(ROOT / "tests" / "render")]
+        from reference import K_matrix, bracket
+        from test_compiled_raster import _poses
+    from bop_cender.render.cuda_loops import cuda_unavailable_reason
+    from bop_cender.render.rasterizer import render_scene
+
+    if cuda_unavailable_reason() is not None:
+        pytest.skip(cuda_unavailable_reason())
+    meshes = [prepare_mesh(bracket()), prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))]
+    T = torch.as_tensor(_poses(4, 2, seed=3), dtype=torch.float32)
+    Ks = torch.as_tensor(np.repeat(K_matrix(300.0, 295.0, 64.3, 47.6)[None], 4, 0), dtype=torch.float32)
+    cpu = render_scene(meshes, T, Ks, 96, 128)
+    on_cuda = [m.to("cuda") for m in meshes]
+    kernel = render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128)
+    assert torch.equal(
+        kernel.packed_face, render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, compiled=True).packed_face
+    )
+    pipeline = render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, compiled=False)
+    for other in (cpu, pipeline):  # float32 rounding apart: a pixel where two faces nearly tie may differ
+        assert (kernel.packed_face.cpu() != other.packed_face.cpu()).float().mean() < 1e-3
+        same = kernel.packed_face.cpu() == other.packed_face.cpu()
+        torch.testing.assert_close(kernel.depth.cpu()[same], other.depth.cpu()[same], rtol=1e-5, atol=1e-4)
+        torch.testing.assert_close(kernel.normals.cpu()[same], other.normals.cpu()[same], rtol=1e-4, atol=1e-4)
