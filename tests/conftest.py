@@ -31,3 +31,18 @@ def on_one_and_two_threads():
             torch.set_num_threads(before)
 
     return run
+
+
+@pytest.fixture()
+def kernel_standing(monkeypatch):
+    """``set(guard, unavailable=None)``: a CUDA kernel's :class:`~bop_cender.render.cuda_loops.KernelGuard` with a
+    fresh standing (no failure recorded, nothing warned yet) and numba's CUDA target as asked (None: it works; a
+    string: why not), all undone after the test."""
+    from bop_cender.render import cuda_loops
+
+    def set_standing(guard, unavailable: str | None = None) -> None:
+        monkeypatch.setattr(guard, "failed", [])
+        monkeypatch.setattr(guard, "_warned", set())
+        monkeypatch.setattr(cuda_loops, "cuda_unavailable_reason", lambda: unavailable)
+
+    return set_standing

@@ -141,7 +141,7 @@ def scene_cost(
     if device.type == "cuda" and compiled is not False:
         from bop_cender.pose import cuda_window_kernel
 
-        cost = cuda_window_kernel.kernel_or_none(
+        cost = cuda_window_kernel.GUARD.run(
             lambda: cuda_window_kernel.cuda_scene_cost(meshes, T_cam_model, K, target_edges, dist_maps, edge_threshold),
             compiled,
         )

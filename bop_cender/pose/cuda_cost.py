@@ -30,12 +30,8 @@ contraction) the kernel repeats the CPU loops' arithmetic: the tests compare it 
 
 from __future__ import annotations
 
-import contextlib
-import functools
 import math
-import warnings
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
 import torch
@@ -43,7 +39,7 @@ import torch
 from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
 from bop_cender.render.compiled_raster import loop_tensors
-from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
+from bop_cender.render.cuda_loops import KernelGuard, check_device, check_threads, clone, device_namespace
 from bop_cender.render.scanline import KeyCodec
 
 #: Threads per block (one block per canvas): the float64 reduction's shared arrays have this size.
@@ -129,16 +125,8 @@ def kernel_function():
     return clone(_costs_kernel, {**device_namespace(), "BLOCK_THREADS": BLOCK_THREADS})
 
 
-@cache
-def _kernel():
-    """The kernel compiled by numba's CUDA target (on first use: a few seconds)."""
-    from numba import cuda
-
-    return cuda.jit(kernel_function())
-
-
-#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch path.
-_KERNEL_FAILED: list[str] = []
+#: The kernel's standing in this process (compiled on first use; where it cannot run, the torch atlases).
+GUARD = KernelGuard("the CUDA cost kernel", "the render cost runs on the torch atlases on CUDA", kernel_function)
 
 
 def kernel_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
@@ -146,36 +134,21 @@ def kernel_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, 
                  compiled: bool | None) -> torch.Tensor | None:  # fmt: skip
     """:func:`cuda_candidate_costs` as :func:`~bop_cender.pose.cost.candidate_costs` takes it on CUDA: None where the
     torch path is to run instead: the kernel does not apply, or (with ``compiled=None``) numba's CUDA target is
-    unavailable or the kernel failed to compile or launch in this process (a warning says why, once).
+    unavailable or the kernel failed in this process (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a
+    warning says why, once).
 
     Raises:
         RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable, or the kernel failed.
         ValueError: ``compiled=True`` where the kernel does not apply (the message says why).
     """
-    reason = cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
-    if reason is not None:
-        if compiled:
-            raise RuntimeError(f"compiled=True on CUDA needs the CUDA cost kernel: {reason} (pip install numba-cuda)")
-        _warn_once(f"the render cost runs on the torch atlases on CUDA: {reason}")
-        return None
-    try:
-        costs = cuda_candidate_costs(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth)
-    except Exception as error:  # numba's compilation, the driver or the launch: the torch path stays available
-        if compiled:
-            raise
-        _KERNEL_FAILED.append(f"the CUDA kernel failed ({type(error).__name__}: {error})")
-        _warn_once(f"the render cost runs on the torch atlases on CUDA: {_KERNEL_FAILED[0]}")
-        return None
+    costs = GUARD.run(
+        lambda: cuda_candidate_costs(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth), compiled
+    )
     if costs is None and compiled:
         faces = int(mesh.faces.shape[0])
         why = f"a mesh of {faces} faces (at most 2^15)" if faces > 1 << 15 else "a vertex behind the near plane"
         raise ValueError(f"compiled=True, but the CUDA kernel does not apply here: {why} (compiled=None: torch)")
     return costs
-
-
-@functools.cache
-def _warn_once(message: str) -> None:
-    warnings.warn(message, RuntimeWarning, stacklevel=4)
 
 
 def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
@@ -194,27 +167,14 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
             runs each thread as a Python thread).
         fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
     """
-    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
-        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    check_threads(threads, BLOCK_THREADS)
     device = T_cam_model.device
-    if device.type != "cuda" and not simulator_enabled():
-        raise ValueError(f"the CUDA cost kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    check_device(device, "the CUDA cost kernel")
     plan = launch_plan(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth, fused, scratch_bytes)
     if plan is None or not plan.launches:
         return plan if plan is None else plan.out
-    if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
-        convert, stream, context = _as_numpy, None, contextlib.nullcontext()
-    else:
-        from numba import cuda
-
-        convert = cuda.as_cuda_array
-        stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-        context = cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]
-    kernel = _kernel()
-    with context:
-        for blocks, arguments in plan.launches:  # in stream order: each launch reuses the scratch
-            launch = kernel[blocks, threads] if stream is None else kernel[blocks, threads, stream]
-            launch(*(convert(a) if isinstance(a, torch.Tensor) else a for a in arguments))
+    for blocks, arguments in plan.launches:  # in stream order: each launch reuses the scratch
+        GUARD.launch(blocks, threads, arguments, device)
     return plan.out
 
 
@@ -324,8 +284,3 @@ def _group(extent: np.ndarray, canvases: np.ndarray) -> _Group:
     pixels = heights * extent[canvases, 1]
     return _Group(canvases.astype(np.int64), np.cumsum(pixels) - pixels, np.cumsum(heights) - heights,
                   int(pixels.sum()), int(heights.sum()), int(extent[canvases, 1].max()))  # fmt: skip
-
-
-def _as_numpy(x: torch.Tensor) -> np.ndarray:
-    """A CPU tensor's memory as a NumPy array (no copy: the simulated kernel writes through it)."""
-    return x.detach().numpy()

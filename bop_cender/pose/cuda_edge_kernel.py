@@ -19,9 +19,7 @@ compile or to launch, :func:`~bop_cender.pose.edge_cost.edge_costs` warns once a
 
 from __future__ import annotations
 
-import functools
 import math
-import warnings
 from functools import cache
 from typing import TYPE_CHECKING
 
@@ -29,7 +27,7 @@ import numpy as np
 import torch
 
 from bop_cender.pose.edge_kernel import SHARED_FUNCTIONS
-from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_functions, simulator_enabled
+from bop_cender.render.cuda_loops import KernelGuard, check_device, check_threads, clone, device_functions
 
 if TYPE_CHECKING:
     from bop_cender.pose.edge_cost import EdgeModel
@@ -69,32 +67,8 @@ def kernel_function():
     return clone(_edge_kernel, _namespace())
 
 
-@cache
-def _kernel():
-    """The kernel compiled by numba's CUDA target (on first use)."""
-    from numba import cuda
-
-    return cuda.jit(kernel_function())
-
-
-#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch layout.
-_KERNEL_FAILED: list[str] = []
-
-
-def kernel_available() -> str | None:
-    """Why :func:`edge_costs`' CUDA default cannot be this kernel (None: it can)."""
-    return cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
-
-
-def note_failure(error: Exception) -> None:
-    """Record that the kernel failed (later calls take the torch layout) and warn once."""
-    _KERNEL_FAILED.append(f"the CUDA edge kernel failed ({type(error).__name__}: {error})")
-    warn_once(f"the edge proxy runs in the dense torch layout on CUDA: {_KERNEL_FAILED[0]}")
-
-
-@functools.cache
-def warn_once(message: str) -> None:
-    warnings.warn(message, RuntimeWarning, stacklevel=4)
+#: The kernel's standing in this process (compiled on first use; where it cannot run, the dense torch layout).
+GUARD = KernelGuard("the CUDA edge kernel", "the edge proxy runs in the dense torch layout on CUDA", kernel_function)
 
 
 def cuda_canvas_costs(
@@ -121,11 +95,9 @@ def cuda_canvas_costs(
     Raises:
         ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
     """
-    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
-        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    check_threads(threads, BLOCK_THREADS)
     device = T.device
-    if device.type != "cuda" and not simulator_enabled():
-        raise ValueError(f"the CUDA edge kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    check_device(device, "the CUDA edge kernel")
     C = int(T.shape[0])
     out = torch.empty(C, dtype=torch.float64, device=device)
     if C == 0:
@@ -136,16 +108,5 @@ def cuda_canvas_costs(
     tensors = [T, view, Ks, dist, occ, model.planes, model.crease, first, count, proj.seg_from, proj.seg_to,
                proj.frac_a, proj.frac_b, proj.ends]  # fmt: skip
     tensors = [x.contiguous() for x in tensors]
-    kernel = _kernel()
-    if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
-        arrays = [x.detach().numpy() for x in (*tensors, out)]
-        kernel[C, threads](*arrays[:-1], float(near), int(samples), float(coincidence_mm), arrays[-1])
-        return out.float()
-    from numba import cuda
-
-    with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
-        # the arrays and the stream inside the device's context: on cuda:1 they would otherwise bind device 0's
-        arrays = [cuda.as_cuda_array(x.detach()) for x in (*tensors, out)]
-        stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-        kernel[C, threads, stream](*arrays[:-1], float(near), int(samples), float(coincidence_mm), arrays[-1])
+    GUARD.launch(C, threads, [*tensors, float(near), int(samples), float(coincidence_mm), out], device)
     return out.float()

@@ -14,8 +14,8 @@ launch. Block ``c`` takes canvas ``c`` (trial ``c // V`` in view ``c % V``) and 
    composite's own edges (curvature above the threshold);
 4. the backward term, the mean over the window's target edges of the distance to the nearest own edge: the exact
    Euclidean distance, by rows (each row's distance to its nearest own edge, one thread a row) and then, at each
-   target pixel only, the least ``g(k, j)^2 + (i - k)^2`` over the rows ``k``: the exact distance, which OpenCV's
-   precise transform gives to its last float32 bit (its vectorised square root), without a transform of the window.
+   target pixel only, the least ``g(k, j)^2 + (i - k)^2`` over the rows ``k`` (the CPU loop's own functions,
+   :mod:`bop_cender.pose.window_kernel`): the exact distance, without a transform of the window.
 
 The same kernel gives the full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`, the sweeps' judge and the
 polish's acceptance: 19 ms a call in torch on the H200): every placed part in every full frame, each view one window
@@ -26,28 +26,30 @@ plane the costs are dropped and the torch steps run (the torch renderer cuts the
 
 Rounding. On a GPU NVVM contracts float32 multiply-adds, so the costs agree with the CPU's to float32 rounding. In
 numba's CUDA simulator (the tests, without a GPU) the device functions are the CPU's plain Python ones and the
-costs repeat the CPU's but for the order of the float64 sums and OpenCV's last bit of some distances.
+costs repeat the CPU's but for the order of the float64 sums.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import warnings
-from collections.abc import Callable
 from functools import cache
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
+from bop_cender.render.cuda_loops import (
+    KernelGuard,
+    check_device,
+    check_threads,
+    clone,
+    device_functions,
+    device_namespace,
+)
 
 if TYPE_CHECKING:
     from bop_cender.pose.scene_polish import SceneWindow
     from bop_cender.render.mesh import PackedMeshes, RenderMesh
-
-T_out = TypeVar("T_out")
 
 #: Threads per block (one block per window); a power of two, the size of the float64 reductions' shared arrays.
 BLOCK_THREADS = 128
@@ -122,19 +124,7 @@ def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_n
     own_edges = counts[0, 0]
     # 4a. each row's distance to its nearest own edge (`far` where the row has none)
     for i in range(tid, h, threads):
-        base = i * w
-        last = -1
-        for j in range(w):
-            if key[base + j] == 0:
-                last = j
-            elif last >= 0:
-                key[base + j] = j - last
-        nxt = -1
-        for j in range(w - 1, -1, -1):
-            if key[base + j] == 0:
-                nxt = j
-            elif nxt >= 0 and nxt - j < key[base + j]:
-                key[base + j] = nxt - j
+        row_distances(key, i * w, w)  # noqa: F821
     cuda.syncthreads()  # noqa: F821
     # 4b. at each target edge, the nearest own edge over the rows
     total = 0.0
@@ -145,13 +135,7 @@ def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_n
         if target_edges[v, i, j] != 0:
             targets += 1.0
             if own_edges > 0.0:
-                best = far * far
-                for k in range(h):
-                    g = key[k * w + j]
-                    d2 = g * g + (i - k) * (i - k)
-                    if d2 < best:
-                        best = d2
-                total += np.float64(sqrt32(np.float32(best)))  # noqa: F821
+                total += np.float64(sqrt32(np.float32(nearest_edge_sq(key, i, j, h, w, far))))  # noqa: F821
     sums2 = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
     block_sum_pair(sums2, tid, threads, total, targets)  # noqa: F821
     if tid == 0:
@@ -161,73 +145,23 @@ def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_n
         out[c] = forward + backward
 
 
+@cache
+def _namespace() -> dict:
+    """The rasteriser's device functions with exact keys, and the backward term's distances
+    (:data:`~bop_cender.pose.window_kernel.SHARED_FUNCTIONS`: the CPU loop's own source) as device functions."""
+    from bop_cender.pose.window_kernel import SHARED_FUNCTIONS
+
+    return device_functions(SHARED_FUNCTIONS, {**device_namespace(exact_keys=True), "BLOCK_THREADS": BLOCK_THREADS})
+
+
 def kernel_function():
     """The kernel's Python function with the device functions as its globals (not compiled yet:
     ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
-    return clone(_window_kernel, {**device_namespace(exact_keys=True), "BLOCK_THREADS": BLOCK_THREADS})
+    return clone(_window_kernel, _namespace())
 
 
-@cache
-def _kernel():
-    """The kernel compiled by numba's CUDA target (on first use)."""
-    from numba import cuda
-
-    return cuda.jit(kernel_function())
-
-
-#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch steps.
-_KERNEL_FAILED: list[str] = []
-
-
-def kernel_available() -> str | None:
-    """Why :meth:`SceneWindow.costs`' CUDA default cannot be this kernel (None: it can)."""
-    return cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
-
-
-def note_failure(error: Exception) -> None:
-    """Record that the kernel failed (later calls take the torch steps) and warn once."""
-    _KERNEL_FAILED.append(f"the CUDA window kernel failed ({type(error).__name__}: {error})")
-    warn_once(f"the scene costs run their torch steps on CUDA: {_KERNEL_FAILED[0]}")
-
-
-@functools.cache
-def warn_once(message: str) -> None:
-    warnings.warn(message, RuntimeWarning, stacklevel=2)
-
-
-def kernel_or_none(compute: Callable[[], T_out | None], compiled: bool | None) -> T_out | None:
-    """``compute()`` (a call of this kernel) where it can run, None where the caller's torch steps are to serve:
-    ``compute`` returned None (a vertex behind the near plane), or, with ``compiled=None``, numba's CUDA target is
-    unavailable or the kernel failed in this process (warned once; later calls take the torch steps at once).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable; the kernel's own error where it
-            failed with ``compiled=True``.
-    """
-    reason = kernel_available()
-    if reason is not None:
-        if compiled:
-            hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
-            raise RuntimeError(f"compiled=True on CUDA needs the CUDA window kernel: {reason}{hint}")
-        warn_once(f"the scene costs run their torch steps on CUDA: {reason}")
-        return None
-    try:
-        return compute()
-    except Exception as error:  # the torch steps stay available
-        if compiled:
-            raise
-        if _is_kernel_error(error):  # numba's compilation, the driver or the launch: for the rest of the process
-            note_failure(error)
-        else:  # e.g. out of memory for this call's scratch: this call only
-            warn_once(f"a scene cost ran its torch steps on CUDA: the window kernel's call failed "
-                      f"({type(error).__name__}: {error})")  # fmt: skip
-        return None
-
-
-def _is_kernel_error(error: Exception) -> bool:
-    """Whether ``error`` is numba's or the CUDA driver's (compilation, linking, launch), not the call's own (its
-    inputs, torch's memory)."""
-    return type(error).__module__.split(".")[0] in ("numba", "numba_cuda", "cuda")
+#: The kernel's standing in this process (compiled on first use; where it cannot run, the callers' torch steps).
+GUARD = KernelGuard("the CUDA window kernel", "the scene costs run their torch steps on CUDA", kernel_function)
 
 
 def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: int = BLOCK_THREADS,
@@ -315,10 +249,8 @@ def _packed(mesh: RenderMesh) -> PackedMeshes:
 
 
 def _check_launch(device: torch.device, threads: int) -> None:
-    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
-        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
-    if device.type != "cuda" and not simulator_enabled():
-        raise ValueError(f"the CUDA window kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    check_threads(threads, BLOCK_THREADS)
+    check_device(device, "the CUDA window kernel")
 
 
 def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
@@ -352,17 +284,7 @@ def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torc
     arguments, z_min = kernel_arguments(packed, R, t, K, size, offsets, other_depth, other_normals, dist, target_edges,
                                         edge_threshold, verts, fused)  # fmt: skip
     out = arguments[-1]
-    kernel = _kernel()
-    if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
-        kernel[C, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
-    else:
-        from numba import cuda
-
-        with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
-            # the arrays and the stream inside the device's context: on cuda:1 they would otherwise bind device 0's
-            arrays = [cuda.as_cuda_array(x.detach()) if isinstance(x, torch.Tensor) else x for x in arguments]
-            stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-            kernel[C, threads, stream](*arrays)
+    GUARD.launch(C, threads, arguments, device)
     read = torch.cat([out, z_min.double().reshape(1)]).cpu().numpy()  # the call's one wait for the device
     return None if read[-1] < DEFAULT_NEAR else read[:-1]
 

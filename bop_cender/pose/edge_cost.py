@@ -322,6 +322,10 @@ def edge_costs(
         raise ValueError(f"unknown edge-cost layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
     if layout == "kernel" and device.type != "cpu":
         raise ValueError(f"the kernel layout runs on the CPU only, not on {device}")
+    if layout == "cuda":
+        from bop_cender.render.cuda_loops import check_device
+
+        check_device(device, "the cuda layout (the CUDA edge kernel)")
     T = T_cam_model.to(torch.float32)
     B, V = sizes["B"], sizes["V"]
     flat_T = T.reshape(B * V, 4, 4)
@@ -356,29 +360,26 @@ def _cuda_default() -> str:
     works, else ``dense`` (with one warning saying why)."""
     from bop_cender.pose import cuda_edge_kernel
 
-    reason = cuda_edge_kernel.kernel_available()
+    reason = cuda_edge_kernel.GUARD.unavailable()
     if reason is None:
         return "cuda"
-    cuda_edge_kernel.warn_once(f"the edge proxy runs in the dense torch layout on CUDA: {reason}")
+    cuda_edge_kernel.GUARD.warn_once(f"{cuda_edge_kernel.GUARD.fallback}: {reason}")
     return "dense"
 
 
 def _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback) -> torch.Tensor | None:
     """The CUDA kernel's per-canvas costs; None where it failed and ``fallback`` lets the torch layout serve (the
-    default on CUDA: warned once, and later calls take the torch layout); a failure is raised where the kernel was
-    asked for by name."""
+    default on CUDA: warned once; after a failure of numba or the driver, later calls take the torch layout); where the
+    kernel was asked for by name, its failure is raised (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`)."""
     from bop_cender.pose import cuda_edge_kernel
 
     view = torch.arange(flat_T.shape[0], device=flat_T.device) % V
-    try:
-        return cuda_edge_kernel.cuda_canvas_costs(
+    return cuda_edge_kernel.GUARD.run(
+        lambda: cuda_edge_kernel.cuda_canvas_costs(
             model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
-        )
-    except Exception as error:  # numba's compilation, the driver or the launch: the torch layout stays available
-        if not fallback:
-            raise
-        cuda_edge_kernel.note_failure(error)
-        return None
+        ),
+        None if fallback else True,
+    )
 
 
 def _drawn_edges(model: EdgeModel, T: torch.Tensor) -> torch.Tensor:

@@ -115,12 +115,10 @@ class SceneWindow:
 
     def _kernel_costs(self, T_world_model: np.ndarray, compiled: bool | None) -> np.ndarray | None:
         """The CUDA kernel's costs; None where the torch steps are to run
-        (:func:`~bop_cender.pose.cuda_window_kernel.kernel_or_none`)."""
+        (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`)."""
         from bop_cender.pose import cuda_window_kernel
 
-        return cuda_window_kernel.kernel_or_none(
-            lambda: cuda_window_kernel.cuda_window_costs(self, T_world_model), compiled
-        )
+        return cuda_window_kernel.GUARD.run(lambda: cuda_window_kernel.cuda_window_costs(self, T_world_model), compiled)
 
 
 def scene_window(

@@ -6,8 +6,12 @@ composites it over the other parts by depth, takes the curvature of the composit
 and the backward one (:func:`~bop_cender.pose.coverage.mean_distance_to_own_edges`). In torch those steps are
 about 40 operators over ``(V, h, w)`` arrays, 7 of 12 ms of a call on one CPU thread (``scripts/bench_run.py``,
 "Scene polish"), and the scene polish makes about 70 calls per part. Here the composite, the curvature, the
-forward sums and the binarised own edges are one pass over each canvas's pixels; the own edges' distance
-transform stays OpenCV's (:func:`~bop_cender.pose.cost.distance_map`), and the backward mean is taken from it.
+forward sums and the binarised own edges are one pass over each canvas's pixels, and the backward term follows in
+the same loop: each row's distance to its nearest own edge, then at each target pixel the least
+``g(k, j)^2 + (i - k)^2`` over the rows (:func:`row_distances`, :func:`nearest_edge_sq`, shared with the CUDA kernel
+of :mod:`bop_cender.pose.cuda_window_kernel`). That is the exact Euclidean distance, read only where the backward
+term reads it, without a transform of the window and without a Python loop over the canvases (it was OpenCV's
+precise transform per canvas; the two agree but for OpenCV's last float32 bit of some distances).
 
 Same arithmetic as the torch steps, in float32 for the curvature (the renderer's
 :func:`~bop_cender.render.compiled_raster.pixel_curvature`, with torch's multiply-add rounding as probed, so the
@@ -23,22 +27,62 @@ import numba
 import numpy as np
 import torch
 
-from bop_cender.pose.cost import distance_map
-from bop_cender.render.compiled_raster import ADDCMUL_FUSED, pixel_curvature
+from bop_cender.render.compiled_raster import ADDCMUL_FUSED, pixel_curvature, sqrt32
+from bop_cender.render.numba_cache import cached_njit
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
 
+#: The plain Python functions of the backward term's distances, by name: compiled here for the CPU and by
+#: :mod:`bop_cender.pose.cuda_window_kernel` as CUDA device functions (one source for both targets).
+SHARED_FUNCTIONS: dict[str, object] = {}
+
+
+def _shared(py_func):
+    """Compile ``py_func`` for the CPU and record its source function in :data:`SHARED_FUNCTIONS`."""
+    SHARED_FUNCTIONS[py_func.__name__] = py_func
+    return cached_njit(nogil=True, inline="always")(py_func)
+
+
+@_shared
+def row_distances(g, base, w):
+    """Row ``g[base : base + w]`` (0 at an own edge, a large value elsewhere) to each pixel's distance to its row's
+    nearest own edge, in place (pixels of a row without an edge keep the large value): a sweep each way."""
+    last = -1
+    for j in range(w):
+        if g[base + j] == 0:
+            last = j
+        elif last >= 0:
+            g[base + j] = j - last
+    nxt = -1
+    for j in range(w - 1, -1, -1):
+        if g[base + j] == 0:
+            nxt = j
+        elif nxt >= 0 and nxt - j < g[base + j]:
+            g[base + j] = nxt - j
+
+
+@_shared
+def nearest_edge_sq(g, i, j, h, w, far):
+    """The squared Euclidean distance from pixel ``(i, j)`` to the nearest own edge, from the row distances ``g``
+    (flat, row-major, :func:`row_distances`): the least ``g[k, j]^2 + (i - k)^2`` over the rows ``k`` (``far^2``
+    where there is none)."""
+    best = far * far
+    for k in range(h):
+        gk = g[k * w + j]
+        d2 = gk * gk + (i - k) * (i - k)
+        if d2 < best:
+            best = d2
+    return best
+
 
 @canvas_loop
-def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, threshold, fused, forward,
-                     own_edges):  # fmt: skip
-    """Per canvas c (view ``c % V``): the forward cost into ``forward[c]`` and the composite's own edges (1 where
-    its curvature exceeds ``threshold``) into ``own_edges[c]``; returns the number of own-edge pixels per canvas."""
+def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, targets, threshold, fused, total):
+    """Per canvas c (view ``c % V``): forward plus backward cost into ``total[c]``."""
     N, h, w = depth.shape
     V, H, W = dist.shape
     diagonal = math.hypot(H, W)
-    edge_count = np.zeros(N, dtype=np.int64)
     has_other = other_depth.shape[0] > 0
+    far = 2 * (h + w)
     for c in numba.prange(N):
         v = c % V
         comp = np.empty((h, w, 3), dtype=np.float32)
@@ -55,6 +99,7 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
         num = 0.0
         den = 0.0
         edges = 0
+        g = np.empty(h * w, dtype=np.int64)  # 0 at an own edge, then each pixel's distance to its row's nearest
         for i in range(h):
             i0, i2 = max(i - 1, 0), min(i + 1, h - 1)
             for j in range(w):
@@ -65,13 +110,24 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
                     num += np.float64(curv) * np.float64(dist[v, r, s])
                     den += np.float64(curv)
                 if curv > threshold:
-                    own_edges[c, i, j] = 1
+                    g[i * w + j] = 0
                     edges += 1
                 else:
-                    own_edges[c, i, j] = 0
-        forward[c] = num / den if den > 0.0 else diagonal
-        edge_count[c] = edges
-    return edge_count
+                    g[i * w + j] = far
+        for i in range(h):
+            row_distances(g, i * w, w)
+        n_targets = 0
+        backward = 0.0
+        for i in range(h):
+            for j in range(w):
+                if targets[v, i, j]:
+                    n_targets += 1
+                    if edges > 0:
+                        backward += np.float64(sqrt32(np.float32(nearest_edge_sq(g, i, j, h, w, far))))
+        if n_targets > 0:
+            backward = backward / n_targets if edges > 0 else np.float64(np.float32(math.hypot(h, w)))
+        total[c] = (num / den if den > 0.0 else diagonal) + backward
+    return 0
 
 
 def window_costs(
@@ -96,34 +152,12 @@ def window_costs(
         edge_threshold: raw curvature above which a composite pixel is one of its own edges.
     """
     N, h, w = depth.shape
-    forward = np.empty(N, dtype=np.float64)
-    own_edges = np.empty((N, h, w), dtype=np.bool_)
+    total = np.empty(N, dtype=np.float64)
     if other_depth is None or other_normals is None:  # no rows: nothing to composite with
         other = (np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1, 3), np.float32))
     else:
         other = (_np(other_depth), _np(other_normals))
-    counts = _composite_costs(
-        _np(depth),
-        _np(normals),
-        *other,
-        _np(dist),
-        _np(offsets),
-        np.float32(edge_threshold),
-        bool(ADDCMUL_FUSED),
-        forward,
-        own_edges,
-    )
     targets = _np(target_edges).astype(bool, copy=False)  # a 0/1 mask of any dtype selects pixels, as in torch
-    V = targets.shape[0]
-    backward = np.zeros(N, dtype=np.float64)
-    for c in range(N):
-        pixels = targets[c % V]
-        n_pixels = int(np.count_nonzero(pixels))
-        if n_pixels == 0:
-            continue
-        if counts[c] == 0:
-            backward[c] = np.float32(math.hypot(h, w))  # no own edge: every pixel at the window's diagonal
-            continue
-        own = distance_map(own_edges[c])
-        backward[c] = float(own[pixels].sum(dtype=np.float64)) / n_pixels
-    return torch.from_numpy(forward + backward)
+    _composite_costs(_np(depth), _np(normals), *other, _np(dist), _np(offsets), targets, np.float32(edge_threshold),
+                     bool(ADDCMUL_FUSED), total)  # fmt: skip
+    return torch.from_numpy(total)

@@ -15,12 +15,20 @@ Python threads on the CPU: how the tests check them against the CPU loops on mac
 
 from __future__ import annotations
 
+import functools
 import math
+import re
 import threading
 import types
+import warnings
+from collections.abc import Callable
 from functools import cache
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import torch
 
 
 def simulator_enabled() -> bool:
@@ -45,6 +53,123 @@ def cuda_unavailable_reason() -> str | None:
     except Exception as error:  # the driver's own error, e.g. a version mismatch
         return f"numba.cuda cannot reach the device ({type(error).__name__}: {error})"
     return None
+
+
+def _described(error: Exception) -> str:
+    """``error`` as ``Type: message``, without the terminal highlighting numba puts in its messages."""
+    message = _HIGHLIGHT.sub("", str(error))
+    return f"{type(error).__name__}: {message}"
+
+
+_HIGHLIGHT = re.compile(r"\x1b\[[0-9;]*m")  # a terminal's colour and weight codes
+
+
+def is_kernel_error(error: Exception) -> bool:
+    """Whether ``error`` is numba's or the CUDA driver's (compilation, linking, launch), not the call's own (its
+    inputs, torch's memory)."""
+    return type(error).__module__.split(".")[0] in ("numba", "numba_cuda", "cuda")
+
+
+T_out = TypeVar("T_out")
+
+
+class KernelGuard:
+    """One CUDA kernel's standing in this process: compiled on first use (:attr:`kernel`), launched on torch's stream
+    (:meth:`launch`), and run by :meth:`run`, which tells its caller when to take its torch path instead: where
+    numba's CUDA target is missing (numba-cuda, a driver), or the kernel failed to compile or to launch (for the rest
+    of the process), or one call failed on its own (out of memory: that call). Each reason is warned once.
+
+    Args:
+        name: the kernel in messages ("the CUDA window kernel").
+        fallback: what the caller does without it ("the scene costs run their torch steps on CUDA").
+        build: the kernel's Python function with its device functions as globals (``numba.cuda.jit`` compiles it).
+    """
+
+    def __init__(self, name: str, fallback: str, build: Callable[[], types.FunctionType]) -> None:
+        self.name = name
+        self.fallback = fallback
+        self.build = build
+        #: Why the kernel failed in this process, if it did: later calls take the caller's torch path.
+        self.failed: list[str] = []
+        self._warned: set[str] = set()
+
+    @functools.cached_property
+    def kernel(self):
+        """The kernel compiled by numba's CUDA target (on first use: a few seconds)."""
+        from numba import cuda
+
+        return cuda.jit(self.build())
+
+    def unavailable(self) -> str | None:
+        """Why the kernel cannot run here (None: it can, on a GPU or in the simulator)."""
+        return cuda_unavailable_reason() or (self.failed[0] if self.failed else None)
+
+    def warn_once(self, message: str) -> None:
+        if message not in self._warned:
+            self._warned.add(message)
+            warnings.warn(message, RuntimeWarning, stacklevel=4)
+
+    def note_failure(self, error: Exception) -> None:
+        """Record that the kernel failed (later calls take the torch path) and warn once."""
+        self.failed.append(f"{self.name} failed ({_described(error)})")
+        self.warn_once(f"{self.fallback}: {self.failed[0]}")
+
+    def run(self, compute: Callable[[], T_out | None], compiled: bool | None) -> T_out | None:
+        """``compute()`` (a call of the kernel) where it can run; None where the caller's torch path is to serve:
+        ``compute`` returned None (the kernel does not apply), or, with ``compiled=None``, the kernel is unavailable
+        or failed (warned once).
+
+        Raises:
+            RuntimeError: ``compiled=True`` where the kernel is unavailable; the kernel's own error where it failed
+                with ``compiled=True``.
+        """
+        reason = self.unavailable()
+        if reason is not None:
+            if compiled:
+                hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
+                raise RuntimeError(f"compiled=True on CUDA needs {self.name}: {reason}{hint}")
+            self.warn_once(f"{self.fallback}: {reason}")
+            return None
+        try:
+            return compute()
+        except Exception as error:  # the torch path stays available
+            if compiled:
+                raise
+            if is_kernel_error(error):  # numba's compilation, the driver or the launch: for the rest of the process
+                self.note_failure(error)
+            else:  # e.g. out of memory for this call's scratch: this call only
+                self.warn_once(
+                    f"{self.fallback} for a call: {self.name}'s call failed ({type(error).__name__}: {error})"
+                )
+            return None
+
+    def launch(self, blocks: int, threads: int, arguments: list, device: torch.device) -> None:
+        """Launch the kernel on ``blocks`` blocks of ``threads`` threads with ``arguments`` (tensors, as CUDA arrays
+        on torch's current stream of ``device``, and scalars); in numba's simulator on the tensors' NumPy views."""
+        import torch
+
+        if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
+            self.kernel[blocks, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
+            return
+        from numba import cuda
+
+        with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
+            # the arrays and the stream inside the device's context: on cuda:1 they would otherwise bind device 0's
+            arrays = [cuda.as_cuda_array(x.detach()) if isinstance(x, torch.Tensor) else x for x in arguments]
+            stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
+            self.kernel[blocks, threads, stream](*arrays)
+
+
+def check_threads(threads: int, limit: int) -> None:
+    """Refuse a block size that is not a power of two up to ``limit`` (the kernels' float64 reductions need one)."""
+    if threads < 1 or threads > limit or threads & (threads - 1):
+        raise ValueError(f"threads must be a power of two up to {limit}, got {threads}")
+
+
+def check_device(device: torch.device, what: str) -> None:
+    """Refuse tensors that are not on CUDA, but under numba's simulator (which takes CPU tensors)."""
+    if device.type != "cuda" and not simulator_enabled():
+        raise ValueError(f"{what} takes CUDA tensors (or CPU ones under the simulator), got {device}")
 
 
 def _keep_fragment_atomic(best_key, best_w, p, q, key, f, quantised):

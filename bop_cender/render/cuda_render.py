@@ -18,14 +18,17 @@ maps are the CPU's bit for bit.
 
 from __future__ import annotations
 
-import functools
-import warnings
-from functools import cache
-
 import numpy as np
 import torch
 
-from bop_cender.render.cuda_loops import clone, cuda_unavailable_reason, device_namespace, simulator_enabled
+from bop_cender.render.cuda_loops import (
+    KernelGuard,
+    check_device,
+    check_threads,
+    clone,
+    device_namespace,
+    simulator_enabled,
+)
 from bop_cender.render.mesh import PackedMeshes
 
 #: Threads per block (one block per canvas).
@@ -73,56 +76,20 @@ def kernel_function():
     return clone(_render_kernel, dict(device_namespace(exact_keys=True)))
 
 
-@cache
-def _kernel():
-    """The kernel compiled by numba's CUDA target (on first use)."""
-    from numba import cuda
-
-    return cuda.jit(kernel_function())
-
-
-#: Why the kernel failed in this process (compilation or launch), if it did: later calls take the torch pipeline.
-_KERNEL_FAILED: list[str] = []
-
-
-def kernel_available() -> str | None:
-    """Why ``render_scene``'s CUDA default cannot be this kernel (None: it can)."""
-    return cuda_unavailable_reason() or (_KERNEL_FAILED[0] if _KERNEL_FAILED else None)
-
-
-@functools.cache
-def _warn_once(message: str) -> None:
-    warnings.warn(message, RuntimeWarning, stacklevel=2)
+#: The kernel's standing in this process (compiled on first use; where it cannot run, the torch pipeline).
+GUARD = KernelGuard("the CUDA render kernel", "render_scene runs the torch pipeline on CUDA", kernel_function)
 
 
 def render_or_none(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
                    near: float, compiled: bool | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
-    """:func:`cuda_render` as ``render_scene`` takes it on CUDA: None where the torch pipeline is to run instead: a
-    vertex behind the near plane, or (with ``compiled=None``) numba's CUDA target unavailable or the kernel failed in
-    this process (warned once; a failure of numba or the driver keeps later calls on the torch pipeline).
+    """:func:`cuda_render` as ``render_scene`` takes it on CUDA: None where the torch pipeline is to run instead
+    (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a vertex behind the near plane, or, with
+    ``compiled=None``, the kernel unavailable or failed).
 
     Raises:
         RuntimeError: ``compiled=True`` and the kernel cannot run here.
     """
-    reason = kernel_available()
-    if reason is not None:
-        if compiled:
-            hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
-            raise RuntimeError(f"compiled=True on CUDA needs the CUDA render kernel: {reason}{hint}")
-        _warn_once(f"render_scene runs the torch pipeline on CUDA: {reason}")
-        return None
-    try:
-        return cuda_render(packed, R, t, K, height, width, near)
-    except Exception as error:  # the torch pipeline stays available
-        if compiled:
-            raise
-        if type(error).__module__.split(".")[0] in ("numba", "numba_cuda", "cuda"):  # numba's or the driver's
-            _KERNEL_FAILED.append(f"the CUDA render kernel failed ({type(error).__name__}: {error})")
-            _warn_once(f"render_scene runs the torch pipeline on CUDA: {_KERNEL_FAILED[0]}")
-        else:  # the call's own (e.g. out of memory for its maps): this call only
-            _warn_once(f"a render ran the torch pipeline on CUDA: the kernel's call failed ({type(error).__name__}: "
-                       f"{error})")  # fmt: skip
-        return None
+    return GUARD.run(lambda: cuda_render(packed, R, t, K, height, width, near), compiled)
 
 
 def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
@@ -146,11 +113,9 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     """
     from bop_cender.render.compiled_raster import loop_tensors
 
-    if threads < 1 or threads > BLOCK_THREADS or threads & (threads - 1):
-        raise ValueError(f"threads must be a power of two up to {BLOCK_THREADS}, got {threads}")
+    check_threads(threads, BLOCK_THREADS)
     device = R.device
-    if device.type != "cuda" and not simulator_enabled():
-        raise ValueError(f"the CUDA render kernel takes CUDA tensors (or CPU ones under the simulator), got {device}")
+    check_device(device, "the CUDA render kernel")
     C = int(R.shape[0])
     depth = torch.empty((C, height, width), dtype=torch.float32, device=device)
     normals = torch.empty((C, height, width, 3), dtype=torch.float32, device=device)
@@ -166,7 +131,6 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     chunk = max(1, CHUNK_PIXELS // max(1, height * width))
     keys = torch.empty((min(C, chunk), height * width), dtype=torch.int64, device=device)
     z_lows = []
-    kernel = _kernel()
     for start in range(0, C, chunk):  # canvases in chunks: the scratch and the maps' memory stay bounded
         rows = slice(start, min(C, start + chunk))
         inputs = loop_tensors(packed, R[rows], t[rows], K[rows], near, check_near=False)
@@ -175,17 +139,7 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
         z_lows.append(z_range[:, 0].amin())
         arguments = [*(x.contiguous() for x in inputs[:9]), fused, z_range, np.float32(near),
                      origins[rows].contiguous(), keys, depth[rows], normals[rows], face_map[rows]]  # fmt: skip
-        n = rows.stop - rows.start
-        if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
-            kernel[n, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
-        else:
-            from numba import cuda
-
-            with cuda.gpus[device.index if device.index is not None else torch.cuda.current_device()]:
-                # the arrays and the stream inside the device's context: on cuda:1 they would bind device 0's
-                arrays = [cuda.as_cuda_array(x.detach()) if isinstance(x, torch.Tensor) else x for x in arguments]
-                stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-                kernel[n, threads, stream](*arrays)
+        GUARD.launch(rows.stop - rows.start, threads, arguments, device)
     if float(torch.stack(z_lows).amin()) < near:  # the call's one wait for the device
         return None
     return depth, normals, face_map

@@ -23,6 +23,8 @@ from bop_cender.pose.cost import candidate_costs
 from bop_cender.render.mesh import prepare_mesh
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from cuda_simulator import simulated_ok_lines  # noqa: E402
 
 #: What the simulated run checks, printed line by line ("ok ...") for the test to read.
 _SIMULATED = textwrap.dedent(
@@ -73,15 +75,7 @@ _SIMULATED = textwrap.dedent(
 
 
 def test_the_kernel_repeats_the_cpu_loops_in_numbas_cuda_simulator() -> None:
-    from bop_cender.render.compiled_raster import AVAILABLE
-
-    if not AVAILABLE:
-        pytest.skip("the CPU loops cannot repeat torch's addcmul rounding here: nothing to compare the kernel with")
-    script = _SIMULATED.format(tests=str(ROOT / "tests"))
-    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-3000:]
-    lines = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
+    lines = simulated_ok_lines(_SIMULATED)
     assert [line.split()[1] for line in lines] == ["free", "occluded", "exact", "near", "threads", "threads", "threads"]
     assert lines[2].endswith("True") and lines[3].endswith("True")
     free, occluded = (np.array(eval(line.split(" ", 2)[2])) for line in lines[:2])  # noqa: S307 (our own output)
@@ -101,49 +95,24 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
         cuda_candidate_costs(mesh, torch.eye(4).repeat(1, 1, 1, 1), torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8))
 
 
-def test_the_kernel_is_taken_where_it_is_available_and_asked_for(monkeypatch) -> None:
-    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else warns once and leaves the
-    torch atlases in charge: None), True insists."""
+def test_the_kernel_is_taken_through_its_guard_and_says_where_it_does_not_apply(monkeypatch, kernel_standing) -> None:
+    """``compiled`` on CUDA: None takes the kernel where it runs, else the torch atlases (the guard's rules,
+    ``tests/render/test_kernel_guard.py``); True insists, and says why where the kernel does not apply."""
     from bop_cender.pose import cuda_cost
 
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
     args = (mesh, torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
-    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
+    kernel_standing(cuda_cost.GUARD)
     monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: torch.ones(1))
-    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: None)
     assert cuda_cost.kernel_costs(*args, None).tolist() == [1.0] == cuda_cost.kernel_costs(*args, True).tolist()
-    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver or device")
+    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: None)  # does not apply
+    assert cuda_cost.kernel_costs(*args, None) is None
+    with pytest.raises(ValueError, match="does not apply here: a vertex behind the near plane"):
+        cuda_cost.kernel_costs(*args, True)
+    kernel_standing(cuda_cost.GUARD, "numba.cuda finds no CUDA driver or device")
     with pytest.warns(RuntimeWarning, match="torch atlases on CUDA: numba.cuda finds no CUDA driver"):
         assert cuda_cost.kernel_costs(*args, None) is None
     with pytest.raises(RuntimeError, match="needs the CUDA cost kernel: numba.cuda finds no CUDA driver"):
-        cuda_cost.kernel_costs(*args, True)
-
-
-def test_a_failing_kernel_leaves_the_torch_atlases_in_charge(monkeypatch) -> None:
-    """A compilation or launch error (an NVVM or driver mismatch on the user's machine) costs a warning, not the run:
-    ``compiled=None`` falls back for the rest of the process; ``compiled=True`` raises it."""
-    from bop_cender.pose import cuda_cost
-
-    def broken(*args, **kwargs):
-        raise RuntimeError("NVVM_ERROR_COMPILATION")
-
-    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
-    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", broken)
-    monkeypatch.setattr(cuda_cost, "cuda_unavailable_reason", lambda: None)
-    mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
-    args = (mesh, torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
-    with pytest.raises(RuntimeError, match="NVVM_ERROR"):
-        cuda_cost.kernel_costs(*args, True)
-    assert cuda_cost._KERNEL_FAILED == []
-    with pytest.warns(RuntimeWarning, match=r"the CUDA kernel failed \(RuntimeError: NVVM_ERROR_COMPILATION\)"):
-        assert cuda_cost.kernel_costs(*args, None) is None
-    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: torch.ones(1))  # works again, but
-    assert cuda_cost.kernel_costs(*args, None) is None  # the rest of the process stays on the atlases
-    with pytest.raises(RuntimeError, match="the CUDA kernel failed"):
-        cuda_cost.kernel_costs(*args, True)
-    monkeypatch.setattr(cuda_cost, "_KERNEL_FAILED", [])
-    monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: None)  # does not apply
-    with pytest.raises(ValueError, match="does not apply here: a vertex behind the near plane"):
         cuda_cost.kernel_costs(*args, True)
 
 

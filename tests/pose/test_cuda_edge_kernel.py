@@ -9,8 +9,6 @@ the cameras, non-finite, with and without placed objects, for the full and a spa
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -20,6 +18,8 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from cuda_simulator import simulated_ok_lines  # noqa: E402
 
 #: What the simulated run checks, printed line by line ("ok ...") for the test to read.
 _SIMULATED = textwrap.dedent(
@@ -30,20 +30,11 @@ _SIMULATED = textwrap.dedent(
     import numpy as np, torch
     import method_data
     from method_data import gt_of, perturb
-    from bop_cender.data.dimo import open_dimo
-    from bop_cender.meshes import MeshCache
-    from bop_cender.net.targets import TargetConfig, scene_targets
-    from bop_cender.pose.cost import distance_maps
     from bop_cender.pose.cuda_edge_kernel import cuda_canvas_costs
     from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_costs, edge_model_of
     from bop_cender.pose.edge_kernel import kernel_canvas_costs
 
-    root = method_data.build(Path(tempfile.mkdtemp()) / "dimo")
-    ds = open_dimo(root, "real")
-    scene = ds.scene(ds.scene_keys[0])
-    meshes = MeshCache(ds.models)
-    maps = scene_targets(scene, ds.models, meshes, TargetConfig(curvature_scale=1.0))
-    dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > method_data.BOX_T_B))
+    ds, scene, meshes, maps, cams, dist = method_data.mini_scene(Path(tempfile.mkdtemp()) / "dimo")
     V, H, W = dist.shape
     Ks = torch.as_tensor(np.stack([v.K for v in scene.views]), dtype=torch.float32)
     T_cw = np.stack([v.T_cam_world for v in scene.views])
@@ -78,11 +69,7 @@ _SIMULATED = textwrap.dedent(
 
 
 def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None:
-    script = _SIMULATED.format(tests=str(ROOT / "tests"))
-    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    lines = [line.split(" ", 4) for line in done.stdout.splitlines() if line.startswith("ok ")]
+    lines = [line.split(" ", 4) for line in simulated_ok_lines(_SIMULATED)]
     assert [line[1] for line in lines] == [
         "full",
         "full",

@@ -2,7 +2,8 @@
 
 Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
 thread a Python thread, the shared device functions the plain Python ones), where it must give the CPU's costs
-(:meth:`SceneWindow.costs`, the compiled render and :mod:`~bop_cender.pose.window_kernel`) to float64 rounding: near
+(:meth:`SceneWindow.costs`, the compiled render and :mod:`~bop_cender.pose.window_kernel`, whose distance functions it
+shares) to float64 rounding: near
 the truth and far from it, a pose out of the windows (no own edge), behind a camera (None: the torch steps), with
 and without the other part, with and without target edges, at two edge thresholds (3.0 is exactly the curvature of
 a clean silhouette step); and the full scene cost (every part in the full frames). On a GPU (``-m cuda``)
@@ -12,8 +13,6 @@ a clean silhouette step); and the full scene cost (every part in the full frames
 from __future__ import annotations
 
 import functools
-import os
-import subprocess
 import sys
 import textwrap
 import types
@@ -27,6 +26,8 @@ sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, perturb  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from cuda_simulator import simulated_ok_lines  # noqa: E402
 
 #: What the simulated run checks, printed line by line ("ok ...") for the test to read.
 _SIMULATED = textwrap.dedent(
@@ -37,22 +38,13 @@ _SIMULATED = textwrap.dedent(
     import numpy as np, torch
     import method_data
     from method_data import perturb
-    from bop_cender.data.dimo import open_dimo
-    from bop_cender.meshes import MeshCache
-    from bop_cender.net.targets import TargetConfig, scene_targets
-    from bop_cender.pose.cost import distance_maps
     from bop_cender.pose.coverage import scene_cost
     from bop_cender.pose.cuda_window_kernel import cuda_scene_cost, cuda_window_costs
     from bop_cender.pose.scene_polish import SceneWindow, scene_window
     from bop_cender.render.compiled_raster import ADDCMUL_FUSED
 
-    root = method_data.build(Path(tempfile.mkdtemp()) / "dimo")
-    ds = open_dimo(root, "real")
-    scene = ds.scene(ds.scene_keys[0])
-    meshes = MeshCache(ds.models)
-    maps = scene_targets(scene, ds.models, meshes, TargetConfig(curvature_scale=1.0))
+    ds, scene, meshes, maps, cams, dist = method_data.mini_scene(Path(tempfile.mkdtemp()) / "dimo")
     edges = maps.curvature > method_data.BOX_T_B
-    dist = torch.as_tensor(distance_maps(edges.numpy()))
     Ks = np.stack([v.K for v in scene.views])
     T_cw = np.stack([v.T_cam_world for v in scene.views])
     parts = {{g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}}
@@ -92,28 +84,19 @@ _SIMULATED = textwrap.dedent(
 
 
 def test_the_kernel_gives_the_cpu_window_costs_in_numbas_cuda_simulator() -> None:
-    from bop_cender.render.compiled_raster import AVAILABLE
-
-    if not AVAILABLE:
-        pytest.skip("the CPU loops cannot repeat torch's addcmul rounding here: nothing to compare the kernel with")
-    script = _SIMULATED.format(tests=str(ROOT / "tests"))
-    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    lines = [line.split(" ", 5) for line in done.stdout.splitlines() if line.startswith("ok ")]
+    lines = [line.split(" ", 5) for line in simulated_ok_lines(_SIMULATED)]
     costs = [line for line in lines if line[1] not in ("scene", "near", "empty", "threads")]
     assert [tuple(line[1:4]) for line in costs] == [
         (str(t), o, n) for t in (BOX_T_B, 3.0) for o in ("other", "alone") for n in ("targets", "none")
     ]
     for line in costs:
-        # the CPU's costs but for the order of the float64 sums and OpenCV's last bit of a few float32 distances
-        assert float(line[4]) < 1e-7, line
+        assert float(line[4]) < 1e-9, line  # the CPU's costs but for the order of the float64 sums
         values = np.array(eval(line[5]))  # noqa: S307 (our own output)
         assert np.all(np.isfinite(values)) and values[0] < values[2] < values[3], line  # grows away from the truth
         assert values[4] == values.max(), line  # out of a window: no own edge there (its diagonal), no forward sum
     scene = [line for line in lines if line[1] == "scene"]  # the full scene cost, every part in the full frames
     assert [line[2] for line in scene] == ["truth", "moved"]
-    assert all(float(line[3]) < 1e-7 for line in scene), scene
+    assert all(float(line[3]) < 1e-9 for line in scene), scene
     assert float(scene[0][4]) < float(scene[1][4])
     assert [line[1:3] for line in lines if line[1] in ("near", "empty")] == [["near", "True"], ["empty", "(0,)"]]
     assert [line[2] for line in lines if line[1] == "threads"] == ["0", "3", "256"]
@@ -144,47 +127,21 @@ def _cuda_window_stand_in():
     return window
 
 
-def test_on_cuda_the_costs_take_the_kernel_where_it_runs_and_else_warn_once(monkeypatch) -> None:
-    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else one warning, and the torch
-    steps), True insists, and a failing kernel leaves the torch steps in charge for the rest of the process."""
-    from numba.core.errors import NumbaError
-
+def test_on_cuda_the_costs_take_the_kernel_where_it_runs_and_else_the_torch_steps(monkeypatch, kernel_standing) -> None:
+    """``compiled`` on CUDA: None takes the kernel where it runs (else one warning, and the torch steps: the guard's
+    rules, ``tests/render/test_kernel_guard.py``), True insists."""
     from bop_cender.pose import cuda_window_kernel
     from bop_cender.pose.scene_polish import SceneWindow
 
-    cuda_window_kernel.warn_once.cache_clear()  # each message is warned once per process
-    monkeypatch.setattr(cuda_window_kernel, "_KERNEL_FAILED", [])
+    kernel_standing(cuda_window_kernel.GUARD)
     monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", lambda window, T: np.full(len(T), 7.0))
-    monkeypatch.setattr(cuda_window_kernel, "cuda_unavailable_reason", lambda: None)
     window, T = _cuda_window_stand_in(), np.eye(4)[None]
     assert SceneWindow.costs(window, T).tolist() == [7.0] == SceneWindow.costs(window, T, compiled=True).tolist()
-    monkeypatch.setattr(cuda_window_kernel, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver")
+    kernel_standing(cuda_window_kernel.GUARD, "numba.cuda finds no CUDA driver")
     with pytest.raises(RuntimeError, match="needs the CUDA window kernel: numba.cuda finds no CUDA driver"):
         SceneWindow.costs(window, T, compiled=True)
     with pytest.warns(RuntimeWarning, match="torch steps on CUDA: numba.cuda finds no CUDA driver"):
         assert window._kernel_costs(T, None) is None  # SceneWindow.costs then runs the torch steps
-
-    def out_of_memory(window, T):
-        raise torch.cuda.OutOfMemoryError("CUDA out of memory")
-
-    def broken(window, T):
-        raise NumbaError("NVVM_ERROR_COMPILATION")
-
-    monkeypatch.setattr(cuda_window_kernel, "cuda_unavailable_reason", lambda: None)
-    monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", out_of_memory)  # the call's own failure:
-    with pytest.warns(RuntimeWarning, match="the window kernel's call failed .OutOfMemoryError"):
-        assert window._kernel_costs(T, None) is None  # the torch steps serve this call,
-    assert cuda_window_kernel._KERNEL_FAILED == []  # and the kernel stays on for the next
-    monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", broken)  # numba's or the driver's: for good
-    with pytest.raises(NumbaError, match="NVVM_ERROR"):
-        window._kernel_costs(T, True)
-    with pytest.warns(RuntimeWarning, match=r"torch steps on CUDA: the CUDA window kernel failed \(NumbaError"):
-        assert window._kernel_costs(T, None) is None
-    monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", lambda window, T: np.full(len(T), 7.0))  # works now
-    assert window._kernel_costs(T, None) is None  # but the process stays on the torch steps
-    with pytest.raises(RuntimeError, match="needs the CUDA window kernel: the CUDA window kernel failed") as raised:
-        window._kernel_costs(T, True)
-    assert "pip install" not in str(raised.value)  # numba-cuda is there: installing it is no advice
 
 
 def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer_rule() -> None:

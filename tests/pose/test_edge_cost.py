@@ -250,7 +250,7 @@ def test_cuda_gives_the_cpu_costs(mini):
     model = edge_model_of(meshes(3))
     occ = torch.zeros_like(dist)
     occ[:, :, : occ.shape[2] // 2] = 300.0
-    layouts = ["dense"] + (["cuda"] if cuda_edge_kernel.kernel_available() is None else [])
+    layouts = ["dense"] + (["cuda"] if cuda_edge_kernel.GUARD.unavailable() is None else [])
     for o in (None, occ):
         cpu = edge_costs(model, T, K, dist, w, occluder_depth=o)
         args = (model.to("cuda"), T.cuda(), K.cuda(), dist.cuda(), w.cuda())

@@ -10,8 +10,6 @@ takes it by default and ``tests/render/test_rasterizer.py`` checks its maps agai
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -24,6 +22,8 @@ import trimesh
 from bop_cender.render.mesh import pack_meshes, prepare_mesh
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from cuda_simulator import simulated_ok_lines  # noqa: E402
 
 #: What the simulated run checks, printed line by line ("ok ...") for the test to read.
 _SIMULATED = textwrap.dedent(
@@ -68,15 +68,7 @@ _SIMULATED = textwrap.dedent(
 
 
 def test_the_kernel_gives_the_cpu_maps_bit_for_bit_in_numbas_cuda_simulator() -> None:
-    from bop_cender.render.compiled_raster import AVAILABLE
-
-    if not AVAILABLE:
-        pytest.skip("the CPU loops cannot repeat torch's addcmul rounding here: nothing to compare the kernel with")
-    script = _SIMULATED.format(tests=str(ROOT / "tests"))
-    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    lines = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
+    lines = simulated_ok_lines(_SIMULATED)
     assert [line.split()[1] for line in lines] == ["frame", "windows", "near", "empty", "threads", "threads", "threads"]
     for line in lines[:2]:
         assert "[True, True, True]" in line, line  # depth, normals, face ids: the CPU's bits
@@ -97,45 +89,21 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
         cuda_render(packed, torch.eye(3)[None, None], torch.zeros(1, 1, 3), torch.eye(3)[None], 8, 8, 1.0)
 
 
-def test_render_or_none_falls_back_and_warns_once(monkeypatch) -> None:
-    """``compiled`` on CUDA: None takes the kernel where numba's CUDA target works (else one warning, and the torch
-    pipeline), True insists; a failure of numba or the driver keeps the process on the torch pipeline, a failure of
-    the call alone (out of memory) that call only."""
-    from numba.core.errors import NumbaError
-
+def test_render_scene_on_cuda_goes_through_the_kernels_guard(monkeypatch, kernel_standing) -> None:
+    """``compiled`` on CUDA: None takes the kernel where it runs (else one warning, and the torch pipeline: the
+    guard's rules, ``tests/render/test_kernel_guard.py``), True insists."""
     from bop_cender.render import cuda_render
 
-    cuda_render._warn_once.cache_clear()
-    monkeypatch.setattr(cuda_render, "_KERNEL_FAILED", [])
     maps = (torch.zeros(1), torch.zeros(1), torch.zeros(1))
+    kernel_standing(cuda_render.GUARD)
     monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: maps)
-    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: None)
     args = (None, None, None, None, 8, 8, 1.0)
     assert cuda_render.render_or_none(*args, None) is maps is cuda_render.render_or_none(*args, True)
-    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: "numba.cuda finds no CUDA driver")
+    kernel_standing(cuda_render.GUARD, "numba.cuda finds no CUDA driver")
     with pytest.raises(RuntimeError, match="needs the CUDA render kernel: numba.cuda finds no CUDA driver"):
         cuda_render.render_or_none(*args, True)
     with pytest.warns(RuntimeWarning, match="torch pipeline on CUDA: numba.cuda finds no CUDA driver"):
         assert cuda_render.render_or_none(*args, None) is None
-    monkeypatch.setattr(cuda_render, "cuda_unavailable_reason", lambda: None)
-
-    def raising(error):
-        def render(*a):
-            raise error
-
-        return render
-
-    monkeypatch.setattr(cuda_render, "cuda_render", raising(torch.cuda.OutOfMemoryError("CUDA out of memory")))
-    with pytest.warns(RuntimeWarning, match="the kernel's call failed .OutOfMemoryError"):
-        assert cuda_render.render_or_none(*args, None) is None
-    assert cuda_render._KERNEL_FAILED == []
-    monkeypatch.setattr(cuda_render, "cuda_render", raising(NumbaError("NVVM_ERROR_COMPILATION")))
-    with pytest.raises(NumbaError):
-        cuda_render.render_or_none(*args, True)
-    with pytest.warns(RuntimeWarning, match=r"the CUDA render kernel failed \(NumbaError"):
-        assert cuda_render.render_or_none(*args, None) is None
-    monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: maps)  # works again, but
-    assert cuda_render.render_or_none(*args, None) is None  # the process stays on the torch pipeline
 
 
 @pytest.mark.cuda
