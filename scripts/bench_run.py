@@ -106,10 +106,11 @@ def edge_calls_per_second(
     return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, layout=layout), device, batch, seconds)
 
 
-def _cuda_edge_kernel_available() -> bool:
-    from bop_cender.pose.cuda_edge_kernel import kernel_available
+def _cuda_edge_kernel_unavailable() -> str | None:
+    """Why the CUDA edge kernel cannot run here (None: it can)."""
+    from bop_cender.pose.cuda_edge_kernel import GUARD
 
-    return kernel_available() is None
+    return GUARD.unavailable()
 
 
 def _edge_model(mesh, max_segments: int | None):
@@ -149,7 +150,7 @@ def edge_call_profile(device: torch.device, batch: int = 3) -> list[tuple[str, f
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, None)
     rows = []
-    own = ("kernel",) if device.type == "cpu" else ("cuda",) if _cuda_edge_kernel_available() else ()
+    own = ("kernel",) if device.type == "cpu" else ("cuda",) if _cuda_edge_kernel_unavailable() is None else ()
     for layout in ("compacted", "dense", *own):
         rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, layout=layout), device)))
         print(f"profile edge proxy {device.type} batch {batch} {layout}: " + _profile_line(rows[-1][1:]), flush=True)
@@ -377,12 +378,11 @@ def main() -> None:
         # thread too (as `run` calls it: one torch thread per process)
         layouts = [("dense", threads), ("compacted", threads)]
         if device.type == "cuda":
-            from bop_cender.pose.cuda_edge_kernel import kernel_available
-
-            if kernel_available() is None:  # the CUDA kernel, the default where numba's CUDA target works
+            reason = _cuda_edge_kernel_unavailable()
+            if reason is None:  # the CUDA kernel, the default where numba's CUDA target works
                 layouts.insert(0, ("cuda", threads))
             else:
-                print(f"edge proxy: no CUDA kernel rows ({kernel_available()})", flush=True)
+                print(f"edge proxy: no CUDA kernel rows ({reason})", flush=True)
         if device.type == "cpu":
             layouts = (
                 [("kernel", 1), ("kernel", threads), ("compacted", threads)]

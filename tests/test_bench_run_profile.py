@@ -42,3 +42,14 @@ def test_an_unknown_device_is_one_usage_error() -> None:
     )  # fmt: skip
     assert done.returncode == 2 and "--devices 'gpu': expected cpu and/or cuda" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_the_benchmark_asks_the_cuda_edge_kernels_guard_whether_it_runs(monkeypatch) -> None:
+    """The CUDA rows of the edge proxy ask the kernel's guard (the branch no CPU run takes: a removed name there once
+    broke the benchmark on GPUs only)."""
+    from bop_cender.pose import cuda_edge_kernel
+
+    monkeypatch.setattr(cuda_edge_kernel.GUARD, "unavailable", lambda: None)
+    assert bench_run._cuda_edge_kernel_unavailable() is None
+    monkeypatch.setattr(cuda_edge_kernel.GUARD, "unavailable", lambda: "no driver")
+    assert bench_run._cuda_edge_kernel_unavailable() == "no driver"

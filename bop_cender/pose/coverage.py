@@ -148,7 +148,8 @@ def scene_cost(
         if cost is not None:
             return cost
         compiled = False  # the torch steps (a vertex behind the near plane, or no kernel)
-    render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W)
+    render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W,
+                          compiled=False if device.type == "cuda" else None)  # fmt: skip
     offsets = torch.zeros((V, 2), dtype=torch.int64, device=device)
     if compiled if compiled is not None else device.type == "cpu":
         from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used

@@ -98,7 +98,8 @@ class SceneWindow:
         h, w = self.size
         T_cm = np.einsum("vij,mjk->mvik", self.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
         T = torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device)
-        render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w)
+        on_cuda = self.dist.device.type == "cuda"  # the torch steps there: the render too (the kernel declined)
+        render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w, compiled=False if on_cuda else None)
         if compiled if compiled is not None else self.dist.device.type == "cpu":
             from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
 

@@ -104,9 +104,11 @@ class KernelGuard:
         """Why the kernel cannot run here (None: it can, on a GPU or in the simulator)."""
         return cuda_unavailable_reason() or (self.failed[0] if self.failed else None)
 
-    def warn_once(self, message: str) -> None:
-        if message not in self._warned:
-            self._warned.add(message)
+    def warn_once(self, message: str, key: str | None = None) -> None:
+        """Warn ``message`` the first time its ``key`` (default: the message) comes up in this process."""
+        key = message if key is None else key
+        if key not in self._warned:
+            self._warned.add(key)
             warnings.warn(message, RuntimeWarning, stacklevel=4)
 
     def note_failure(self, error: Exception) -> None:
@@ -120,14 +122,14 @@ class KernelGuard:
         or failed (warned once).
 
         Raises:
-            RuntimeError: ``compiled=True`` where the kernel is unavailable; the kernel's own error where it failed
-                with ``compiled=True``.
+            RuntimeError: ``compiled=True`` (the caller asked for the kernel) where the kernel is unavailable; the
+                kernel's own error where it failed with ``compiled=True``.
         """
         reason = self.unavailable()
         if reason is not None:
             if compiled:
                 hint = " (pip install numba-cuda)" if cuda_unavailable_reason() else ""
-                raise RuntimeError(f"compiled=True on CUDA needs {self.name}: {reason}{hint}")
+                raise RuntimeError(f"this call needs {self.name}, which cannot run here: {reason}{hint}")
             self.warn_once(f"{self.fallback}: {reason}")
             return None
         try:
@@ -138,9 +140,8 @@ class KernelGuard:
             if is_kernel_error(error):  # numba's compilation, the driver or the launch: for the rest of the process
                 self.note_failure(error)
             else:  # e.g. out of memory for this call's scratch: this call only
-                self.warn_once(
-                    f"{self.fallback} for a call: {self.name}'s call failed ({type(error).__name__}: {error})"
-                )
+                message = f"{self.fallback} for a call: {self.name}'s call failed ({_described(error)})"
+                self.warn_once(message, key=f"call failed: {type(error).__name__}")  # once per kind, not per size
             return None
 
     def launch(self, blocks: int, threads: int, arguments: list, device: torch.device) -> None:

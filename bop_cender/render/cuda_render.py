@@ -33,7 +33,7 @@ from bop_cender.render.mesh import PackedMeshes
 
 #: Threads per block (one block per canvas).
 BLOCK_THREADS = 128
-#: Pixels of canvases per launch (their maps and scratch: 32 bytes a pixel, so about 1 GiB).
+#: Pixels of canvases per launch (their z-buffer scratch: 8 bytes a pixel, so 256 MiB).
 CHUNK_PIXELS = 1 << 25
 
 
@@ -120,7 +120,10 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     depth = torch.empty((C, height, width), dtype=torch.float32, device=device)
     normals = torch.empty((C, height, width, 3), dtype=torch.float32, device=device)
     face_map = torch.empty((C, height, width), dtype=torch.int64, device=device)
-    if C == 0:
+    if C == 0 or packed.vertices.shape[0] == 0:  # nothing to draw: the background
+        depth.zero_()
+        normals.zero_()
+        face_map.fill_(-1)
         return depth, normals, face_map
     fused = True  # the GPU's torch rounds multiply-adds once; the simulator repeats the CPU's probed rounding
     if simulator_enabled():
@@ -131,7 +134,7 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     chunk = max(1, CHUNK_PIXELS // max(1, height * width))
     keys = torch.empty((min(C, chunk), height * width), dtype=torch.int64, device=device)
     z_lows = []
-    for start in range(0, C, chunk):  # canvases in chunks: the scratch and the maps' memory stay bounded
+    for start in range(0, C, chunk):  # canvases in chunks: the z-buffer's scratch stays bounded (the maps are whole)
         rows = slice(start, min(C, start + chunk))
         inputs = loop_tensors(packed, R[rows], t[rows], K[rows], near, check_near=False)
         z = inputs[0][..., 2]  # (c, N) camera-space vertex depths

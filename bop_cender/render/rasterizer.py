@@ -145,14 +145,17 @@ def render_scene(
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
-    if device.type == "cuda" and compiled is not False and V > 0:
-        from bop_cender.render import cuda_render  # numba: imported where it is used
-
-        maps = cuda_render.render_or_none(packed, R, t, Ks, height, width, near, compiled)
-        if maps is not None:
-            return SceneRender(*maps, packed.face_instance, packed.face_local)
-        compiled = False  # the torch pipeline (a vertex behind the near plane, or no kernel)
     from bop_cender.render import compiled_raster  # numba: imported where it is used
+
+    if device.type == "cuda" and compiled is not False:
+        if V > 0:
+            from bop_cender.render import cuda_render  # numba: imported where it is used
+
+            maps = cuda_render.render_or_none(packed, R, t, Ks, height, width, near, compiled)
+            if maps is not None:
+                return SceneRender(*maps, packed.face_instance, packed.face_local)
+            compiled_raster.behind_near_plane(compiled)  # compiled=True: the kernel declined (the near plane)
+        compiled = False  # the torch pipeline (a vertex behind the near plane, no kernel, or nothing to draw)
 
     if compiled_raster.use_compiled(compiled, device) and V > 0:
         maps = compiled_raster.render_compiled(packed, R, t, Ks, height, width, near)

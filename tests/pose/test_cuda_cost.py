@@ -112,7 +112,9 @@ def test_the_kernel_is_taken_through_its_guard_and_says_where_it_does_not_apply(
     kernel_standing(cuda_cost.GUARD, "numba.cuda finds no CUDA driver or device")
     with pytest.warns(RuntimeWarning, match="torch atlases on CUDA: numba.cuda finds no CUDA driver"):
         assert cuda_cost.kernel_costs(*args, None) is None
-    with pytest.raises(RuntimeError, match="needs the CUDA cost kernel: numba.cuda finds no CUDA driver"):
+    with pytest.raises(
+        RuntimeError, match="needs the CUDA cost kernel, which cannot run here: numba.cuda finds no CUDA driver"
+    ):
         cuda_cost.kernel_costs(*args, True)
 
 

@@ -69,7 +69,7 @@ _SIMULATED = textwrap.dedent(
 
 
 def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None:
-    lines = [line.split(" ", 4) for line in simulated_ok_lines(_SIMULATED)]
+    lines = [line.split(" ", 4) for line in simulated_ok_lines(_SIMULATED, compares_compiled_raster=False)]
     assert [line[1] for line in lines] == [
         "full",
         "full",

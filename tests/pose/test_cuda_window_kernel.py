@@ -138,7 +138,9 @@ def test_on_cuda_the_costs_take_the_kernel_where_it_runs_and_else_the_torch_step
     window, T = _cuda_window_stand_in(), np.eye(4)[None]
     assert SceneWindow.costs(window, T).tolist() == [7.0] == SceneWindow.costs(window, T, compiled=True).tolist()
     kernel_standing(cuda_window_kernel.GUARD, "numba.cuda finds no CUDA driver")
-    with pytest.raises(RuntimeError, match="needs the CUDA window kernel: numba.cuda finds no CUDA driver"):
+    with pytest.raises(
+        RuntimeError, match="needs the CUDA window kernel, which cannot run here: numba.cuda finds no CUDA driver"
+    ):
         SceneWindow.costs(window, T, compiled=True)
     with pytest.warns(RuntimeWarning, match="torch steps on CUDA: numba.cuda finds no CUDA driver"):
         assert window._kernel_costs(T, None) is None  # SceneWindow.costs then runs the torch steps

@@ -100,7 +100,9 @@ def test_render_scene_on_cuda_goes_through_the_kernels_guard(monkeypatch, kernel
     args = (None, None, None, None, 8, 8, 1.0)
     assert cuda_render.render_or_none(*args, None) is maps is cuda_render.render_or_none(*args, True)
     kernel_standing(cuda_render.GUARD, "numba.cuda finds no CUDA driver")
-    with pytest.raises(RuntimeError, match="needs the CUDA render kernel: numba.cuda finds no CUDA driver"):
+    with pytest.raises(
+        RuntimeError, match="needs the CUDA render kernel, which cannot run here: numba.cuda finds no CUDA driver"
+    ):
         cuda_render.render_or_none(*args, True)
     with pytest.warns(RuntimeWarning, match="torch pipeline on CUDA: numba.cuda finds no CUDA driver"):
         assert cuda_render.render_or_none(*args, None) is None

@@ -47,7 +47,8 @@ def test_without_numbas_cuda_target_the_torch_path_serves_after_one_warning(kern
         warnings.simplefilter("error")
         assert guard.run(lambda: 7, None) is None  # warned once
     with pytest.raises(
-        RuntimeError, match=r"needs the CUDA test kernel: numba.cuda finds .* \(pip install numba-cuda\)"
+        RuntimeError,
+        match=r"needs the CUDA test kernel, which cannot run here: numba.cuda finds .* \(pip install numba-cuda\)",
     ):
         guard.run(lambda: 7, True)
 
@@ -59,6 +60,9 @@ def test_a_calls_own_failure_costs_that_call_a_kernel_failure_the_process(kernel
     with pytest.warns(RuntimeWarning, match="for a call: the CUDA test kernel's call failed .OutOfMemoryError"):
         assert guard.run(_raising(out_of_memory), None) is None
     assert guard.failed == [] and guard.run(lambda: 7, None) == 7  # the next call takes the kernel again
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the same kind of failure again, another size: not warned again
+        assert guard.run(_raising(torch.cuda.OutOfMemoryError("Tried to allocate 2.00 GiB")), None) is None
     with pytest.raises(torch.cuda.OutOfMemoryError):
         guard.run(_raising(out_of_memory), True)
     nvvm = NumbaError("NVVM_ERROR_COMPILATION")
@@ -68,7 +72,9 @@ def test_a_calls_own_failure_costs_that_call_a_kernel_failure_the_process(kernel
     with pytest.warns(RuntimeWarning, match=r"torch path on CUDA: the CUDA test kernel failed \(NumbaError: NVVM"):
         assert guard.run(_raising(nvvm), None) is None
     assert guard.run(lambda: 7, None) is None  # the rest of the process stays on the torch path
-    with pytest.raises(RuntimeError, match="needs the CUDA test kernel: the CUDA test kernel failed") as raised:
+    with pytest.raises(
+        RuntimeError, match="needs the CUDA test kernel, which cannot run here: the CUDA test kernel failed"
+    ) as raised:
         guard.run(lambda: 7, True)
     assert "pip install" not in str(raised.value)  # numba-cuda is there: installing it is no advice
 
