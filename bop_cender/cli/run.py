@@ -43,8 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("cpu", "cuda", "same"),
         default="cpu",
         help="torch device of stage 3's renders and costs (default: cpu; same: --device's). On an H200 the pose"
-        " search ran slower on CUDA than on 2 CPU cores (its small Nelder-Mead batches are bound by kernel launches;"
-        " results/bench/run_*nvidia-h200.md)",
+        " search ran slower on CUDA than on 2 CPU cores (its small Nelder-Mead batches were bound by kernel launches;"
+        " results/bench/run_*nvidia-h200.md); its renders and costs have since become one CUDA kernel each"
+        " (numba-cuda), not yet timed on a GPU",
     )
     p.add_argument(
         "--out",
