@@ -51,8 +51,12 @@ if TYPE_CHECKING:
     from bop_cender.pose.scene_polish import SceneWindow
     from bop_cender.render.mesh import PackedMeshes, RenderMesh
 
-#: Threads per block (one block per window); a power of two, the size of the float64 reductions' shared arrays.
-BLOCK_THREADS = 128
+#: Most threads per block (one block per window); a power of two, the size of the float64 reductions' shared arrays.
+BLOCK_THREADS = 512
+#: Threads per block of a scene polish window (about 100 x 100 pixels, 7 to 49 windows a call).
+WINDOW_THREADS = 128
+#: Threads per block of a full frame (the scene cost: one block per view, 7 blocks for 82,000-389,000 pixels each).
+FRAME_THREADS = 512
 
 
 def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, fused, z_range,
@@ -164,7 +168,7 @@ def kernel_function():
 GUARD = KernelGuard("the CUDA window kernel", "the scene costs run their torch steps on CUDA", kernel_function)
 
 
-def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: int = BLOCK_THREADS,
+def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: int = WINDOW_THREADS,
                       fused: bool = True) -> np.ndarray | None:  # fmt: skip
     """``(m,)`` windowed scene costs of trial poses ``T_world_model (m, 4, 4)`` of the window's part, as
     :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` gives them on the CPU, by the CUDA kernel; None where a
@@ -190,7 +194,7 @@ def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: i
 
 
 def cuda_scene_cost(meshes: list[RenderMesh], T_cam_model: torch.Tensor, K: torch.Tensor, target_edges: torch.Tensor,
-                    dist_maps: torch.Tensor, edge_threshold: float, threads: int = BLOCK_THREADS,
+                    dist_maps: torch.Tensor, edge_threshold: float, threads: int = FRAME_THREADS,
                     fused: bool = True) -> float | None:  # fmt: skip
     """The full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`: every placed part rendered into every full
     frame, forward plus backward, the mean over the views) by the same kernel, each view one canvas, the frame its
@@ -256,7 +260,7 @@ def _check_launch(device: torch.device, threads: int) -> None:
 def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
                  offsets: torch.Tensor, other_depth: torch.Tensor | None, other_normals: torch.Tensor | None,
                  dist: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float,
-                 verts: torch.Tensor | None = None, threads: int = BLOCK_THREADS,
+                 verts: torch.Tensor | None = None, threads: int = WINDOW_THREADS,
                  fused: bool = True) -> np.ndarray | None:  # fmt: skip
     """Forward plus backward cost ``(C,)`` float64 of C canvases (canvas ``c`` in view ``c % V``) by the kernel, as
     :func:`~bop_cender.pose.window_kernel.window_costs` gives them after the CPU's render; None where a vertex lies

@@ -31,8 +31,11 @@ from bop_cender.render.cuda_loops import (
 )
 from bop_cender.render.mesh import PackedMeshes
 
-#: Threads per block (one block per canvas).
-BLOCK_THREADS = 128
+#: Most threads per block (one block per canvas).
+BLOCK_THREADS = 512
+#: Threads per block by default: a window of the scene polish (about 100 x 100 pixels) gets the fewer, a full frame
+#: (the occluder depth: one block per view for 82,000-389,000 pixels each) the more.
+WINDOW_THREADS, FRAME_THREADS = 128, 512
 #: Pixels of canvases per launch (their z-buffer scratch: 8 bytes a pixel, so 256 MiB).
 CHUNK_PIXELS = 1 << 25
 
@@ -94,7 +97,7 @@ def render_or_none(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: to
 
 def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
                 near: float, offsets: torch.Tensor | None = None,
-                threads: int = BLOCK_THREADS) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
+                threads: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
     """Depth ``(C, H, W)`` (z in mm, 0 on background), unit normals ``(C, H, W, 3)`` and face ids ``(C, H, W)`` int64
     (packed index, -1 on background) of packed meshes in C canvases, as the CPU's
     :func:`~bop_cender.render.compiled_raster.render_compiled` gives them; None where a vertex lies behind the near
@@ -105,7 +108,8 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
         R: ``(C, I, 3, 3)`` float32 model-to-camera rotations of the I instances, ``t``: ``(C, I, 3)`` (mm).
         K: ``(C, 3, 3)`` float32 intrinsics; height, width: the canvas size; near: the near plane (mm).
         offsets: ``(C, 2)`` int64 each canvas's window origin (row, column) in its image; None: the full frame.
-        threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
+        threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (None: :data:`FRAME_THREADS` for
+            canvases of more than 128 x 128 pixels, else :data:`WINDOW_THREADS`; the tests use fewer: the simulator
             runs each thread as a Python thread).
 
     Raises:
@@ -113,6 +117,8 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     """
     from bop_cender.render.compiled_raster import loop_tensors
 
+    if threads is None:
+        threads = FRAME_THREADS if height * width > 128 * 128 else WINDOW_THREADS
     check_threads(threads, BLOCK_THREADS)
     device = R.device
     check_device(device, "the CUDA render kernel")

@@ -74,7 +74,7 @@ _SIMULATED = textwrap.dedent(
     behind[:3, 3] -= 5000.0 * T_cw[0, 2, :3]  # behind the first camera
     print("ok near", cuda_window_costs(window, behind[None], threads=8) is None)
     print("ok empty", cuda_window_costs(window, trials[:0], threads=8).shape)
-    for threads in (0, 3, 256):
+    for threads in (0, 3, 1024):
         try:
             cuda_window_costs(window, trials[:1], threads=threads)
         except ValueError as error:
@@ -99,7 +99,7 @@ def test_the_kernel_gives_the_cpu_window_costs_in_numbas_cuda_simulator() -> Non
     assert all(float(line[3]) < 1e-9 for line in scene), scene
     assert float(scene[0][4]) < float(scene[1][4])
     assert [line[1:3] for line in lines if line[1] in ("near", "empty")] == [["near", "True"], ["empty", "(0,)"]]
-    assert [line[2] for line in lines if line[1] == "threads"] == ["0", "3", "256"]
+    assert [line[2] for line in lines if line[1] == "threads"] == ["0", "3", "1024"]
 
 
 def test_the_kernel_refuses_cpu_tensors_outside_the_simulator(mini) -> None:

@@ -58,7 +58,7 @@ _SIMULATED = textwrap.dedent(
                                              threads=8) is None)
     empty = cuda_render.cuda_render(packed, R[:0], t[:0], Ks[:0], H, W, 1.0, threads=8)
     print("ok empty", [tuple(x.shape) for x in empty])
-    for threads in (0, 3, 256):
+    for threads in (0, 3, 1024):
         try:
             cuda_render.cuda_render(packed, R, t, Ks, H, W, 1.0, threads=threads)
         except ValueError as error:
