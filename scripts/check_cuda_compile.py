@@ -124,7 +124,7 @@ def _window_arguments() -> list:
     import torch
     import trimesh
 
-    from bop_cender.pose.cuda_window_kernel import kernel_arguments, window_arguments
+    from bop_cender.pose.cuda_window_kernel import kernel_arguments, window_canvases
     from bop_cender.pose.scene_polish import scene_window
     from bop_cender.render.mesh import prepare_mesh
 
@@ -137,7 +137,7 @@ def _window_arguments() -> list:
     edges = torch.zeros(2, 96, 128, dtype=torch.bool)
     edges[:, 40:50, 60] = True
     window = scene_window(mesh, np.eye(4), [(mesh, other)], Ks, T_cw, edges, torch.ones(2, 96, 128), 3.0, 12)
-    arguments, _ = kernel_arguments(*window_arguments(window, np.eye(4)[None]))
+    arguments, _ = kernel_arguments(*window_canvases(window, np.eye(4)[None]))
     return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
 
 
@@ -146,23 +146,18 @@ def _render_arguments() -> list:
     import torch
     import trimesh
 
-    from bop_cender.render.compiled_raster import loop_tensors
+    from bop_cender.render.cuda_loops import exact_key_inputs
     from bop_cender.render.mesh import pack_meshes, prepare_mesh
 
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
-    packed = pack_meshes([mesh, mesh])
     T = torch.eye(4).repeat(2, 2, 1, 1)
     T[..., 2, 3] = 300.0
     T[:, 1, 0, 3] = 45.0
     K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
-    inputs = loop_tensors(packed, T[..., :3, :3], T[..., :3, 3], K, 1.0, check_near=False)
-    arrays = [x.contiguous().numpy() for x in inputs[:9]]
-    z = inputs[0][..., 2]
-    z_range = torch.stack([z.amin(1), z.amax(1)], 1).numpy()
+    canvases, _ = exact_key_inputs(pack_meshes([mesh, mesh]), T[..., :3, :3], T[..., :3, 3], K, 1.0)
+    arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in canvases]
     return [
         *arrays,
-        True,
-        z_range,
         np.float32(1.0),
         np.zeros((2, 2), np.int64),
         np.zeros((2, 96 * 128), np.int64),

@@ -45,6 +45,7 @@ from bop_cender.render.cuda_loops import (
     clone,
     device_functions,
     device_namespace,
+    exact_key_inputs,
 )
 
 if TYPE_CHECKING:
@@ -168,8 +169,9 @@ def kernel_function():
 GUARD = KernelGuard("the CUDA window kernel", "the scene costs run their torch steps on CUDA", kernel_function)
 
 
-def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: int = WINDOW_THREADS,
-                      fused: bool = True) -> np.ndarray | None:  # fmt: skip
+def cuda_window_costs(
+    window: SceneWindow, T_world_model: np.ndarray, threads: int = WINDOW_THREADS
+) -> np.ndarray | None:
     """``(m,)`` windowed scene costs of trial poses ``T_world_model (m, 4, 4)`` of the window's part, as
     :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` gives them on the CPU, by the CUDA kernel; None where a
     vertex lies behind the near plane in some canvas (use the torch steps, whose renderer cuts the faces there).
@@ -180,7 +182,6 @@ def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: i
         T_world_model: the trial poses (mm).
         threads: threads per block, a power of two up to :data:`BLOCK_THREADS` (the tests use fewer: the simulator
             runs each thread as a Python thread).
-        fused: multiply-adds rounded once (the GPU's torch; the CPU loops take torch's CPU rounding as probed).
 
     Raises:
         ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
@@ -189,13 +190,35 @@ def cuda_window_costs(window: SceneWindow, T_world_model: np.ndarray, threads: i
     if m == 0 or V == 0:
         _check_launch(window.dist.device, threads)
         return np.zeros(m) if V else None  # no view: the torch steps say what that costs
-    costs = canvas_costs(*window_arguments(window, T_world_model), threads=threads, fused=fused)
+    costs = canvas_costs(*window_canvases(window, T_world_model), threads)
     return None if costs is None else costs.reshape(m, V).mean(1)
 
 
-def cuda_scene_cost(meshes: list[RenderMesh], T_cam_model: torch.Tensor, K: torch.Tensor, target_edges: torch.Tensor,
-                    dist_maps: torch.Tensor, edge_threshold: float, threads: int = FRAME_THREADS,
-                    fused: bool = True) -> float | None:  # fmt: skip
+def window_canvases(window: SceneWindow, T_world_model: np.ndarray) -> tuple:
+    """:func:`canvas_costs`' arguments (before ``threads``) for trial poses ``T_world_model (m, 4, 4)`` of a window's
+    part: canvas ``c`` = trial ``c // V`` in view ``c % V``, the part as packed meshes as the CPU renders it (exact
+    keys, the packed culling)."""
+    from bop_cender.render.mesh import pack_meshes
+
+    device = window.dist.device
+    m, V = len(T_world_model), len(window.T_cam_world)
+    T_cm = np.einsum("vij,mjk->mvik", window.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
+    T = torch.as_tensor(T_cm, dtype=torch.float32, device=device)
+    packed = window.packed if window.packed is not None else pack_meshes([window.mesh.to(device)])
+    other = (window.other_depth, window.other_normals) if window.other_depth.shape[0] > 0 else (None, None)
+    return (packed, T[..., :3, :3], T[..., :3, 3], window.K.repeat(m, 1, 1), window.size, window.offsets, *other,
+            window.dist, window.target_edges, window.edge_threshold)  # fmt: skip
+
+
+def cuda_scene_cost(
+    meshes: list[RenderMesh],
+    T_cam_model: torch.Tensor,
+    K: torch.Tensor,
+    target_edges: torch.Tensor,
+    dist_maps: torch.Tensor,
+    edge_threshold: float,
+    threads: int = FRAME_THREADS,
+) -> float | None:
     """The full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`: every placed part rendered into every full
     frame, forward plus backward, the mean over the views) by the same kernel, each view one canvas, the frame its
     window, nothing else in it; None where a vertex lies behind the near plane (use the torch steps).
@@ -203,53 +226,22 @@ def cuda_scene_cost(meshes: list[RenderMesh], T_cam_model: torch.Tensor, K: torc
     Args:
         meshes, T_cam_model ``(V, M, 4, 4)``, K ``(V, 3, 3)``, target_edges ``(V, H, W)``, dist_maps ``(V, H, W)``,
             edge_threshold: as ``scene_cost``, the tensors on a CUDA device (or the CPU under the simulator).
-        threads, fused: as :func:`cuda_window_costs`.
+        threads: as :func:`cuda_window_costs`.
     """
     from bop_cender.render.mesh import pack_meshes
-    from bop_cender.render.raster import camera_vertices
 
     device = dist_maps.device
     V, H, W = (int(x) for x in target_edges.shape)
     if V == 0 or not meshes:
         _check_launch(device, threads)
         return None  # nothing to launch: the torch steps say what such a placement costs
-    on_device = [mesh.to(device) for mesh in meshes]
     T = T_cam_model.to(device, torch.float32)
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    # each mesh's vertices as camera_vertices computes a packed mesh's, part by part, without its split's wait
-    verts = torch.cat([camera_vertices(mesh, R[:, i : i + 1], t[:, i : i + 1]) for i, mesh in enumerate(on_device)], 2)
     costs = canvas_costs(
-        pack_meshes(on_device), R, t, K.to(device, torch.float32), (H, W),
-        torch.zeros((V, 2), dtype=torch.int64, device=device), None, None, dist_maps.to(device),
-        target_edges.to(device), edge_threshold, verts, threads=threads, fused=fused,
+        pack_meshes([mesh.to(device) for mesh in meshes]), T[..., :3, :3], T[..., :3, 3], K.to(device, torch.float32),
+        (H, W), torch.zeros((V, 2), dtype=torch.int64, device=device), None, None, dist_maps.to(device),
+        target_edges.to(device), edge_threshold, threads,
     )  # fmt: skip
     return None if costs is None else float(costs.mean())
-
-
-def window_arguments(window: SceneWindow, T_world_model: np.ndarray) -> tuple:
-    """:func:`canvas_costs`' arguments (before ``threads``) for trial poses ``T_world_model (m, 4, 4)`` of a window's
-    part: canvas ``c`` = trial ``c // V`` in view ``c % V``."""
-    from bop_cender.render.raster import camera_vertices
-
-    device = window.dist.device
-    m, V = len(T_world_model), len(window.T_cam_world)
-    T_cm = np.einsum("vij,mjk->mvik", window.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
-    T = torch.as_tensor(T_cm, dtype=torch.float32, device=device)
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    mesh = window.mesh.to(device)
-    packed = window.packed if window.packed is not None else _packed(mesh)
-    # the packed mesh's faces and culling (the CPU renders the part as packed meshes: exact keys); its vertices as
-    # the plain mesh's (the same arithmetic for one part, without the packed split's wait for the device)
-    verts = camera_vertices(mesh, R, t)
-    other = (window.other_depth, window.other_normals) if window.other_depth.shape[0] > 0 else (None, None)
-    return (packed, R, t, window.K.repeat(m, 1, 1), window.size, window.offsets, *other, window.dist,
-            window.target_edges, window.edge_threshold, verts)  # fmt: skip
-
-
-def _packed(mesh: RenderMesh) -> PackedMeshes:
-    from bop_cender.render.mesh import pack_meshes
-
-    return pack_meshes([mesh])
 
 
 def _check_launch(device: torch.device, threads: int) -> None:
@@ -260,8 +252,7 @@ def _check_launch(device: torch.device, threads: int) -> None:
 def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
                  offsets: torch.Tensor, other_depth: torch.Tensor | None, other_normals: torch.Tensor | None,
                  dist: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float,
-                 verts: torch.Tensor | None = None, threads: int = WINDOW_THREADS,
-                 fused: bool = True) -> np.ndarray | None:  # fmt: skip
+                 threads: int = WINDOW_THREADS) -> np.ndarray | None:  # fmt: skip
     """Forward plus backward cost ``(C,)`` float64 of C canvases (canvas ``c`` in view ``c % V``) by the kernel, as
     :func:`~bop_cender.pose.window_kernel.window_costs` gives them after the CPU's render; None where a vertex lies
     behind the near plane in some canvas.
@@ -273,9 +264,7 @@ def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torc
         other_depth, other_normals: ``(V, h, w)``, ``(V, h, w, 3)`` what else is in the windows (None: nothing).
         dist: ``(V, H, W)`` the target's distance maps; target_edges: ``(V, h, w)`` bool, the edges the backward term
             measures; edge_threshold: raw curvature above which a composite pixel is one of its own edges.
-        verts: ``(3, C, N)`` the camera-space vertices if computed already (:func:`~bop_cender.render.raster.
-            camera_vertices`).
-        threads, fused: as :func:`cuda_window_costs`.
+        threads: as :func:`cuda_window_costs`.
 
     Raises:
         ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
@@ -284,39 +273,34 @@ def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torc
 
     device = dist.device
     _check_launch(device, threads)
-    C = int(R.shape[0])
     arguments, z_min = kernel_arguments(packed, R, t, K, size, offsets, other_depth, other_normals, dist, target_edges,
-                                        edge_threshold, verts, fused)  # fmt: skip
+                                        edge_threshold)  # fmt: skip
     out = arguments[-1]
-    GUARD.launch(C, threads, arguments, device)
+    GUARD.launch(int(R.shape[0]), threads, arguments, device)
     read = torch.cat([out, z_min.double().reshape(1)]).cpu().numpy()  # the call's one wait for the device
     return None if read[-1] < DEFAULT_NEAR else read[:-1]
 
 
 def kernel_arguments(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, size: tuple[int, int],
                      offsets: torch.Tensor, other_depth: torch.Tensor | None, other_normals: torch.Tensor | None,
-                     dist: torch.Tensor, target_edges: torch.Tensor, edge_threshold: float,
-                     verts: torch.Tensor | None = None, fused: bool = True) -> tuple[list, torch.Tensor]:  # fmt: skip
+                     dist: torch.Tensor, target_edges: torch.Tensor,
+                     edge_threshold: float) -> tuple[list, torch.Tensor]:  # fmt: skip
     """The kernel's arguments (:func:`canvas_costs`' inputs on their device, in the kernel's order, scratch
-    allocated, the last one ``out (C,)`` float64, which the launch fills) and the least vertex z over the canvases (a
-    0-d tensor: nothing is read back here, where ``verts`` is given; else ``camera_vertices`` of packed meshes waits
-    for their split)."""
-    from bop_cender.render.compiled_raster import loop_tensors
+    allocated, the last one ``out (C,)`` float64, which the launch fills) and the least vertex z over the canvases
+    (:func:`~bop_cender.render.cuda_loops.exact_key_inputs`; nothing is read back here)."""
     from bop_cender.render.raster import DEFAULT_NEAR
 
     device = dist.device
     C = int(R.shape[0])
     h, w = size
-    inputs = loop_tensors(packed, R, t, K, DEFAULT_NEAR, verts=verts, check_near=False)
-    z = inputs[0][..., 2]  # (C, N) camera-space vertex depths
-    z_range = torch.stack([z.amin(1), z.amax(1)], 1).contiguous()
+    canvases, z_min = exact_key_inputs(packed, R, t, K, DEFAULT_NEAR)
     if other_depth is None or other_normals is None:
         other = (torch.zeros((0, 1, 1), device=device), torch.zeros((0, 1, 1, 3), device=device))
     else:
         other = (other_depth.float().contiguous(), other_normals.float().contiguous())
-    arguments = [*(x.contiguous() for x in inputs[:9]), bool(fused), z_range, np.float32(DEFAULT_NEAR), *other,
-                 dist.float().contiguous(), offsets.contiguous(), target_edges.to(torch.uint8).contiguous(),
-                 np.float32(edge_threshold), torch.empty((C, h * w), dtype=torch.int64, device=device),
+    arguments = [*canvases, np.float32(DEFAULT_NEAR), *other, dist.float().contiguous(), offsets.contiguous(),
+                 target_edges.to(torch.uint8).contiguous(), np.float32(edge_threshold),
+                 torch.empty((C, h * w), dtype=torch.int64, device=device),
                  torch.empty((C, h, w, 3), dtype=torch.float32, device=device),
                  torch.empty(C, dtype=torch.float64, device=device)]  # fmt: skip
-    return arguments, z_range[:, 0].amin()
+    return arguments, z_min

@@ -23,12 +23,10 @@ import types
 import warnings
 from collections.abc import Callable
 from functools import cache
-from typing import TYPE_CHECKING, TypeVar
+from typing import TypeVar
 
 import numpy as np
-
-if TYPE_CHECKING:
-    import torch
+import torch
 
 
 def simulator_enabled() -> bool:
@@ -147,8 +145,6 @@ class KernelGuard:
     def launch(self, blocks: int, threads: int, arguments: list, device: torch.device) -> None:
         """Launch the kernel on ``blocks`` blocks of ``threads`` threads with ``arguments`` (tensors, as CUDA arrays
         on torch's current stream of ``device``, and scalars); in numba's simulator on the tensors' NumPy views."""
-        import torch
-
         if simulator_enabled():  # numba's simulator runs the kernel on NumPy arrays
             self.kernel[blocks, threads](*(x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in arguments))
             return
@@ -171,6 +167,24 @@ def check_device(device: torch.device, what: str) -> None:
     """Refuse tensors that are not on CUDA, but under numba's simulator (which takes CPU tensors)."""
     if device.type != "cuda" and not simulator_enabled():
         raise ValueError(f"{what} takes CUDA tensors (or CPU ones under the simulator), got {device}")
+
+
+def exact_key_inputs(
+    packed, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float
+) -> tuple[list, torch.Tensor]:
+    """What the exact-key kernels (the renderer's and the scene costs') read of C canvases of packed meshes: the nine
+    loop tensors (:func:`~bop_cender.render.compiled_raster.loop_tensors`, contiguous), the multiply-add rounding
+    (fused on a GPU, as torch's CUDA kernels round; in numba's simulator the CPU's as probed, so that it repeats the
+    CPU loops' bits), the canvases' vertex depth range ``z_range (C, 2)``; and, apart, the least vertex depth (a 0-d
+    tensor, read back with the call's results: a vertex behind the near plane leaves the call to the torch path).
+    Packed meshes know their vertex counts: nothing here waits for the device."""
+    from bop_cender.render.compiled_raster import ADDCMUL_FUSED, loop_tensors
+
+    inputs = loop_tensors(packed, R, t, K, near, check_near=False)
+    z = inputs[0][..., 2]  # (C, N) camera-space vertex depths
+    z_range = torch.stack([z.amin(1), z.amax(1)], 1).contiguous()
+    fused = bool(ADDCMUL_FUSED) if simulator_enabled() else True
+    return [*(x.contiguous() for x in inputs[:9]), fused, z_range], z_range[:, 0].amin()
 
 
 def _keep_fragment_atomic(best_key, best_w, p, q, key, f, quantised):

@@ -27,7 +27,7 @@ from bop_cender.render.cuda_loops import (
     check_threads,
     clone,
     device_namespace,
-    simulator_enabled,
+    exact_key_inputs,
 )
 from bop_cender.render.mesh import PackedMeshes
 
@@ -115,8 +115,6 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
     Raises:
         ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
     """
-    from bop_cender.render.compiled_raster import loop_tensors
-
     if threads is None:
         threads = FRAME_THREADS if height * width > 128 * 128 else WINDOW_THREADS
     check_threads(threads, BLOCK_THREADS)
@@ -131,23 +129,16 @@ def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch
         normals.zero_()
         face_map.fill_(-1)
         return depth, normals, face_map
-    fused = True  # the GPU's torch rounds multiply-adds once; the simulator repeats the CPU's probed rounding
-    if simulator_enabled():
-        from bop_cender.render.compiled_raster import ADDCMUL_FUSED
-
-        fused = bool(ADDCMUL_FUSED)
     origins = torch.zeros((C, 2), dtype=torch.int64, device=device) if offsets is None else offsets.to(torch.int64)
     chunk = max(1, CHUNK_PIXELS // max(1, height * width))
     keys = torch.empty((min(C, chunk), height * width), dtype=torch.int64, device=device)
     z_lows = []
     for start in range(0, C, chunk):  # canvases in chunks: the z-buffer's scratch stays bounded (the maps are whole)
         rows = slice(start, min(C, start + chunk))
-        inputs = loop_tensors(packed, R[rows], t[rows], K[rows], near, check_near=False)
-        z = inputs[0][..., 2]  # (c, N) camera-space vertex depths
-        z_range = torch.stack([z.amin(1), z.amax(1)], 1).contiguous()
-        z_lows.append(z_range[:, 0].amin())
-        arguments = [*(x.contiguous() for x in inputs[:9]), fused, z_range, np.float32(near),
-                     origins[rows].contiguous(), keys, depth[rows], normals[rows], face_map[rows]]  # fmt: skip
+        canvases, z_low = exact_key_inputs(packed, R[rows], t[rows], K[rows], near)
+        z_lows.append(z_low)
+        arguments = [*canvases, np.float32(near), origins[rows].contiguous(), keys, depth[rows], normals[rows],
+                     face_map[rows]]  # fmt: skip
         GUARD.launch(rows.stop - rows.start, threads, arguments, device)
     if float(torch.stack(z_lows).amin()) < near:  # the call's one wait for the device
         return None

@@ -41,7 +41,6 @@ _SIMULATED = textwrap.dedent(
     from bop_cender.pose.coverage import scene_cost
     from bop_cender.pose.cuda_window_kernel import cuda_scene_cost, cuda_window_costs
     from bop_cender.pose.scene_polish import SceneWindow, scene_window
-    from bop_cender.render.compiled_raster import ADDCMUL_FUSED
 
     ds, scene, meshes, maps, cams, dist = method_data.mini_scene(Path(tempfile.mkdtemp()) / "dimo")
     edges = maps.curvature > method_data.BOX_T_B
@@ -60,7 +59,7 @@ _SIMULATED = textwrap.dedent(
                                     ("none", SceneWindow(**{{**window.__dict__,
                                                            "target_edges": torch.zeros_like(window.target_edges)}}))):
                 cpu = w.costs(trials, compiled=True)
-                sim = cuda_window_costs(w, trials, threads=8, fused=bool(ADDCMUL_FUSED))
+                sim = cuda_window_costs(w, trials, threads=8)
                 print("ok", threshold, others_name, targets_name, float(np.max(np.abs(sim - cpu) / cpu)), sim.tolist())
     Kt = torch.as_tensor(Ks, dtype=torch.float32)
     for name, poses in (("truth", parts), ("moved", {{**parts, moving: trials[2]}})):
@@ -68,7 +67,7 @@ _SIMULATED = textwrap.dedent(
                                dtype=torch.float32)
         placed = [meshes(i) for i in sorted(poses)]
         cpu = scene_cost(placed, T_cm, Kt, edges, dist, 3.0, compiled=True)
-        sim = cuda_scene_cost(placed, T_cm, Kt, edges, dist, 3.0, threads=8, fused=bool(ADDCMUL_FUSED))
+        sim = cuda_scene_cost(placed, T_cm, Kt, edges, dist, 3.0, threads=8)
         print("ok scene", name, abs(sim - cpu) / cpu, cpu)
     behind = parts[moving].copy()
     behind[:3, 3] -= 5000.0 * T_cw[0, 2, :3]  # behind the first camera
