@@ -89,16 +89,16 @@ class SceneWindow:
         Raises:
             RuntimeError: ``compiled=True`` on CUDA where the kernel cannot run.
         """
-        if self.dist.device.type == "cuda" and compiled is not False:
+        on_cuda = self.dist.device.type == "cuda"
+        if on_cuda and compiled is not False:
             costs = self._kernel_costs(T_world_model, compiled)
             if costs is not None:
                 return costs
-            compiled = False
+            compiled = False  # the torch steps, the render too (the kernel declined, or none)
         m, V = len(T_world_model), len(self.T_cam_world)
         h, w = self.size
         T_cm = np.einsum("vij,mjk->mvik", self.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
         T = torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device)
-        on_cuda = self.dist.device.type == "cuda"  # the torch steps there: the render too (the kernel declined)
         render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w, compiled=False if on_cuda else None)
         if compiled if compiled is not None else self.dist.device.type == "cpu":
             from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
