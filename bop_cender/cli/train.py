@@ -41,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "dimo-lean",
             "dimo-context",
             "dimo-refine",
+            "dimo-centers",
             "tless",
             "tless-lean",
             "tless-factored",
@@ -49,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
         " dimo-lean with dilated context convolutions, a 3x wider receptive field; dimo-refine: dimo-context with a"
-        " full-resolution curvature refinement; tless-factored: one"
+        " full-resolution curvature refinement; dimo-centers: dimo-context with a centre-only branch; tless-factored: one"
         " class-agnostic center map times a per-pixel object class, for T-LESS's 30 ids; tless-refine: that one with"
         " the full-resolution curvature refinement)",
     )
@@ -106,7 +107,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MODULE[,MODULE]",
         help="train only these top-level modules of the network, the rest frozen (batch-norm statistics too): e.g."
         " --variant dimo-refine --init-weights CONTEXT.pt --train-only refine,curvature_head leaves the centres as"
-        " they were (modules: e1 e2 e3 bottleneck context d2 d1 center_head curvature_head refine; default: all)",
+        " they were, --variant dimo-centers ... --train-only center_branch,center_head the curvature (modules: e1 e2 e3"
+        " bottleneck context d2 d1 center_head curvature_head refine center_branch; default: all)",
     )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")

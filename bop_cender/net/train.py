@@ -277,7 +277,8 @@ def train(
                 field="--init-weights",
             )
         missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
-        assert not unexpected and all(k.startswith(("context.", "refine.")) for k in missing), (missing, unexpected)
+        new_modules = ("context.", "refine.", "center_branch.")  # each starts as the identity (_can_start_from)
+        assert not unexpected and all(k.startswith(new_modules) for k in missing), (missing, unexpected)
     trainable = _freeze_all_but(model, config.train_only)
     optimiser = torch.optim.Adam(trainable, lr=config.lr)
     history: list[EpochRecord] = []
@@ -365,8 +366,8 @@ def _train_mode(model: UNet, train_only: tuple[str, ...]) -> None:
 
 def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
     """Whether weights of network ``init`` can start a run of ``spec``: the same network, or ``spec`` adds context
-    convolutions and/or a full-resolution refinement to it (both start as the identity, so the run starts from
-    exactly what ``init`` computed)."""
+    convolutions, a full-resolution refinement and/or a centre branch to it (all start as the identity, so the run
+    starts from exactly what ``init`` computed)."""
     if init == spec:
         return True
     base = replace(spec, name=init.name)
@@ -374,6 +375,8 @@ def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
         base = replace(base, context_dilations=())
     if not init.refine_channels:
         base = replace(base, refine_channels=0)
+    if not init.center_branch_channels:
+        base = replace(base, center_branch_channels=0)
     return base == init
 
 

@@ -224,6 +224,19 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
     image = torch.rand(1, 3, 128, 160)
     with torch.no_grad():
         assert torch.equal(before.eval()(image)[0], after.eval()(image)[0])
+    # a context network starts a centres one; its branch and center head alone leave the curvature as it was
+    centers_only = ("center_branch", "center_head")
+    centers = _config(tiny_root, epochs=1, val_split=None, variant="dimo-centers", init_weights=str(context_weights),
+                      train_only=centers_only)  # fmt: skip
+    train(centers, tmp_path / "centers", progress=False)
+    after = load_weights(tmp_path / "centers" / WEIGHTS).model
+    assert after.spec.center_branch_channels == 48
+    a = after.state_dict()
+    assert all(torch.equal(b[k], a[k]) for k in b if not k.startswith(centers_only))
+    assert any(not torch.equal(v, torch.zeros_like(v)) for k, v in a.items() if k.startswith("center_branch.out"))
+    with torch.no_grad():
+        (c0, k0), (c1, k1) = before.eval()(image), after.eval()(image)
+    assert torch.equal(k0, k1) and not torch.equal(c0, c1)
     with pytest.raises(ConfigError, match="--train-only.*bogus: not a module of the dimo-refine network"):
         train(replace(alone, train_only=("refine", "bogus")), tmp_path / "bogus", progress=False)
     with pytest.raises(ConfigError, match="--train-only"):

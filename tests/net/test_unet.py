@@ -181,6 +181,33 @@ def test_the_refine_spec_round_trips_and_needs_a_first_stride_above_one() -> Non
         UNetSpec(strides=(2, 2, 2), refine_channels=-1)
 
 
+def test_the_center_branch_starts_as_the_identity_and_round_trips() -> None:
+    """dimo-context weights start a dimo-centers network: its branch adds zero, so the same maps to the bit; once
+    the branch's output convolution is not zero the centres change and the curvature does not."""
+    spec = UNetSpec.named("dimo-centers")
+    assert spec.center_branch_channels == 48 and spec.context_dilations == (2, 4, 8)
+    assert UNetSpec.from_dict(spec.as_dict()) == spec
+    old = UNetSpec.dimo_context().as_dict()
+    del old["center_branch_channels"]  # a weights file written before the field existed
+    assert UNetSpec.from_dict(old) == UNetSpec.dimo_context()
+    with pytest.raises(ValueError, match="center branch channels"):
+        UNetSpec(center_branch_channels=-1)
+    torch.manual_seed(3)
+    context = UNet(UNetSpec.dimo_context()).eval()
+    centers = UNet(spec).eval()
+    missing, unexpected = centers.load_state_dict(context.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("center_branch.") for k in missing)
+    image = torch.rand(2, 3, 72, 88)  # not a multiple of the stride 8: padded and cropped back
+    with torch.no_grad():
+        c0, k0 = context(image)
+        c1, k1 = centers(image)
+        assert c1.shape == (2, 1, 72, 88) and k1.shape == (2, 72, 88)
+        assert torch.equal(c0, c1) and torch.equal(k0, k1)
+        torch.nn.init.normal_(centers.center_branch.out.weight, std=0.5)
+        c2, k2 = centers(image)
+    assert not torch.allclose(c2, c0) and torch.equal(k2, k0)
+
+
 def test_factored_centers_are_a_center_probability_times_a_class_probability() -> None:
     """sigmoid of the combined logit of channel k is sigmoid(center) * softmax(classes)_k, finite even where the
     raw logits are extreme; the channels of one pixel sum to the center probability."""
