@@ -192,3 +192,33 @@ def test_refine_centers_moves_every_start_to_its_own_blob_at_once():
     np.testing.assert_array_less(np.linalg.norm(out[:2] - truth, axis=1), TOL_MM)
     np.testing.assert_array_equal(out[2], starts[2])
     assert refine_centers(np.zeros((0, 3)), maps, np.repeat(K[None], len(T), 0), T, CenterConfig()).shape == (0, 3)
+
+
+def test_class_agnostic_centres_find_a_part_whose_peak_is_split_over_channels_and_name_it_by_the_best_channel():
+    """Three channels (object ids 11, 12, 13). Part A is sure of its id (channel 0, peak 0.9); part B's peak is split
+    0.13 / 0.12 over channels 1 and 2, under the peak threshold 0.15 in each: per channel it is lost, on the sum
+    it is found and named 12 (channel 1, its larger share); with channel 1's count used up it goes to channel 2;
+    with none left it is dropped."""
+    truth = np.array([[0.0, 0.0, 0.0], [90.0, -30.0, 10.0]])
+    T_cw = ring_cameras(5)
+    Ks = np.repeat(K[None], 5, 0)
+    a, b = blob_maps(truth[:1], T_cw)[:, 0], blob_maps(truth[1:], T_cw)[:, 0]
+    maps = np.stack([0.9 * a, 0.13 * b, 0.12 * b], axis=1)  # (V, 3, H, W)
+    ids, counts = (11, 12, 13), {0: 1, 1: 1, 2: 1}
+    per_channel = detect_centers(maps, Ks, T_cw, CenterConfig(class_agnostic=False), ids, counts)
+    assert [c.obj_id for c in per_channel] == [11]
+    agnostic = CenterConfig()  # class-agnostic by default
+    found = detect_centers(maps, Ks, T_cw, agnostic, ids, counts)
+    assert [(c.channel, c.obj_id) for c in found] == [(0, 11), (1, 12)]
+    assert np.linalg.norm(found[1].position - truth[1]) < TOL_MM
+    assert np.allclose(found[1].view_scores, sample_scores(found[1].position[None], maps[:, 1], Ks, T_cw)[0])
+    found = detect_centers(maps, Ks, T_cw, agnostic, ids, {0: 1, 1: 0, 2: 1})
+    assert [(c.channel, c.obj_id) for c in found] == [(0, 11), (2, 13)]
+    assert [c.obj_id for c in detect_centers(maps, Ks, T_cw, agnostic, ids, {0: 1, 1: 0, 2: 0})] == [11]
+    # one channel (DIMO): the option changes nothing
+    one = maps[:, :1]
+    per_channel_config = CenterConfig(class_agnostic=False)
+    same = detect_centers(one, Ks, T_cw, agnostic, None, {0: 1})
+    assert [c.position.tolist() for c in same] == [
+        c.position.tolist() for c in detect_centers(one, Ks, T_cw, per_channel_config, None, {0: 1})
+    ]
