@@ -97,7 +97,7 @@ class CenterConfig:
             on the sum 34, 17). Measured (2026-12-07, 2-core AMD EPYC, ``results/accuracy/README.md``), BOP AR on
             four T-LESS-layout test sets (seeds 4243, 6161, 7272, 8383): the shipped network 0.477 / 0.584 / 0.408 /
             0.461 -> 0.518 / 0.583 / 0.484 / 0.482, the oracle 0.893 / 0.971 / 0.890 / 0.962 -> 0.935 / 0.972 /
-            0.897 / 0.963 (neighbouring parts of different ids no longer cost each other a centre); 4-44 % more
+            0.897 / 0.963 (neighbouring parts of different ids no longer cost each other a centre); 9-44 % more
             objects placed with the network (so as much more stage-3 time). One channel (DIMO): no change.
     """
 
