@@ -130,7 +130,8 @@ def main(argv=None) -> int:
         f"Machine: {bench_machine.cpu_model()}, {bench_machine.usable_cores()} cores"
         + (f", {gpu}" if gpu else "")
         + f"; torch {torch.__version__}, {torch.get_num_threads()} CPU threads.",
-        f"Command: `python scripts/bench_net.py --repeats {args.repeats} --devices {args.devices}`",
+        f"Command: `python scripts/bench_net.py --repeats {args.repeats} --devices {args.devices}"
+        + (f" --variants {args.variants}`" if args.variants else "`"),
         "",
         "| device | variant | input | parameters | GMAC/view | ms/view (1 view) | ms/view (scene batch) | train images/s (size) |",
         "|---|---|---|---:|---:|---:|---:|---:|",

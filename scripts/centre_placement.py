@@ -31,6 +31,7 @@ import numpy as np
 
 from bop_cender.centers import Center3D
 from bop_cender.errors import BopCenderError
+from bop_cender.geometry.poses import transform_points
 from bop_cender.runner import HEATMAP_SOURCES, RunRequest, build_method, open_run_dataset, resolve_weights
 
 CENTRE_BINS_MM = (0.0, 5.0, 10.0, 20.0, math.inf)
@@ -101,16 +102,13 @@ def placement_table(parts: Sequence[PartPlacement], placed_mm: float) -> list[st
     return lines
 
 
-def world_centre(T_world_model: np.ndarray, model_centre: np.ndarray) -> np.ndarray:
-    """``(3,)`` the model's bounding-box centre ``model_centre`` (model frame) in the world."""
-    return T_world_model[:3, :3] @ model_centre + T_world_model[:3, 3]
-
-
 def scene_placements(output, scene, models: Mapping) -> list[PartPlacement]:
     """:func:`part_placements` of one scene's method output (:class:`~bop_cender.method.SceneOutput`)."""
     gts = [g for g in scene.gt if g.obj_id in models and models[g.obj_id].is_target]
-    gt_centres = np.array([world_centre(g.T_world_model, models[g.obj_id].center) for g in gts]).reshape(-1, 3)
-    placed = [world_centre(p.T_world_model, models[p.obj_id].center) for p in output.placed]
+    gt_centres = np.array([transform_points(g.T_world_model, models[g.obj_id].center[None])[0] for g in gts]).reshape(
+        -1, 3
+    )
+    placed = [transform_points(p.T_world_model, models[p.obj_id].center[None])[0] for p in output.placed]
     return part_placements(
         gt_centres, [g.obj_id for g in gts], output.centers, np.array(placed), [p.obj_id for p in output.placed]
     )
@@ -127,6 +125,10 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=None, help="only the first K scenes")
     ap.add_argument("--placed-mm", type=float, default=3.0, help="a part is placed within this distance (default 3)")
     args = ap.parse_args()
+    if args.scenes is not None and args.scenes < 1:
+        ap.error(f"--scenes must be at least 1, got {args.scenes}")
+    if not args.placed_mm > 0:
+        ap.error(f"--placed-mm must be above 0, got {args.placed_mm}")
     split = args.split or ("sim" if args.dataset == "dimo" else "test")
     try:
         request = RunRequest(args.dataset, args.data_root, split, Path("unused.csv"), heatmaps=args.heatmaps,

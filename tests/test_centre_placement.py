@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import subprocess
 import sys
 from pathlib import Path
 
@@ -55,3 +56,10 @@ def test_the_table_bins_parts_by_the_centres_distance_and_counts_the_placed_ones
     assert rows["any channel's centre < 5 mm"] == "| any channel's centre < 5 mm | 3 | |"
     assert rows["3"] == "| 3 | 3 | 0 | 1 | 1 |" and rows["1"] == "| 1 | 2 | 2 | 2 | 1 |"
     assert rows["6"] == "| 6 | 1 | 0 | 0 | 1 |"
+
+
+def test_meaningless_flags_are_one_usage_error_before_any_work() -> None:
+    script = Path(__file__).parents[1] / "scripts" / "centre_placement.py"
+    for flags, message in ((["--scenes", "0"], "--scenes must be at least 1"), (["--placed-mm", "-1"], "--placed-mm")):
+        done = subprocess.run([sys.executable, str(script), *flags], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr

@@ -127,7 +127,6 @@ def _composite_costs(depth, normals, other_depth, other_normals, dist, offsets, 
         if n_targets > 0:
             backward = backward / n_targets if edges > 0 else np.float64(np.float32(math.hypot(h, w)))
         total[c] = (num / den if den > 0.0 else diagonal) + backward
-    return 0
 
 
 def window_costs(
