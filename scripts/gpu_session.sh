@@ -15,14 +15,15 @@
 #   (weights, checkpoint, metrics.csv, validation figures): carry it back and set RESUME_BUNDLE to it to go on.
 #
 # Environment: OUT (default out/), DEVICE (cuda; cpu for a dry run), SCENES (24), VARIANTS (16,17,18,19),
-# TRAIN_MINUTES (5), BATCH (32), WORKERS (CPU count - 2), RESUME_BUNDLE (a train_run.tar.gz to continue), WHEELS
-# (.whl: wheels of dependencies the device lacks, installed with --no-deps into /tmp/site; fetch them here with
+# TRAIN_MINUTES (5), BATCH (32), VOTES (0; 1: the network with centre votes, --center-votes, bop_cender/net/votes.py),
+# WORKERS (CPU count - 2), RESUME_BUNDLE (a train_run.tar.gz to continue), WHEELS (.whl: wheels of dependencies the
+# device lacks, installed with --no-deps into /tmp/site; fetch them here with
 # `pip download --only-binary=:all: --python-version 3.12 --no-deps -d .whl trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1
 # numba==0.68.1 llvmlite==0.50.0` and carry .whl).
 set -euo pipefail
 mode=${1:-}
 if [[ "$mode" != "check" && "$mode" != "train" ]]; then
-  sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'
   [[ "$mode" == "-h" || "$mode" == "--help" ]] && exit 0
   echo "usage: bash scripts/gpu_session.sh check|train" >&2
   exit 2
@@ -34,6 +35,7 @@ SCENES=${SCENES:-24}
 VARIANTS=${VARIANTS:-16,17,18,19}
 TRAIN_MINUTES=${TRAIN_MINUTES:-5}
 BATCH=${BATCH:-32}
+VOTES=${VOTES:-0}
 WORKERS=${WORKERS:-$(( $(nproc) > 3 ? $(nproc) - 2 : 1 ))}
 WHEELS=${WHEELS:-.whl}
 DATA=${DATA:-/tmp/gpu_session_data}
@@ -105,11 +107,13 @@ cli synth --layout dimo --out "$DATA/dimo_val" --scenes 4 --variants 0 --seed 90
   --no-contact-sheets | tail -2
 resume=()
 [[ -f "$RUN/checkpoint.pt" ]] && resume=(--resume)
+votes=()
+[[ "$VOTES" == 1 ]] && votes=(--center-votes)
 # Many epochs asked for: the time limit ends the run; every finished epoch is checkpointed and validated.
 stage train $(( TRAIN_MINUTES * 60 )) python3 -m bop_cender.cli train --dataset dimo --data-root "$DATA/dimo_train" \
   --split train --val-split sim --val-data-root "$DATA/dimo_val" --variant dimo --center-loss focal \
   --center-loss-weight 0.1 --batch-size "$BATCH" --epochs 200 --lr 1e-3 --seed 11 --device "$DEVICE" \
-  --no-progress --out "$RUN" ${resume[@]+"${resume[@]}"}
+  --no-progress --out "$RUN" ${votes[@]+"${votes[@]}"} ${resume[@]+"${resume[@]}"}
 bundle
 if [[ -f "$RUN/weights.pt" ]]; then
   stage validation_heatmaps 120 python3 -m bop_cender.cli heatmaps --dataset dimo --split sim \

@@ -55,6 +55,7 @@ def test_the_training_phase_runs_on_the_cpu_and_bundles_the_run(tmp_path: Path) 
         "WORKERS": "2",
         "DATA": str(tmp_path / "data"),
         "RUN": str(tmp_path / "run"),
+        "VOTES": "1",  # the paper's network with centre votes (the path without them is --center-votes' absence)
     }
     done = _run("train", env=env, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
@@ -75,3 +76,4 @@ def test_the_training_phase_runs_on_the_cpu_and_bundles_the_run(tmp_path: Path) 
     again = _run("train", env=env2, timeout=600)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert "Traceback" not in (tmp_path / "out2" / "train.txt").read_text()
+    assert "dimo+votes" in (tmp_path / "out" / "train.txt").read_text()

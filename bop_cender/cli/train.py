@@ -42,17 +42,20 @@ def register(sub: argparse._SubParsersAction) -> None:
             "dimo-context",
             "dimo-refine",
             "dimo-centers",
+            "dimo-votes",
             "tless",
             "tless-lean",
             "tless-factored",
             "tless-refine",
+            "tless-votes",
         ),
         default=None,
         help="network: the paper's (dimo, tless) or our CPU ones (default: dimo-lean / tless-lean; dimo-context:"
         " dimo-lean with dilated context convolutions, a 3x wider receptive field; dimo-refine: dimo-context with a"
-        " full-resolution curvature refinement; dimo-centers: dimo-context with a centre-only branch; tless-factored: one"
+        " full-resolution curvature refinement; dimo-centers: dimo-context with a centre-only branch; dimo-votes:"
+        " dimo-context with centre votes (each pixel of a part points at its centre); tless-factored: one"
         " class-agnostic center map times a per-pixel object class, for T-LESS's 30 ids; tless-refine: that one with"
-        " the full-resolution curvature refinement)",
+        " the full-resolution curvature refinement; tless-votes: tless-factored with centre votes)",
     )
     p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
@@ -96,6 +99,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="factored center heads only: weight of the per-pixel object-class cross-entropy (default 0.1)",
     )
     p.add_argument(
+        "--center-votes",
+        action="store_true",
+        help="give --variant a vote head (each pixel of a part points at its centre; dimo-votes and tless-votes have"
+        " one): e.g. --variant tless --factored-centers --center-votes for a GPU run",
+    )
+    p.add_argument(
+        "--vote-loss-weight",
+        type=positive_number("--vote-loss-weight"),
+        default=None,
+        metavar="W",
+        help="networks with centre votes only (dimo-votes, tless-votes): weight of the vote loss (default 1)",
+    )
+    p.add_argument(
         "--factored-centers",
         action="store_true",
         help="give --variant a factored center head (one center map times a per-pixel object class; tless-factored"
@@ -108,7 +124,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="train only these top-level modules of the network, the rest frozen (batch-norm statistics too): e.g."
         " --variant dimo-refine --init-weights CONTEXT.pt --train-only refine,curvature_head leaves the centres as"
         " they were, --variant dimo-centers ... --train-only center_branch,center_head the curvature (modules: e1 e2 e3"
-        " bottleneck context d2 d1 center_head curvature_head refine center_branch; default: all)",
+        " bottleneck context d2 d1 center_head curvature_head refine center_branch vote_head; default: all)",
     )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
@@ -150,6 +166,13 @@ def cmd_train(args: argparse.Namespace) -> int:
             " --factored-centers)",
             field="--class-loss-weight",
         )
+    votes = args.center_votes or UNetSpec.named(variant, center_channels=2).center_votes
+    if args.vote_loss_weight is not None and not votes:
+        raise ConfigError(
+            "weights the loss of centre votes; this network has none (--variant dimo-votes or tless-votes, or"
+            " --center-votes)",
+            field="--vote-loss-weight",
+        )
     check_output_dir(args.out)
     root = resolve_data_root(args.dataset, args.data_root, announce)
     config = TrainConfig(
@@ -160,8 +183,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,
+        center_votes=args.center_votes,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
         **({} if args.class_loss_weight is None else {"class_loss_weight": args.class_loss_weight}),
+        **({} if args.vote_loss_weight is None else {"vote_loss_weight": args.vote_loss_weight}),
     )  # fmt: skip
     summary = train(
         config, Path(args.out), resume=args.resume, device=resolve_device(args.device), cache_dir=cache_dir(),

@@ -116,26 +116,48 @@ def augment(
     config: AugmentConfig,
     generator: torch.Generator,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Augment a batch: the same random flips and zoom for image and targets, photometric changes to the image
+    (:func:`augment_with_votes` without votes)."""
+    image, center, curvature, _ = augment_with_votes(image, center, curvature, None, config, generator)
+    return image, center, curvature
+
+
+def augment_with_votes(
+    image: torch.Tensor,
+    center: torch.Tensor,
+    curvature: torch.Tensor,
+    votes: torch.Tensor | None,
+    config: AugmentConfig,
+    generator: torch.Generator,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """Augment a batch: the same random flips and zoom for image and targets, photometric changes to the image.
 
     Args:
         image: ``(B, 3, H, W)`` float RGB in [0, 1].
         center: ``(B, C, H, W)`` float center heatmaps in [0, 1].
         curvature: ``(B, H, W)`` float curvature maps in [0, 1].
+        votes: ``(B, 4, H, W)`` the centre votes' dense targets ``(fg, dx, dy, log(area))`` in pixels
+            (:func:`~bop_cender.net.votes.dense_vote_targets`), or None. They are vector fields: a flip negates
+            the flipped offset, a zoom by ``s`` multiplies the offsets by ``s`` and the area by ``s^2``; the
+            zoom's bilinear resampling is normalised by the resampled ``fg`` (offsets and areas are the mean of
+            the voting pixels' around a point, never mixed with the background's zeros).
         config: which augmentations and how strongly (:class:`AugmentConfig`; the defaults are the paper's).
         generator: a CPU ``torch.Generator``; all random values are drawn from it, per sample.
 
     Returns:
-        New ``(image, center, curvature)`` tensors of the input shapes, dtypes and device; the inputs are
-        not modified.
+        New ``(image, center, curvature, votes)`` tensors of the input shapes, dtypes and device (``votes`` None
+        where none was given); the inputs are not modified.
 
     Raises:
         ValueError: a tensor of the wrong shape, dtype or device (the message names it), or a generator
             that is not on the CPU.
     """
     _validate(image, center, curvature, generator)
+    if votes is not None and (votes.dim() != 4 or votes.shape[1] != 4 or votes.shape[0] != image.shape[0]
+                              or votes.shape[-2:] != image.shape[-2:] or votes.device != image.device):  # fmt: skip
+        raise ValueError(f"votes must be (B, 4, H, W) of the image's B, H, W and device, got {tuple(votes.shape)}")
     if image.numel() == 0:  # an empty batch (or image): nothing to augment, nothing drawn
-        return image.clone(), center.clone(), curvature.clone()
+        return image.clone(), center.clone(), curvature.clone(), None if votes is None else votes.clone()
     B = image.shape[0]
     device = image.device
     # One table of uniforms, always drawn whole, so that the stream does not depend on the config.
@@ -149,16 +171,25 @@ def augment(
         return (lo + (hi - lo) * u[:, col]).to(device=device, dtype=image.dtype)
 
     img, ctr, curv = image.clone(), center.clone(), curvature.unsqueeze(1).clone()
+    vot = None if votes is None else votes.clone()
 
     # Geometric: image and targets alike.
     if config.hflip_p > 0:
-        img, ctr, curv = (_flip_where(x, coin(_HFLIP, config.hflip_p), dim=-1) for x in (img, ctr, curv))
+        flip = coin(_HFLIP, config.hflip_p)
+        img, ctr, curv = (_flip_where(x, flip, dim=-1) for x in (img, ctr, curv))
+        if vot is not None:
+            vot = _flip_votes(vot, flip, dim=-1)
     if config.vflip_p > 0:
-        img, ctr, curv = (_flip_where(x, coin(_VFLIP, config.vflip_p), dim=-2) for x in (img, ctr, curv))
+        flip = coin(_VFLIP, config.vflip_p)
+        img, ctr, curv = (_flip_where(x, flip, dim=-2) for x in (img, ctr, curv))
+        if vot is not None:
+            vot = _flip_votes(vot, flip, dim=-2)
     if config.scale != (1.0, 1.0):
         s = uniform(_SCALE, config.scale)
         img, ctr, curv = (zoom_about_centre(x, s) for x in (img, ctr, curv))
         img = img.clamp(0.0, 1.0)  # bilinear stays in range; this only removes rounding
+        if vot is not None:
+            vot = _zoom_votes(vot, s)
 
     # Photometric: the image only.
     if config.brightness != (1.0, 1.0):
@@ -177,7 +208,27 @@ def augment(
         sharp = adjust_sharpness(img, uniform(_SHARP, config.sharpness))
         img = _where(coin(_SHARP_ON, config.sharpness_p), sharp, img)
 
-    return img, ctr, curv.squeeze(1)
+    return img, ctr, curv.squeeze(1), vot
+
+
+def _flip_votes(votes: torch.Tensor, mask: torch.Tensor, dim: int) -> torch.Tensor:
+    """Vote targets ``(B, 4, H, W)`` flipped along ``dim`` (-1: left-right, -2: up-down) where ``mask (B,)``, the
+    offset along that axis negated."""
+    flipped = votes.flip(dim)
+    flipped[:, 1 if dim == -1 else 2].neg_()
+    return _where(mask, flipped, votes)
+
+
+def _zoom_votes(votes: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Vote targets ``(B, 4, H, W)`` zoomed about the centre by ``scale (B,)``: offsets times ``s``, log-area plus
+    ``2 log s``, resampled as the mean over the voting pixels (normalised by the resampled ``fg``)."""
+    z = zoom_about_centre(votes, scale)
+    fg = z[:, :1]
+    inside = fg > 1e-6
+    values = torch.where(inside, z[:, 1:] / fg.clamp_min(1e-6), torch.zeros_like(z[:, 1:]))
+    s = scale.view(-1, 1, 1)
+    values = torch.stack([values[:, 0] * s, values[:, 1] * s, values[:, 2] + 2.0 * torch.log(s)], dim=1)
+    return torch.cat([fg, values * inside], dim=1)
 
 
 def zoom_about_centre(x: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:

@@ -27,12 +27,13 @@ from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.patch_maps import PatchMaps
 from bop_cender.net.predictor import scene_rgb
-from bop_cender.net.targets import TargetConfig, scene_targets
+from bop_cender.net.targets import TargetConfig, scene_targets_with_votes
+from bop_cender.net.votes import VoteTargets, dense_vote_targets
 from bop_cender.progress import progress_bar
 from bop_cender.render.mesh import RenderMesh
 
 #: Bump when the targets' definition changes, so that old cache files are never read.
-TARGETS_CACHE_VERSION = 1
+TARGETS_CACHE_VERSION = 2  # 2: with the centre votes' id maps and tables
 
 
 @dataclass
@@ -47,6 +48,8 @@ class SampleSet:
         channel_obj_ids: object id of each center channel, None for one shared channel.
         scene_obj_ids: per sample, the object ids of its scene's GT (what ``run`` knows of an image: a factored
             network's classes are restricted to them at validation as in ``run``); None: unknown.
+        vote_ids, vote_tables: the centre votes' targets (:class:`~bop_cender.net.votes.VoteTargets`): ``(N, H, W)``
+            uint8 id maps and per sample its ``(K, 3)`` table; None unless loaded with ``votes=True``.
     """
 
     images: np.ndarray
@@ -55,6 +58,8 @@ class SampleSet:
     keys: list[tuple[str, int]]
     channel_obj_ids: tuple[int, ...] | None
     scene_obj_ids: list[frozenset[int]] | None = None
+    vote_ids: np.ndarray | None = None
+    vote_tables: list[np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -68,6 +73,17 @@ class SampleSet:
         curvature = torch.from_numpy(self.curvature[idx]).to(device).float().div_(255.0)
         return image.contiguous(), center, curvature
 
+    def vote_batch(self, indices: Sequence[int] | np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
+        """Samples ``indices``' dense vote targets ``(B, 4, H, W)`` (:func:`~bop_cender.net.votes.dense_vote_targets`).
+
+        Raises:
+            ValueError: the set was loaded without votes."""
+        if self.vote_ids is None or self.vote_tables is None:
+            raise ValueError("these samples were loaded without their vote targets (load_samples(votes=True))")
+        idx = np.asarray(indices, dtype=np.int64)
+        ids = torch.from_numpy(self.vote_ids[idx]).to(device)
+        return dense_vote_targets(ids, [self.vote_tables[i] for i in idx])
+
 
 def load_samples(
     dataset: Dataset,
@@ -77,8 +93,10 @@ def load_samples(
     channel_obj_ids: tuple[int, ...] | None = None,
     scene_keys: Sequence[str] | None = None,
     progress: bool = True,
+    votes: bool = False,
 ) -> SampleSet:
-    """Every view of ``dataset``'s scenes (or of ``scene_keys``) with its targets, from the cache where possible.
+    """Every view of ``dataset``'s scenes (or of ``scene_keys``) with its targets, from the cache where possible;
+    with ``votes``, the centre votes' targets too (:mod:`bop_cender.net.votes`).
 
     Raises:
         DatasetError: a view without a colour image, or views of different sizes.
@@ -87,6 +105,8 @@ def load_samples(
     if config.per_object_channels and channel_obj_ids is None:
         channel_obj_ids = tuple(sorted(i for i, m in dataset.models.items() if m.is_target))
     images, centers, curvatures, sample_keys, obj_ids = [], [], [], [], []
+    vote_ids: list[np.ndarray] = []
+    vote_tables: list[np.ndarray] = []
     size = None
     for key in progress_bar(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
         scene = dataset.loader(key)
@@ -99,17 +119,29 @@ def load_samples(
                 f" {size[1]}x{size[0]}: one image size per training set",
                 file=scene.views[0].source,
             )
-        center, curvature = _scene_targets_cached(scene, dataset, config, meshes, channel_obj_ids, cache_dir)
+        center, curvature, scene_votes = _scene_targets_cached(
+            scene, dataset, config, meshes, channel_obj_ids, cache_dir
+        )
         images.extend(rgb)
         centers.append(PatchMaps.from_dense(center))  # dense maps of one scene at a time in memory
         for i, view in enumerate(scene.views):
             curvatures.append(curvature[i])
+            if votes:
+                vote_ids.append(scene_votes.ids[i])
+                vote_tables.append(scene_votes.tables[i])
             sample_keys.append((key, view.im_id))
             obj_ids.append(frozenset(g.obj_id for g in scene.gt))
     if not sample_keys:
         raise DatasetError(f"{dataset.name} split {dataset.split} has no views to train on", file=dataset.root)
     return SampleSet(
-        np.stack(images), PatchMaps.concat(centers), np.stack(curvatures), sample_keys, channel_obj_ids, obj_ids
+        np.stack(images),
+        PatchMaps.concat(centers),
+        np.stack(curvatures),
+        sample_keys,
+        channel_obj_ids,
+        obj_ids,
+        np.stack(vote_ids) if votes else None,
+        vote_tables if votes else None,
     )
 
 
@@ -120,8 +152,9 @@ def _scene_targets_cached(
     meshes: Callable[[int], RenderMesh],
     channel_obj_ids: tuple[int, ...] | None,
     cache_dir: Path | None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(V, C, H, W)`` and ``(V, H, W)`` uint8 targets of ``scene``, rendered or read from the cache."""
+) -> tuple[np.ndarray, np.ndarray, VoteTargets]:
+    """``(V, C, H, W)`` and ``(V, H, W)`` uint8 targets of ``scene`` and its :class:`VoteTargets`, rendered or read
+    from the cache."""
     path = None
     if cache_dir is not None:
         digest = targets_digest(scene, dataset.models, config, channel_obj_ids)
@@ -130,17 +163,23 @@ def _scene_targets_cached(
         if path.is_file():
             try:
                 with np.load(path) as data:
-                    return data["center"], data["curvature"]
-            except (OSError, KeyError, ValueError):
+                    table = data["vote_table"]
+                    views = table[:, 0].astype(np.int64)
+                    tables = tuple(table[views == v, 1:] for v in range(len(scene.views)))
+                    return data["center"], data["curvature"], VoteTargets(data["vote_ids"], tables)
+            except (OSError, KeyError, ValueError, IndexError):
                 pass  # a damaged cache file is rendered again and replaced
-    maps = scene_targets(scene, dataset.models, meshes, config, channel_obj_ids)
+    maps, votes = scene_targets_with_votes(scene, dataset.models, meshes, config, channel_obj_ids)
     center = _quantise(maps.center)
     curvature = _quantise(maps.curvature)
     if path is not None:
+        table = np.concatenate(
+            [np.concatenate([np.full((len(t), 1), v, np.float32), t], axis=1) for v, t in enumerate(votes.tables)]
+        ).reshape(-1, 4)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, center=center, curvature=curvature)
-    return center, curvature
+            np.savez_compressed(f, center=center, curvature=curvature, vote_ids=votes.ids, vote_table=table)
+    return center, curvature, votes
 
 
 def _quantise(x: torch.Tensor) -> np.ndarray:

@@ -28,6 +28,7 @@ import torch
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.heatmaps import Heatmaps
+from bop_cender.net.votes import VoteTargets, vote_targets
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE, curvature
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_objects_separately, render_scene
@@ -85,7 +86,22 @@ def scene_targets(
     channel_obj_ids: tuple[int, ...] | None = None,
     device: torch.device | str = "cpu",
 ) -> Heatmaps:
-    """GT center and curvature heatmaps of every view of ``scene``.
+    """GT center and curvature heatmaps of every view of ``scene`` (:func:`scene_targets_with_votes` without the
+    votes)."""
+    return scene_targets_with_votes(scene, models, meshes, config, channel_obj_ids, device)[0]
+
+
+def scene_targets_with_votes(
+    scene: Scene,
+    models: Mapping[int, ObjectModel],
+    meshes: Callable[[int], RenderMesh],
+    config: TargetConfig,
+    channel_obj_ids: tuple[int, ...] | None = None,
+    device: torch.device | str = "cpu",
+) -> tuple[Heatmaps, VoteTargets]:
+    """GT center and curvature heatmaps of every view of ``scene``, and its centre votes' targets
+    (:mod:`bop_cender.net.votes`: the visible pixels of every object that has a center blob in a view point at
+    its blob's centre).
 
     Args:
         scene: views and GT objects (world frame).
@@ -97,7 +113,7 @@ def scene_targets(
         device: where to render.
 
     Returns:
-        :class:`Heatmaps` with center ``(V, C, H, W)`` and curvature ``(V, H, W)``.
+        :class:`Heatmaps` with center ``(V, C, H, W)`` and curvature ``(V, H, W)``, and :class:`VoteTargets`.
 
     Raises:
         DatasetError: views of different sizes (naming the first odd one's image).
@@ -121,14 +137,18 @@ def scene_targets(
     center = torch.zeros((V, n_channels, H, W), dtype=torch.float32, device=device)
     curv = torch.zeros((V, H, W), dtype=torch.float32, device=device)
     gt = [g for g in scene.gt if g.obj_id in models]
+    votes = VoteTargets(np.zeros((V, H, W), np.uint8), tuple(np.zeros((0, 3), np.float32) for _ in range(V)))
     if gt:
         visible, visib_fract = _visibility(scene, gt, meshes, device)
         target = torch.tensor([models[g.obj_id].is_target for g in gt], device=device)
         shows_target = (visible.instance >= 0) & target[visible.instance.clamp_min(0)]
         normals = visible.normals * shows_target[..., None]
         curv = (curvature(normals) / config.curvature_scale).clamp_(0.0, 1.0)
-        center = _center_maps(scene, gt, models, config, channels, visib_fract, (H, W), device)
-    return Heatmaps(center=center, curvature=curv, channel_obj_ids=channels, im_ids=tuple(scene.im_ids))
+        blobs = _blobs(scene, gt, models, config, channels, visib_fract)
+        center = _center_maps(blobs, V, n_channels, (H, W), device)
+        votes = vote_targets(visible.instance, blobs.xy, blobs.has_blob)
+    heatmaps = Heatmaps(center=center, curvature=curv, channel_obj_ids=channels, im_ids=tuple(scene.im_ids))
+    return heatmaps, votes
 
 
 def _visibility(scene: Scene, gt, meshes, device):
@@ -149,19 +169,28 @@ def _visibility(scene: Scene, gt, meshes, device):
     return together, fract.cpu().numpy()
 
 
-def _center_maps(scene, gt, models, config, channels, visib_fract, size, device) -> torch.Tensor:
-    """``(V, C, H, W)`` max-combined Gaussian blobs at the projected 3D centres."""
-    H, W = size
-    V = len(scene.views)
-    n_channels = 1 if channels is None else len(channels)
-    out = torch.zeros((V, n_channels, H, W), dtype=torch.float32, device=device)
-    u = torch.arange(W, dtype=torch.float32, device=device) + 0.5
-    v = torch.arange(H, dtype=torch.float32, device=device) + 0.5
+@dataclass(frozen=True)
+class _Blobs:
+    """The center blobs of a scene's GT objects ``(V, M)``: whether each has one in each view, its centre ``xy
+    (V, M, 2)`` (continuous image coordinates), ``sigma`` (pixels) and channel."""
+
+    has_blob: np.ndarray
+    xy: np.ndarray
+    sigma: np.ndarray
+    channel: np.ndarray
+
+
+def _blobs(scene, gt, models, config, channels, visib_fract) -> _Blobs:
+    V, M = len(scene.views), len(gt)
+    has_blob = np.zeros((V, M), bool)
+    xy = np.zeros((V, M, 2))
+    sigma = np.ones((V, M))
+    channel = np.zeros(M, np.int64)
     for m, g in enumerate(gt):
         model = models[g.obj_id]
         if not model.is_target or (channels is not None and g.obj_id not in channels):
             continue
-        c = 0 if channels is None else channels.index(g.obj_id)
+        channel[m] = 0 if channels is None else channels.index(g.obj_id)
         center_world = g.T_world_model[:3, :3] @ model.center + g.T_world_model[:3, 3]
         for i, view in enumerate(scene.views):
             if visib_fract[i, m] <= config.min_visib_fract:
@@ -169,9 +198,23 @@ def _center_maps(scene, gt, models, config, channels, visib_fract, size, device)
             p = view.T_cam_world[:3, :3] @ center_world + view.T_cam_world[:3, 3]
             if p[2] <= 0:
                 continue
-            x, y = (view.K @ p)[:2] / p[2]
-            sigma = float(blob_sigma(config.s_e, model.bbox_size, np.linalg.norm(p)))
-            gx = torch.exp(-((u - float(x)) ** 2) / (2 * sigma**2))
-            gy = torch.exp(-((v - float(y)) ** 2) / (2 * sigma**2))
-            torch.maximum(out[i, c], gy[:, None] * gx[None, :], out=out[i, c])
+            xy[i, m] = (view.K @ p)[:2] / p[2]
+            sigma[i, m] = float(blob_sigma(config.s_e, model.bbox_size, np.linalg.norm(p)))
+            has_blob[i, m] = True
+    return _Blobs(has_blob, xy, sigma, channel)
+
+
+def _center_maps(blobs: _Blobs, V: int, n_channels: int, size, device) -> torch.Tensor:
+    """``(V, C, H, W)`` max-combined Gaussian blobs at the projected 3D centres."""
+    H, W = size
+    out = torch.zeros((V, n_channels, H, W), dtype=torch.float32, device=device)
+    u = torch.arange(W, dtype=torch.float32, device=device) + 0.5
+    v = torch.arange(H, dtype=torch.float32, device=device) + 0.5
+    for i, m in zip(*np.nonzero(blobs.has_blob), strict=True):
+        x, y = blobs.xy[i, m]
+        sigma = blobs.sigma[i, m]
+        c = int(blobs.channel[m])
+        gx = torch.exp(-((u - float(x)) ** 2) / (2 * sigma**2))
+        gy = torch.exp(-((v - float(y)) ** 2) / (2 * sigma**2))
+        torch.maximum(out[i, c], gy[:, None] * gx[None, :], out=out[i, c])
     return out

@@ -35,12 +35,13 @@ from bop_cender.data.bop_io import check_output_dir, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
-from bop_cender.net.augment import AugmentConfig, augment
+from bop_cender.net.augment import AugmentConfig, augment_with_votes
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
 from bop_cender.net.predictor import known_class_mask
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
-from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, factored_center_logits
+from bop_cender.net.unet import UNet, UNetSpec, factored_center_logits
+from bop_cender.net.votes import vote_loss
 from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights, weights_payload
 from bop_cender.progress import progress_bar
 
@@ -89,6 +90,10 @@ class TrainConfig:
             (``--init-weights``, ``dimo-refine`` from ``dimo-context``) trained together with the shared
             backbone moved the centre features (validation centre F1 0.787 -> 0.722 while curvature AP rose
             0.595 -> 0.705, ``results/net/dimo.md``); ``refine,curvature_head`` leaves the centres as they were.
+        center_votes: give ``variant`` a vote head (``dimo-votes`` and ``tless-votes`` have one): e.g. the paper's
+            networks with votes for a GPU run (``--variant tless --factored-centers --center-votes``).
+        vote_loss_weight: for a network with a vote head (``dimo-votes``, ``tless-votes``): the weight of
+            :func:`~bop_cender.net.votes.vote_loss` in the sum (ours: 1; its three terms are means of order 0.1-1).
     """
 
     dataset: str
@@ -113,6 +118,8 @@ class TrainConfig:
     class_loss_weight: float = 0.1
     factored_centers: bool = False
     train_only: tuple[str, ...] = ()
+    center_votes: bool = False
+    vote_loss_weight: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "train_only", tuple(self.train_only))
@@ -141,6 +148,8 @@ class TrainConfig:
             raise ConfigError(f"must be a positive number, got {self.center_loss_weight}", field="--center-loss-weight")
         if not (math.isfinite(self.class_loss_weight) and self.class_loss_weight > 0):
             raise ConfigError(f"must be a positive number, got {self.class_loss_weight}", field="--class-loss-weight")
+        if not (math.isfinite(self.vote_loss_weight) and self.vote_loss_weight > 0):
+            raise ConfigError(f"must be a positive number, got {self.vote_loss_weight}", field="--vote-loss-weight")
         if self.crop is not None and min(self.crop) < 1:
             raise ConfigError(f"crop sizes must be >= 1, got {self.crop}", field="--crop")
         if self.val_data_root is not None and self.val_split is None:
@@ -162,6 +171,8 @@ class TrainConfig:
         weight only matters to a factored variant)."""
         if not self.network_spec(center_channels=2).factored_centers:
             other = replace(other, class_loss_weight=self.class_loss_weight)
+        if not self.network_spec(center_channels=2).center_votes:
+            other = replace(other, vote_loss_weight=self.vote_loss_weight)
         return replace(self, epochs=other.epochs) == other
 
     def network_spec(self, center_channels: int) -> UNetSpec:
@@ -177,6 +188,8 @@ class TrainConfig:
                     "needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers"
                 )
             spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
+        if self.center_votes and not spec.center_votes:
+            spec = replace(spec, center_votes=True, name=f"{spec.name}+votes")
         return spec
 
 
@@ -237,8 +250,9 @@ def train(
     device = torch.device(device)
     kind = "dimo" if config.dataset == "dimo" else "tless"
     targets = TargetConfig.for_dataset(kind)
+    votes = config.network_spec(center_channels=2).center_votes
     train_set = _open_samples(
-        config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress
+        config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress, votes=votes
     )
     val_set = None
     if config.val_split is not None:
@@ -277,7 +291,12 @@ def train(
                 field="--init-weights",
             )
         missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
-        new_modules = ("context.", "refine.", "center_branch.")  # each starts as the identity (_can_start_from)
+        new_modules = (
+            "context.",
+            "refine.",
+            "center_branch.",
+            "vote_head.",
+        )  # each starts as the identity (_can_start_from)
         assert not unexpected and all(k.startswith(new_modules) for k in missing), (missing, unexpected)
     trainable = _freeze_all_but(model, config.train_only)
     optimiser = torch.optim.Adam(trainable, lr=config.lr)
@@ -366,8 +385,8 @@ def _train_mode(model: UNet, train_only: tuple[str, ...]) -> None:
 
 def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
     """Whether weights of network ``init`` can start a run of ``spec``: the same network, or ``spec`` adds context
-    convolutions, a full-resolution refinement and/or a centre branch to it (all start as the identity, so the run
-    starts from exactly what ``init`` computed)."""
+    convolutions, a full-resolution refinement, a centre branch and/or a vote head to it (all start as the identity,
+    so the run starts from exactly what ``init`` computed)."""
     if init == spec:
         return True
     base = replace(spec, name=init.name)
@@ -377,11 +396,22 @@ def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
         base = replace(base, refine_channels=0)
     if not init.center_branch_channels:
         base = replace(base, center_branch_channels=0)
+    if not init.center_votes:  # a new vote head: no pixel votes at first, so the maps are the head's
+        base = replace(base, center_votes=False, vote_sigma_px=init.vote_sigma_px, vote_mix=init.vote_mix)
     return base == init
 
 
 def _open_samples(
-    dataset, root, split, limit, targets, cache_dir, progress, channel_obj_ids=None, flags=("--data-root", "--split")
+    dataset,
+    root,
+    split,
+    limit,
+    targets,
+    cache_dir,
+    progress,
+    channel_obj_ids=None,
+    flags=("--data-root", "--split"),
+    votes=False,
 ) -> SampleSet:
     """The samples of one split; an error about the data names this split's own flags (``--val-split`` ...)."""
     try:
@@ -392,7 +422,7 @@ def _open_samples(
             raise
         raise type(exc)(exc.message, file=exc.file, field=renamed) from None
     keys = ds.scene_keys[:limit] if limit else ds.scene_keys
-    return load_samples(ds, targets, MeshCache(ds.models), cache_dir, channel_obj_ids, keys, progress)
+    return load_samples(ds, targets, MeshCache(ds.models), cache_dir, channel_obj_ids, keys, progress, votes)
 
 
 def _restore(path: Path, config: TrainConfig, model: UNet, optimiser, device) -> tuple[int, list[EpochRecord]]:
@@ -487,12 +517,15 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
     )
     for number, idx in enumerate(bar, 1):
         image, center, curvature = samples.batch(idx, device)
+        votes = samples.vote_batch(idx, device) if model.spec.center_votes else None
         if config.crop is not None:
-            image, center, curvature = random_crop(image, center, curvature, config.crop, gen)
-        image, center, curvature = augment(image, center, curvature, aug, gen)
+            image, center, curvature, votes = random_crop(image, center, curvature, config.crop, gen, votes)
+        image, center, curvature, votes = augment_with_votes(image, center, curvature, votes, aug, gen)
         with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=device.type == "cuda"):
-            center_logits, curvature_logits = model.forward_raw(image)
+            center_logits, curvature_logits, vote_logits = model.forward_outputs(image)
         loss_center = _center_loss(config, center_logits.float(), center, model.spec.factored_centers)
+        if vote_logits is not None:  # the centre terms (train_center_loss) hold the votes' too
+            loss_center = loss_center + config.vote_loss_weight * vote_loss(vote_logits.float(), votes)
         loss_curvature = F.binary_cross_entropy_with_logits(curvature_logits.float(), curvature)
         loss = loss_center + loss_curvature
         optimiser.zero_grad(set_to_none=True)
@@ -525,12 +558,18 @@ def _diverged(config: TrainConfig, epoch: int, batches: int, batch: int, what: s
 
 
 def random_crop(
-    image: torch.Tensor, center: torch.Tensor, curvature: torch.Tensor, size: tuple[int, int], gen: torch.Generator
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One random ``size`` window per sample, the same for the image and both targets (no crop where the image is
+    image: torch.Tensor,
+    center: torch.Tensor,
+    curvature: torch.Tensor,
+    size: tuple[int, int],
+    gen: torch.Generator,
+    votes: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """One random ``size`` window per sample, the same for the image and the targets (no crop where the image is
     not larger; ``train`` refuses a crop larger than its images).
 
-    image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``."""
+    image ``(B, 3, H, W)``, center ``(B, C, H, W)``, curvature ``(B, H, W)``; ``votes`` ``(B, 4, H, W)`` (the vote
+    targets: offsets are relative, a crop leaves them as they are) or None, returned as None."""
     B, _, H, W = image.shape
     h, w = min(size[0], H), min(size[1], W)
     top = torch.randint(0, H - h + 1, (B,), generator=gen).tolist()
@@ -539,7 +578,7 @@ def random_crop(
     def pick(x: torch.Tensor) -> torch.Tensor:
         return torch.stack([x[b, ..., y : y + h, u : u + w] for b, (y, u) in enumerate(zip(top, left, strict=True))])
 
-    return pick(image), pick(center), pick(curvature)
+    return pick(image), pick(center), pick(curvature), None if votes is None else pick(votes)
 
 
 @torch.no_grad()
@@ -552,10 +591,12 @@ def evaluate(model: UNet, samples: SampleSet, device, targets: TargetConfig, bat
     factored = model.spec.factored_centers
     for i in range(0, len(samples), batch_size):
         image, center, curvature = samples.batch(range(i, min(i + batch_size, len(samples))), device)
-        raw, k_logits = model.forward_raw(image)
+        raw, k_logits, votes = model.forward_outputs(image)
         n = image.shape[0]
         c_logits = factored_center_logits(raw) if factored else raw
-        c_prob = center_probabilities(raw, factored, _class_masks(samples, range(i, i + n)) if factored else None)
+        c_prob, _ = model.probabilities_of(
+            raw, k_logits, votes, _class_masks(samples, range(i, i + n)) if factored else None
+        )
         losses += n * np.array(
             [
                 F.binary_cross_entropy_with_logits(c_logits.float(), center).item(),

@@ -41,6 +41,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from bop_cender.net.votes import VOTE_CHANNELS, vote_map
+
+#: How a vote map joins the center head's (:attr:`UNetSpec.vote_mix`).
+VOTE_MIXES = ("max", "votes")
+
 
 @dataclass(frozen=True)
 class UNetSpec:
@@ -74,6 +79,13 @@ class UNetSpec:
             (``--train-only center_branch,center_head``), leaves the curvature bit for bit. It starts as the
             identity (its output convolution is zero), so weights without it start it. Weights files written
             before this field have 0.
+        center_votes: a vote head (ours; False: none, the paper's): per pixel, whether it shows a target object,
+            the offset to that object's centre and its visible area; their votes make a class-agnostic center map
+            (:mod:`bop_cender.net.votes`: the bounding-box centre of an L-shaped bracket lies in the air, where the
+            center head finds nothing to fire on). Weights without it start it (the head is new, the rest as was).
+        vote_sigma_px: the standard deviation (pixels of the input) of the Gaussian that blurs the votes.
+        vote_mix: how the votes' map joins the center head's class-agnostic map: ``max`` (their maximum: the head
+            keeps the parts whose centre it finds, the votes add the others) or ``votes`` (the votes alone).
     """
 
     channels: tuple[int, int, int] = (32, 32, 64)
@@ -86,6 +98,9 @@ class UNetSpec:
     factored_centers: bool = False
     refine_channels: int = 0
     center_branch_channels: int = 0
+    center_votes: bool = False
+    vote_sigma_px: float = 3.0
+    vote_mix: str = "max"
 
     def __post_init__(self) -> None:
         if len(self.channels) != 3 or len(self.strides) != 3:
@@ -102,6 +117,10 @@ class UNetSpec:
             raise ValueError(f"refine channels must be >= 0, got {self.refine_channels}")
         if self.center_branch_channels < 0:
             raise ValueError(f"center branch channels must be >= 0, got {self.center_branch_channels}")
+        if not self.vote_sigma_px > 0:
+            raise ValueError(f"vote sigma must be > 0 pixels, got {self.vote_sigma_px}")
+        if self.vote_mix not in VOTE_MIXES:
+            raise ValueError(f"vote mix must be one of {', '.join(VOTE_MIXES)}, got {self.vote_mix!r}")
         if self.refine_channels and self.strides[0] == 1:
             raise ValueError(
                 "a full-resolution refinement needs a first stride above 1 (the heads are at full resolution)"
@@ -143,6 +162,12 @@ class UNetSpec:
         return replace(UNetSpec.dimo_context(width), name="dimo-centers", center_branch_channels=48)
 
     @staticmethod
+    def dimo_votes(width: float = 1.0) -> UNetSpec:
+        """:meth:`dimo_context` with centre votes (:mod:`bop_cender.net.votes`), blurred by 2 px (DIMO's centre blobs:
+        sigma 2-5 px at 320x256); ``dimo-context`` weights start it."""
+        return replace(UNetSpec.dimo_context(width), name="dimo-votes", center_votes=True, vote_sigma_px=2.0)
+
+    @staticmethod
     def tless_lean(center_channels: int = 30, width: float = 1.0) -> UNetSpec:
         """Ours for 2 CPU cores on 720x540: first stride 3, 16/32/48 at 1/3, 1/6, 1/12, heads of 32."""
         return UNetSpec((16, 32, 48), (3, 2, 2), 32, center_channels, width, "tless-lean")
@@ -162,19 +187,28 @@ class UNetSpec:
         return replace(UNetSpec.tless_factored(center_channels, width), name="tless-refine", refine_channels=8)
 
     @staticmethod
+    def tless_votes(center_channels: int = 30, width: float = 1.0) -> UNetSpec:
+        """:meth:`tless_factored` with centre votes (:mod:`bop_cender.net.votes`) for its class-agnostic map, blurred by
+        4 px (T-LESS's centre blobs: sigma 10-20 px at 720x540); ``tless-factored`` weights start it."""
+        spec = UNetSpec.tless_factored(center_channels, width)
+        return replace(spec, name="tless-votes", center_votes=True, vote_sigma_px=4.0)
+
+    @staticmethod
     def named(name: str, center_channels: int = 1, width: float = 1.0) -> UNetSpec:
-        """A variant by name: ``dimo``, ``dimo-lean``, ``dimo-context``, ``dimo-refine``, ``dimo-centers``, ``tless``,
-        ``tless-lean``, ``tless-factored``, ``tless-refine``."""
+        """A variant by name: ``dimo``, ``dimo-lean``, ``dimo-context``, ``dimo-refine``, ``dimo-centers``, ``dimo-votes``,
+        ``tless``, ``tless-lean``, ``tless-factored``, ``tless-refine``, ``tless-votes``."""
         makers = {
             "dimo": lambda: UNetSpec.dimo(width),
             "dimo-lean": lambda: UNetSpec.dimo_lean(width),
             "dimo-context": lambda: UNetSpec.dimo_context(width),
             "dimo-refine": lambda: UNetSpec.dimo_refine(width),
             "dimo-centers": lambda: UNetSpec.dimo_centers(width),
+            "dimo-votes": lambda: UNetSpec.dimo_votes(width),
             "tless": lambda: UNetSpec.tless(center_channels, width),
             "tless-lean": lambda: UNetSpec.tless_lean(center_channels, width),
             "tless-factored": lambda: UNetSpec.tless_factored(center_channels, width),
             "tless-refine": lambda: UNetSpec.tless_refine(center_channels, width),
+            "tless-votes": lambda: UNetSpec.tless_votes(center_channels, width),
         }
         if name not in makers:
             raise ValueError(f"unknown network variant {name!r}; expected one of {sorted(makers)}")
@@ -210,6 +244,9 @@ class UNetSpec:
             factored_centers=bool(d.get("factored_centers", False)),
             refine_channels=int(d.get("refine_channels", 0)),
             center_branch_channels=int(d.get("center_branch_channels", 0)),
+            center_votes=bool(d.get("center_votes", False)),
+            vote_sigma_px=float(d.get("vote_sigma_px", 3.0)),
+            vote_mix=str(d.get("vote_mix", "max")),
         )
 
 
@@ -357,11 +394,17 @@ class UNet(nn.Module):
         self.refine = _Refine(h, max(2, spec.features(spec.refine_channels))) if spec.refine_channels else None
         branch = spec.features(spec.center_branch_channels) if spec.center_branch_channels else 0
         self.center_branch = _CenterBranch(c3, branch, c3) if branch else None
+        self.vote_head = _Head(c3, h, VOTE_CHANNELS) if spec.center_votes else None
         # Logits start near the targets' mean (mostly background) so early losses are not dominated by it.
         for head in (self.center_head, self.curvature_head):
             nn.init.constant_(head.body[-1].bias, -4.0)
         if spec.factored_centers:  # the class logits start uniform
             nn.init.zeros_(self.center_head.body[-1].bias[1:])
+        if self.vote_head is not None:  # no pixel votes at first (fg logit -4 everywhere): the head's map alone
+            nn.init.zeros_(self.vote_head.body[-1].bias)
+            with torch.no_grad():
+                self.vote_head.body[-1].weight[:1].zero_()
+                self.vote_head.body[-1].bias[:1].fill_(-4.0)
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Center logits ``(B, C, H, W)`` (factored ones combined) and curvature logits ``(B, H, W)``."""
@@ -379,12 +422,36 @@ class UNet(nn.Module):
         combined logits' log space at full resolution (the same values to float rounding; ``tless-factored`` 94
         against 209 ms per 720x540 view on 2 CPU cores, ``python scripts/bench_net.py --variants tless-factored``). ``class_mask`` ``(C,)`` or ``(B, C)`` bool:
         a factored head's softmax over the True classes only (the others 0); ignored by independent channels."""
-        center, curvature = self.forward_raw(image)
-        return center_probabilities(center, self.spec.factored_centers, class_mask), torch.sigmoid(curvature.float())
+        return self.probabilities_of(*self.forward_outputs(image), class_mask)
+
+    def probabilities_of(
+        self,
+        center: torch.Tensor,
+        curvature: torch.Tensor,
+        votes: torch.Tensor | None,
+        class_mask: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`probabilities` from :meth:`forward_outputs`' three outputs (validation has them already)."""
+        objectness = None
+        if votes is not None:
+            voted = vote_map(votes, self.spec.vote_sigma_px)  # (B, 1, H, W)
+            if self.spec.vote_mix == "votes":
+                objectness = voted
+            else:
+                head = center[:, :1] if self.spec.factored_centers else center
+                objectness = torch.maximum(torch.sigmoid(head.float()), voted)
+        probabilities = center_probabilities(center, self.spec.factored_centers, class_mask, objectness)
+        return probabilities, torch.sigmoid(curvature.float())
 
     def forward_raw(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """What the heads output: center ``(B, C, H, W)``, or ``(B, 1 + C, H, W)`` (class-agnostic center logit, then
         class logits) for factored centers, and curvature logits ``(B, H, W)``; training's losses use these."""
+        center, curvature, _ = self.forward_outputs(image)
+        return center, curvature
+
+    def forward_outputs(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """:meth:`forward_raw`'s outputs and the vote head's ``(B, 4, H, W)`` (None without one,
+        :mod:`bop_cender.net.votes`)."""
         if image.dim() != 4 or image.shape[1] != 3:
             raise ValueError(f"image must be (B, 3, H, W), got {tuple(image.shape)}")
         H, W = image.shape[-2:]
@@ -403,12 +470,14 @@ class UNet(nn.Module):
         else:
             center = self.center_head(u1)
         curvature_features, curvature = self.curvature_head.features_and_logits(u1)
+        votes = self.vote_head(u1) if self.vote_head is not None else None
         if center.shape[-2:] != x.shape[-2:]:  # a first stride above 1: logits up to the padded input size
             center = _resize(center, x.shape[-2:])
             curvature = _resize(curvature, x.shape[-2:])
+            votes = _resize(votes, x.shape[-2:]) if votes is not None else None
         if self.refine is not None:
             curvature = self.refine(x, curvature_features, curvature)
-        return center[..., :H, :W], curvature[:, 0, :H, :W]
+        return center[..., :H, :W], curvature[:, 0, :H, :W], votes[..., :H, :W] if votes is not None else None
 
 
 def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:
@@ -427,7 +496,9 @@ def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:
     return log_p - torch.log(-torch.expm1(log_p))
 
 
-def center_probabilities(raw: torch.Tensor, factored: bool, class_mask: torch.Tensor | None = None) -> torch.Tensor:
+def center_probabilities(
+    raw: torch.Tensor, factored: bool, class_mask: torch.Tensor | None = None, objectness: torch.Tensor | None = None
+) -> torch.Tensor:
     """Center probabilities ``(B, C, H, W)`` from the center head's ``raw`` output (:meth:`UNet.forward_raw`).
 
     Factored: ``sigmoid(raw[:, 0]) * softmax(raw[:, 1:])``, the softmax over the classes of ``class_mask`` (``(C,)`` or
@@ -435,8 +506,13 @@ def center_probabilities(raw: torch.Tensor, factored: bool, class_mask: torch.Te
     gives its share to the others whatever its logit (renormalising the probabilities afterwards loses them once an
     absent class's logit leads by ~27 and the present ones underflow). A sample whose mask is all False keeps every
     class. Independent channels: ``sigmoid(raw)``, ``class_mask`` ignored.
+
+    ``objectness`` ``(B, 1, H, W)`` in [0, 1] replaces ``sigmoid(raw[:, 0])`` of a factored head, and ``sigmoid(raw)``
+    of one shared channel (a vote map joined with the head's, :meth:`UNet.probabilities`).
     """
     if not factored:
+        if objectness is not None and raw.shape[1] == 1:
+            return objectness.float()
         return torch.sigmoid(raw.float())
     classes = raw[:, 1:].float()
     if class_mask is not None:
@@ -446,7 +522,8 @@ def center_probabilities(raw: torch.Tensor, factored: bool, class_mask: torch.Te
             raise ValueError(f"class_mask must be ({classes.shape[1]},) or ({raw.shape[0]}, {classes.shape[1]})")
         mask = mask | ~mask.any(dim=1, keepdim=True)  # nothing known of a sample: all classes
         classes = classes.masked_fill(~mask[:, :, None, None], float("-inf"))
-    return torch.sigmoid(raw[:, :1].float()) * torch.softmax(classes, dim=1)
+    agnostic = torch.sigmoid(raw[:, :1].float()) if objectness is None else objectness.float()
+    return agnostic * torch.softmax(classes, dim=1)
 
 
 def _resize(x: torch.Tensor, size) -> torch.Tensor:

@@ -30,6 +30,7 @@ from bop_cender.net.train import (  # noqa: E402
     random_crop,
     train,
 )
+from bop_cender.net.unet import UNetSpec  # noqa: E402
 from bop_cender.net.weights import load_weights  # noqa: E402
 
 
@@ -96,7 +97,7 @@ def test_targets_are_rendered_once_then_read_from_the_cache(tiny_root, tmp_path,
     def no_render(*args, **kwargs):
         raise AssertionError("targets rendered again")
 
-    monkeypatch.setattr(samples_module, "scene_targets", no_render)
+    monkeypatch.setattr(samples_module, "scene_targets_with_votes", no_render)
     train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "b", cache_dir=cache, progress=False)
     files[0].write_bytes(b"damaged")  # a damaged cache file is rendered again
     monkeypatch.undo()
@@ -161,7 +162,7 @@ def test_random_crops_cut_image_and_targets_alike() -> None:
     center = image[:, :1].clone()
     curvature = image[:, 0].clone()
     gen = torch.Generator().manual_seed(0)
-    a, b, c = random_crop(image, center, curvature, (4, 5), gen)
+    a, b, c, _ = random_crop(image, center, curvature, (4, 5), gen)
     assert a.shape == (2, 3, 4, 5) and b.shape == (2, 1, 4, 5) and c.shape == (2, 4, 5)
     assert torch.equal(a[:, :1], b) and torch.equal(a[:, 0], c)
     whole = random_crop(image, center, curvature, (20, 20), gen)[0]
@@ -377,3 +378,29 @@ def test_resuming_with_fewer_epochs_than_done_is_refused(tiny_root, tmp_path) ->
     with pytest.raises(ConfigError, match=r"--epochs: .* holds 2 epochs already, more than --epochs 1"):
         train(replace(config, epochs=1), tmp_path / "run", resume=True, cache_dir=tmp_path / "cache", progress=False)
     assert (tmp_path / "run" / WEIGHTS).read_bytes() == before
+
+
+def test_a_vote_run_learns_its_votes_resumes_exactly_and_guards_its_loss_weight(tiny_root, tmp_path) -> None:
+    """dimo-votes (from random weights, augmented): the vote loss falls with the rest, a resumed run equals an
+    uninterrupted one, the weights load with their votes, and the vote loss's weight binds a vote network only."""
+    torch.set_num_threads(2)
+    config = _config(tiny_root, variant="dimo-votes", width=0.5, epochs=4, batch_size=2, lr=1e-2, val_split=None,
+                     center_loss="focal", center_loss_weight=0.1)  # fmt: skip
+    cache = tmp_path / "cache"
+    whole = train(config, tmp_path / "whole", cache_dir=cache, progress=False)
+    centers = [r.train_center_loss for r in whole.history]  # focal centre loss plus the vote loss
+    assert centers[-1] < 0.7 * centers[0], centers
+    train(replace(config, epochs=2), tmp_path / "split", cache_dir=cache, progress=False)
+    resumed = train(config, tmp_path / "split", resume=True, cache_dir=cache, progress=False)
+    assert [r.train_loss for r in resumed.history] == [r.train_loss for r in whole.history]
+    weights = load_weights(tmp_path / "split" / WEIGHTS, dataset="dimo")
+    assert weights.model.spec.center_votes and weights.model.vote_head is not None
+    assert not config.same_run_as(replace(config, vote_loss_weight=0.5))
+    assert _config(tiny_root).same_run_as(_config(tiny_root, vote_loss_weight=0.5))  # no votes: it does nothing
+    with pytest.raises(ConfigError, match="vote-loss-weight"):
+        _config(tiny_root, vote_loss_weight=0.0)
+    assert main(["train", "--dataset", "dimo", "--data-root", str(tiny_root), "--split", "real", "--variant",
+                 "dimo-lean", "--vote-loss-weight", "2", "--out", str(tmp_path / "refused")]) == 2  # fmt: skip
+    assert not (tmp_path / "refused").exists()
+    paper = _config(tiny_root, variant="dimo", center_votes=True).network_spec(1)
+    assert paper.center_votes and paper.name == "dimo+votes" and paper.channels == UNetSpec.dimo().channels
