@@ -2,8 +2,9 @@
 
 The paper's variants (``dimo`` 320x256, ``tless`` 720x540) and ours for 2 CPU cores (``dimo-lean``,
 ``dimo-context``, the lean one with dilated context blocks and the shipped DIMO model, ``dimo-refine``, that one
-with a full-resolution curvature refinement, ``dimo-centers``, that one with a centre-only branch, ``tless-lean``, and
-``tless-factored``, the shipped T-LESS model), on random images of each variant's size (whole images; T-LESS
+with a full-resolution curvature refinement, ``dimo-centers``, that one with a centre-only branch, ``dimo-votes``, that
+one with centre votes, ``tless-lean``, ``tless-factored`` and ``tless-votes``, that one with centre votes, the shipped
+T-LESS model; the votes' splatting is in the inference time, their loss not in training's), on random images of each variant's size (whole images; T-LESS
 training also on the 270x360 crops that we train it on). Inference: batch of one view and the batch of a
 7-view DIMO scene (5 views T-LESS), median of the timed repeats after a warm-up, probabilities out as the
 predictor runs it; training: BCE on both heads' outputs, backward and an Adam step on batches of 8 (T-LESS 4),
@@ -36,10 +37,12 @@ VARIANTS = [  # name, spec, (H, W), views per scene, training batch, training cr
     ("dimo-context (shipped)", UNetSpec.dimo_context(), (256, 320), 7, 8, None),
     ("dimo-refine", UNetSpec.dimo_refine(), (256, 320), 7, 8, None),
     ("dimo-centers", UNetSpec.dimo_centers(), (256, 320), 7, 8, None),
+    ("dimo-votes", UNetSpec.dimo_votes(), (256, 320), 7, 8, None),
     ("tless (paper)", UNetSpec.tless(), (540, 720), 5, 4, (270, 360)),
     ("tless-lean", UNetSpec.tless_lean(), (540, 720), 5, 4, (270, 360)),
-    ("tless-factored (shipped)", UNetSpec.tless_factored(), (540, 720), 5, 4, (270, 360)),
+    ("tless-factored", UNetSpec.tless_factored(), (540, 720), 5, 4, (270, 360)),
     ("tless-refine", UNetSpec.tless_refine(), (540, 720), 5, 4, (270, 360)),
+    ("tless-votes (shipped)", UNetSpec.tless_votes(), (540, 720), 5, 4, (270, 360)),
 ]
 
 
