@@ -36,6 +36,10 @@ VARIANTS=${VARIANTS:-16,17,18,19}
 TRAIN_MINUTES=${TRAIN_MINUTES:-5}
 BATCH=${BATCH:-32}
 VOTES=${VOTES:-0}
+if [[ "$VOTES" != 0 && "$VOTES" != 1 ]]; then
+  echo "VOTES must be 0 or 1, got '$VOTES'" >&2
+  exit 2
+fi
 WORKERS=${WORKERS:-$(( $(nproc) > 3 ? $(nproc) - 2 : 1 ))}
 WHEELS=${WHEELS:-.whl}
 DATA=${DATA:-/tmp/gpu_session_data}

@@ -27,6 +27,12 @@ def test_help_prints_the_phases_and_an_unknown_phase_is_refused() -> None:
     assert bad.returncode == 2 and "usage: bash scripts/gpu_session.sh check|train" in bad.stderr
 
 
+def test_votes_other_than_0_or_1_are_refused(tmp_path: Path) -> None:
+    done = _run("train", env={**os.environ, "OUT": str(tmp_path / "out"), "VOTES": "yes"})
+    assert done.returncode == 2 and "VOTES must be 0 or 1, got 'yes'" in done.stderr
+    assert not (tmp_path / "out").exists()  # refused before anything is written
+
+
 def test_cuda_asked_for_without_cuda_is_one_line_and_exit_2(tmp_path: Path) -> None:
     pytest.importorskip("trimesh")
     import torch

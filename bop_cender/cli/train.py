@@ -167,6 +167,12 @@ def cmd_train(args: argparse.Namespace) -> int:
             field="--class-loss-weight",
         )
     votes = args.center_votes or UNetSpec.named(variant, center_channels=2).center_votes
+    if votes and kind != "dimo" and not factored:  # one channel per object id: the votes' map would join none
+        raise ConfigError(
+            "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
+            " center head (--factored-centers, or --variant tless-votes)",
+            field="--center-votes",
+        )
     if args.vote_loss_weight is not None and not votes:
         raise ConfigError(
             "weights the loss of centre votes; this network has none (--variant dimo-votes or tless-votes, or"
@@ -183,7 +189,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,
-        center_votes=args.center_votes,
+        center_votes=args.center_votes and not UNetSpec.named(variant, center_channels=2).center_votes,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
         **({} if args.class_loss_weight is None else {"class_loss_weight": args.class_loss_weight}),
         **({} if args.vote_loss_weight is None else {"vote_loss_weight": args.vote_loss_weight}),

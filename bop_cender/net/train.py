@@ -272,6 +272,12 @@ def train(
         )
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
     spec = config.network_spec(n_channels)
+    if spec.center_votes and spec.center_channels > 1 and not spec.factored_centers:
+        raise ConfigError(
+            "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
+            " center head (--factored-centers, or --variant tless-votes)",
+            field="--center-votes",
+        )
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:

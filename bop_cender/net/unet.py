@@ -35,6 +35,7 @@ refinement (``refine_channels``), :meth:`UNetSpec.tless_factored`, ours for T-LE
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 
 import torch
@@ -117,7 +118,7 @@ class UNetSpec:
             raise ValueError(f"refine channels must be >= 0, got {self.refine_channels}")
         if self.center_branch_channels < 0:
             raise ValueError(f"center branch channels must be >= 0, got {self.center_branch_channels}")
-        if not self.vote_sigma_px > 0:
+        if not (math.isfinite(self.vote_sigma_px) and self.vote_sigma_px > 0):
             raise ValueError(f"vote sigma must be > 0 pixels, got {self.vote_sigma_px}")
         if self.vote_mix not in VOTE_MIXES:
             raise ValueError(f"vote mix must be one of {', '.join(VOTE_MIXES)}, got {self.vote_mix!r}")
@@ -407,7 +408,8 @@ class UNet(nn.Module):
                 self.vote_head.body[-1].bias[:1].fill_(-4.0)
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Center logits ``(B, C, H, W)`` (factored ones combined) and curvature logits ``(B, H, W)``."""
+        """Center logits ``(B, C, H, W)`` (factored ones combined) and curvature logits ``(B, H, W)``: the heads'
+        alone (a vote head's map joins them in :meth:`probabilities`, which the predictor and validation use)."""
         center, curvature = self.forward_raw(image)
         if self.spec.factored_centers:
             center = factored_center_logits(center)

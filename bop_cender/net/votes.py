@@ -158,7 +158,7 @@ def vote_map(raw: torch.Tensor, sigma_px: float) -> torch.Tensor:
     base = (torch.arange(B, device=raw.device) * (H * W))[:, None, None]
     for ox, oy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
         xi, yi = x0.long() + ox, y0.long() + oy
-        inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H) & (weight > 0)
+        inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H) & (weight > 0) & torch.isfinite(gx) & torch.isfinite(gy)
         index = (base + yi.clamp(0, H - 1) * W + xi.clamp(0, W - 1))[inside]
         out.index_add_(0, index, (weight * w)[inside])
     return gaussian_peak_blur(out.view(B, 1, H, W), sigma_px).clamp_(0.0, 1.0)

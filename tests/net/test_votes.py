@@ -213,3 +213,26 @@ def test_samples_carry_their_vote_targets_through_the_cache(tmp_path) -> None:
         v = (pointed[:, 1] - 0.5).round().long().clamp(0, blob.shape[0] - 1)
         assert float(blob[v, u].min()) > 0.85  # every vote lands on the peak of a centre blob
     assert np.array_equal(votes.ids[:2], fresh.vote_ids[:2])
+
+
+def test_a_vote_map_ignores_non_finite_votes_and_a_spec_refuses_a_non_finite_blur() -> None:
+    raw = torch.zeros(1, 4, 12, 16)
+    raw[:, 0] = 10.0  # every pixel votes for itself, area 1
+    raw[:, 3] = -LOG_AREA_MEAN / LOG_AREA_SCALE
+    raw[0, 1, 3, 4] = float("nan")
+    raw[0, 2, 5, 6] = float("inf")
+    voted = vote_map(raw, sigma_px=1.0)
+    assert torch.isfinite(voted).all() and float(voted.min()) > 0.99
+    with pytest.raises(ValueError, match="vote sigma"):
+        UNetSpec(vote_sigma_px=float("inf"))
+    with pytest.raises(ValueError, match="vote mix"):
+        UNetSpec(vote_mix="sum")
+
+
+def test_train_refuses_votes_on_independent_channels_per_object(tmp_path) -> None:
+    from bop_cender.cli import main
+
+    code = main(
+        ["train", "--dataset", "tless", "--variant", "tless-lean", "--center-votes", "--out", str(tmp_path / "r")]
+    )
+    assert code == 2 and not (tmp_path / "r").exists()
