@@ -206,6 +206,14 @@ def resolve_weights(request: RunRequest) -> RunRequest:
     return replace(request, weights=str(shipped_weights_path("dimo" if request.dataset == "dimo" else "tless")))
 
 
+def method_for(request: RunRequest) -> tuple[RunRequest, Dataset, CenDerNet]:
+    """The request with its weights resolved, its dataset and its method: what a script that runs scenes through the
+    method by hand needs (``scripts/centre_placement.py``, ``scripts/centre_families.py``)."""
+    request = resolve_weights(request)
+    dataset = open_run_dataset(request)
+    return request, dataset, build_method(request, dataset)
+
+
 def net_predictor(request: RunRequest, dataset: Dataset):
     """The network predictor of ``request`` (weights resolved), checked against the dataset and the config.
 

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.centers import CenterConfig, find_peaks
+from bop_cender.centers import CenterConfig, find_peaks, project_points
 from bop_cender.errors import BopCenderError
 from bop_cender.geometry.poses import transform_points
-from bop_cender.runner import RunRequest, build_method, open_run_dataset, resolve_weights
+from bop_cender.runner import RunRequest, method_for
 from bop_cender.visibility import pile_visibility
 
 
@@ -128,9 +128,7 @@ def main() -> None:
     try:
         request = RunRequest(args.dataset, args.data_root, split, Path("unused.csv"),
                              heatmaps="oracle" if oracle else "net", weights=None if oracle else args.weights)  # fmt: skip
-        request = resolve_weights(request)
-        dataset = open_run_dataset(request)
-        method = build_method(request, dataset)
+        request, dataset, method = method_for(request)
         names = family_names(dataset.root, dataset.models)
         config = method.config.centers
         lookups: list[CentreLookup] = []
@@ -147,11 +145,11 @@ def main() -> None:
             H, W = agnostic.shape[1:]
             fract = pile_visibility(method.meshes.many([g.obj_id for g in gts]), T_cm, Ks, H, W).fract  # (V, M)
             targets = [m for m, g in enumerate(gts) if dataset.models[g.obj_id].is_target]
+            centres = [transform_points(g.T_world_model, dataset.models[g.obj_id].center[None])[0] for g in gts]
+            xy, front = project_points(np.array(centres), Ks, T_cw)  # (V, M, 2), (V, M)
             for v in range(len(scene.views)):
-                shown = [m for m in targets if fract[v, m] > args.min_visib]
-                cam = [transform_points(T_cm[v, m], dataset.models[gts[m].obj_id].center[None])[0] for m in shown]
-                xy = np.array([(Ks[v] @ c)[:2] / c[2] if c[2] > 0 else (-1.0, -1.0) for c in cam]).reshape(-1, 2)
-                lookups += view_lookups(agnostic[v], xy, [names[gts[m].obj_id] for m in shown], config)
+                shown = [m for m in targets if fract[v, m] > args.min_visib and front[v, m]]
+                lookups += view_lookups(agnostic[v], xy[v, shown], [names[gts[m].obj_id] for m in shown], config)
             print(f"scene {i + 1}/{len(keys)} {key}", file=sys.stderr, flush=True)
     except BopCenderError as e:
         sys.exit(f"error: {e.format()}")

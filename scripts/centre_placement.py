@@ -32,7 +32,7 @@ import numpy as np
 from bop_cender.centers import Center3D
 from bop_cender.errors import BopCenderError
 from bop_cender.geometry.poses import transform_points
-from bop_cender.runner import HEATMAP_SOURCES, RunRequest, build_method, open_run_dataset, resolve_weights
+from bop_cender.runner import HEATMAP_SOURCES, RunRequest, method_for
 
 CENTRE_BINS_MM = (0.0, 5.0, 10.0, 20.0, math.inf)
 """Edges of the table's rows: a network's centre within 5 mm is as good as the oracle's (seed 9002 ``sim``: 40 of
@@ -133,9 +133,7 @@ def main() -> None:
     try:
         request = RunRequest(args.dataset, args.data_root, split, Path("unused.csv"), heatmaps=args.heatmaps,
                              weights=args.weights, limit_scenes=args.scenes)  # fmt: skip
-        request = resolve_weights(request)
-        dataset = open_run_dataset(request)
-        method = build_method(request, dataset)
+        request, dataset, method = method_for(request)
         parts: list[PartPlacement] = []
         keys = dataset.scene_keys[: args.scenes]
         for i, key in enumerate(keys):

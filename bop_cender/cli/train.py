@@ -152,7 +152,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from bop_cender.data.bop_io import check_output_dir
     from bop_cender.datasets import resolve_data_root
     from bop_cender.errors import ConfigError
-    from bop_cender.net.train import TrainConfig, train
+    from bop_cender.net.train import TrainConfig, train, votes_need_factored_centers
     from bop_cender.net.unet import UNetSpec
     from bop_cender.synth.demo import cache_dir
 
@@ -168,11 +168,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
     votes = args.center_votes or UNetSpec.named(variant, center_channels=2).center_votes
     if votes and kind != "dimo" and not factored:  # one channel per object id: the votes' map would join none
-        raise ConfigError(
-            "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
-            " center head (--factored-centers, or --variant tless-votes)",
-            field="--center-votes",
-        )
+        raise votes_need_factored_centers()
     if args.vote_loss_weight is not None and not votes:
         raise ConfigError(
             "weights the loss of centre votes; this network has none (--variant dimo-votes or tless-votes, or"

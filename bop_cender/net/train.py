@@ -273,11 +273,7 @@ def train(
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
     spec = config.network_spec(n_channels)
     if spec.center_votes and spec.center_channels > 1 and not spec.factored_centers:
-        raise ConfigError(
-            "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
-            " center head (--factored-centers, or --variant tless-votes)",
-            field="--center-votes",
-        )
+        raise votes_need_factored_centers()
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
@@ -348,6 +344,16 @@ def train(
         _write_metrics(run_dir / METRICS, history)
         say(_epoch_line(record, config.epochs))
     return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
+
+
+def votes_need_factored_centers() -> ConfigError:
+    """The error of centre votes on a network with one independent center channel per object id: the votes make one
+    class-agnostic map, which only a factored head's channels share (``UNet.probabilities``)."""
+    return ConfigError(
+        "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
+        " center head (--factored-centers, or --variant tless-votes)",
+        field="--center-votes",
+    )
 
 
 def _ids_text(ids: tuple[int, ...] | None) -> str:
