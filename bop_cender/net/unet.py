@@ -517,15 +517,23 @@ def center_probabilities(
             return objectness.float()
         return torch.sigmoid(raw.float())
     classes = raw[:, 1:].float()
-    if class_mask is not None:
-        mask = class_mask.to(device=raw.device, dtype=torch.bool)
-        mask = mask.expand(raw.shape[0], -1) if mask.dim() == 1 else mask
-        if mask.shape != (raw.shape[0], classes.shape[1]):
-            raise ValueError(f"class_mask must be ({classes.shape[1]},) or ({raw.shape[0]}, {classes.shape[1]})")
-        mask = mask | ~mask.any(dim=1, keepdim=True)  # nothing known of a sample: all classes
-        classes = classes.masked_fill(~mask[:, :, None, None], float("-inf"))
     agnostic = torch.sigmoid(raw[:, :1].float()) if objectness is None else objectness.float()
-    return agnostic * torch.softmax(classes, dim=1)
+    if class_mask is None:
+        return agnostic * torch.softmax(classes, dim=1)
+    mask = class_mask.to(device=raw.device, dtype=torch.bool)
+    mask = mask.expand(raw.shape[0], -1) if mask.dim() == 1 else mask
+    if mask.shape != (raw.shape[0], classes.shape[1]):
+        raise ValueError(f"class_mask must be ({classes.shape[1]},) or ({raw.shape[0]}, {classes.shape[1]})")
+    mask = mask | ~mask.any(dim=1, keepdim=True)  # nothing known of a sample: all classes
+    # Only the classes some sample keeps are computed (a T-LESS scene's 3-6 of 30: the softmax and the product at
+    # full resolution were a quarter of a 720x540 view's inference); the others are exactly 0, as their -inf
+    # logits would give.
+    kept = torch.nonzero(mask.any(dim=0)).flatten()
+    subset = raw.index_select(1, kept + 1).float()  # from ``raw`` itself: 40x faster than from its channel slice
+    subset = subset.masked_fill(~mask[:, kept, None, None], float("-inf"))
+    out = classes.new_zeros(classes.shape)
+    out[:, kept] = agnostic * torch.softmax(subset, dim=1)
+    return out
 
 
 def _resize(x: torch.Tensor, size) -> torch.Tensor:

@@ -143,24 +143,31 @@ def vote_map(raw: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """
     raw = raw.float()
     B, _, H, W = raw.shape
-    p = torch.sigmoid(raw[:, 0])
-    log_area = LOG_AREA_MEAN + LOG_AREA_SCALE * raw[:, 3].clamp(-6.0, 6.0)
-    weight = torch.where(p >= VOTE_MIN_FG, p * torch.exp(-log_area), torch.zeros_like(p))
-    size = torch.exp(0.5 * log_area)  # sqrt(area): the offsets' unit
-    u = torch.arange(W, dtype=torch.float32, device=raw.device)
-    v = torch.arange(H, dtype=torch.float32, device=raw.device)
-    # the vote's position in grid units (pixel u's centre is at u): pixel + offset
-    gx = u + raw[:, 1] * size
-    gy = v[:, None] + raw[:, 2] * size
-    x0, y0 = torch.floor(gx), torch.floor(gy)
-    fx, fy = gx - x0, gy - y0
     out = torch.zeros(B * H * W, dtype=torch.float32, device=raw.device)
-    base = (torch.arange(B, device=raw.device) * (H * W))[:, None, None]
-    for ox, oy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        xi, yi = x0.long() + ox, y0.long() + oy
-        inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H) & (weight > 0) & torch.isfinite(gx) & torch.isfinite(gy)
-        index = (base + yi.clamp(0, H - 1) * W + xi.clamp(0, W - 1))[inside]
-        out.index_add_(0, index, (weight * w)[inside])
+    # Only the pixels that vote are read further: a few percent of a view (7 % on a T-LESS test view), so the
+    # offsets, areas and the four bilinear corners cost that share of the full image (76 -> ~20 ms per 720x540
+    # view on one CPU thread, most of the rest the blur).
+    p_all = torch.sigmoid(raw[:, 0])
+    b, y, x = torch.nonzero(p_all >= VOTE_MIN_FG, as_tuple=True)
+    if len(b):
+        p = p_all[b, y, x]
+        picked = raw[b, :, y, x]  # (N, 4)
+        log_area = LOG_AREA_MEAN + LOG_AREA_SCALE * picked[:, 3].clamp(-6.0, 6.0)
+        weight = p * torch.exp(-log_area)
+        size = torch.exp(0.5 * log_area)  # sqrt(area): the offsets' unit
+        # the vote's position in grid units (pixel u's centre is at u): pixel + offset
+        gx = x.float() + picked[:, 1] * size
+        gy = y.float() + picked[:, 2] * size
+        # non-finite votes are dropped, and votes far outside the view before their conversion to integers
+        finite = (gx > -2) & (gx < W + 1) & (gy > -2) & (gy < H + 1) & (weight > 0)
+        b, gx, gy, weight = b[finite], gx[finite], gy[finite], weight[finite]
+        x0, y0 = torch.floor(gx), torch.floor(gy)
+        fx, fy = gx - x0, gy - y0
+        x0, y0 = x0.long(), y0.long()
+        for ox, oy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            xi, yi = x0 + ox, y0 + oy
+            inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H)
+            out.index_add_(0, (b * (H * W) + yi * W + xi)[inside], (weight * w)[inside])
     return gaussian_peak_blur(out.view(B, 1, H, W), sigma_px).clamp_(0.0, 1.0)
 
 

@@ -229,6 +229,40 @@ def test_a_vote_map_ignores_non_finite_votes_and_a_spec_refuses_a_non_finite_blu
         UNetSpec(vote_mix="sum")
 
 
+def _dense_vote_map(raw: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """The vote map computed over every pixel (what :func:`vote_map` did before it read the voting pixels only)."""
+    B, _, H, W = raw.shape
+    p = torch.sigmoid(raw[:, 0])
+    log_area = LOG_AREA_MEAN + LOG_AREA_SCALE * raw[:, 3].clamp(-6.0, 6.0)
+    weight = torch.where(p >= 0.5, p * torch.exp(-log_area), torch.zeros_like(p))
+    size = torch.exp(0.5 * log_area)
+    gx = torch.arange(W, dtype=torch.float32) + raw[:, 1] * size
+    gy = torch.arange(H, dtype=torch.float32)[:, None] + raw[:, 2] * size
+    out = torch.zeros(B * H * W)
+    base = (torch.arange(B) * (H * W))[:, None, None]
+    x0, y0 = torch.floor(gx), torch.floor(gy)
+    fx, fy = gx - x0, gy - y0
+    for ox, oy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        xi, yi = x0.long() + ox, y0.long() + oy
+        inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H) & (weight > 0) & torch.isfinite(gx) & torch.isfinite(gy)
+        out.index_add_(0, (base + yi.clamp(0, H - 1) * W + xi.clamp(0, W - 1))[inside], (weight * w)[inside])
+    return gaussian_peak_blur(out.view(B, 1, H, W), sigma_px).clamp_(0.0, 1.0)
+
+
+def test_a_vote_map_reads_only_the_voting_pixels_and_equals_the_dense_computation() -> None:
+    generator = torch.Generator().manual_seed(5)
+    raw = torch.randn(3, 4, 30, 40, generator=generator) * 2.0
+    raw[2, 0] = -3.0  # a view where nobody votes
+    raw[0, 1, 3, 4] = float("nan")
+    raw[0, 2, 5, 6] = float("inf")
+    raw[1, 1, 7, 8] = 1e30  # a finite vote far outside the view
+    raw[1, 2, 9, 9] = -1e30
+    voted = vote_map(raw, sigma_px=1.5)
+    assert torch.equal(voted, _dense_vote_map(raw, 1.5))
+    assert float(voted[2].abs().max()) == 0.0 and float(voted[:2].max()) > 0.0
+    assert torch.equal(vote_map(torch.full((1, 4, 5, 6), -5.0), 1.0), torch.zeros(1, 1, 5, 6))
+
+
 def test_train_refuses_votes_on_independent_channels_per_object(tmp_path) -> None:
     from bop_cender.cli import main
 

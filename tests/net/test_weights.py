@@ -154,6 +154,9 @@ def test_restricting_a_factored_networks_classes_drops_the_absent_ones_before_th
     per_sample = center_probabilities(raw, True, torch.stack([present, torch.zeros(4, dtype=torch.bool)]))
     assert torch.allclose(per_sample[0], out[0]) and torch.allclose(per_sample[1], center_probabilities(raw, True)[1])
     assert torch.equal(center_probabilities(raw[:, :4], False, present), torch.sigmoid(raw[:, :4]))  # ignored
+    objectness = torch.rand(2, 1, 5, 6)  # a vote map in place of sigmoid(center)
+    voted = center_probabilities(raw, True, present, objectness)
+    assert torch.allclose(voted[:, [0, 2]], objectness * kept, atol=1e-6) and float(voted[:, [1, 3]].abs().max()) == 0
     with pytest.raises(ValueError, match="class_mask must be"):
         center_probabilities(raw, True, torch.ones(3, dtype=torch.bool))
 
