@@ -161,14 +161,10 @@ def _scene_targets_cached(
         folder = Path(cache_dir) / "targets" / f"{dataset.name}-{dataset.split}"
         path = folder / f"{scene.key.replace('/', '_')}-{digest}.npz"
         if path.is_file():
-            try:
-                with np.load(path) as data:
-                    table = data["vote_table"]
-                    views = table[:, 0].astype(np.int64)
-                    tables = tuple(table[views == v, 1:] for v in range(len(scene.views)))
-                    return data["center"], data["curvature"], VoteTargets(data["vote_ids"], tables)
-            except (OSError, KeyError, ValueError, IndexError):
-                pass  # a damaged cache file is rendered again and replaced
+            channels = len(channel_obj_ids) if config.per_object_channels and channel_obj_ids else 1
+            cached = _read_cached_targets(path, scene, channels)
+            if cached is not None:
+                return cached
     maps, votes = scene_targets_with_votes(scene, dataset.models, meshes, config, channel_obj_ids)
     center = _quantise(maps.center)
     curvature = _quantise(maps.curvature)
@@ -180,6 +176,39 @@ def _scene_targets_cached(
         with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as f:
             np.savez_compressed(f, center=center, curvature=curvature, vote_ids=votes.ids, vote_table=table)
     return center, curvature, votes
+
+
+def _read_cached_targets(path: Path, scene: Scene, channels: int) -> tuple[np.ndarray, np.ndarray, VoteTargets] | None:
+    """The cached targets of ``scene`` in ``path``, or None where the file is damaged (truncated, not an archive,
+    corrupted bytes) or holds anything but what :func:`_scene_targets_cached` writes for this scene: ``center``
+    uint8 ``(V, channels, H, W)``, ``curvature`` and ``vote_ids`` uint8 ``(V, H, W)``, ``vote_table`` float32
+    ``(N, 4)`` finite rows ``(view, x, y, area)`` with every view's ids within its rows. None: rendered again and
+    replaced, so that a damaged cache never stops a training run."""
+    V, H, W = len(scene.views), scene.views[0].height, scene.views[0].width
+    try:
+        with np.load(path) as data:
+            center, curvature = data["center"], data["curvature"]
+            vote_ids, table = data["vote_ids"], data["vote_table"]
+    except Exception:  # noqa: BLE001 - zip, zlib, pickle and I/O errors alike: the file is rendered again
+        return None
+    ok = (
+        center.dtype == np.uint8
+        and center.shape == (V, channels, H, W)
+        and all(a.dtype == np.uint8 and a.shape == (V, H, W) for a in (curvature, vote_ids))
+        and table.dtype == np.float32
+        and table.ndim == 2
+        and table.shape[1] == 4
+        and bool(np.isfinite(table).all())
+    )
+    if not ok:
+        return None
+    views = table[:, 0].astype(np.int64)
+    if not (np.array_equal(views, table[:, 0]) and np.all((views >= 0) & (views < V))):
+        return None
+    tables = tuple(table[views == v, 1:] for v in range(V))
+    if any(int(vote_ids[v].max(initial=0)) > len(tables[v]) for v in range(V)):
+        return None
+    return center, curvature, VoteTargets(vote_ids, tables)
 
 
 def _quantise(x: torch.Tensor) -> np.ndarray:

@@ -35,7 +35,6 @@ refinement (``refine_channels``), :meth:`UNetSpec.tless_factored`, ours for T-LE
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, replace
 
 import torch
@@ -44,6 +43,9 @@ from torch import nn
 
 from bop_cender.net.votes import VOTE_CHANNELS, vote_map
 
+#: The vote blur's standard deviation, pixels: below 0.1 the blur is a bare splat (its kernel underflows to NaN
+#: below ~1e-23), above 100 it covers several parts and costs ~1 s per view (its radius is 3 sigma).
+VOTE_SIGMA_RANGE_PX = (0.1, 100.0)
 #: How a vote map joins the center head's (:attr:`UNetSpec.vote_mix`).
 VOTE_MIXES = ("max", "votes")
 
@@ -118,8 +120,9 @@ class UNetSpec:
             raise ValueError(f"refine channels must be >= 0, got {self.refine_channels}")
         if self.center_branch_channels < 0:
             raise ValueError(f"center branch channels must be >= 0, got {self.center_branch_channels}")
-        if not (math.isfinite(self.vote_sigma_px) and self.vote_sigma_px > 0):
-            raise ValueError(f"vote sigma must be > 0 pixels, got {self.vote_sigma_px}")
+        if not (VOTE_SIGMA_RANGE_PX[0] <= self.vote_sigma_px <= VOTE_SIGMA_RANGE_PX[1]):  # NaN fails too
+            lo, hi = VOTE_SIGMA_RANGE_PX
+            raise ValueError(f"vote sigma must be {lo:g} to {hi:g} pixels, got {self.vote_sigma_px}")
         if self.vote_mix not in VOTE_MIXES:
             raise ValueError(f"vote mix must be one of {', '.join(VOTE_MIXES)}, got {self.vote_mix!r}")
         if self.refine_channels and self.strides[0] == 1:
@@ -234,21 +237,60 @@ class UNetSpec:
 
     @staticmethod
     def from_dict(d: dict) -> UNetSpec:
+        """The spec of :meth:`as_dict`; each field of its type (a string "false" is not False, True is not 1).
+
+        Raises:
+            KeyError: a required field is missing.
+            TypeError: a field of another type.
+            ValueError: a value out of range.
+        """
         return UNetSpec(
-            channels=tuple(int(c) for c in d["channels"]),
-            strides=tuple(int(s) for s in d["strides"]),
-            head_channels=int(d["head_channels"]),
-            center_channels=int(d["center_channels"]),
-            width=float(d["width"]),
-            name=str(d["name"]),
-            context_dilations=tuple(int(x) for x in d.get("context_dilations", ())),
-            factored_centers=bool(d.get("factored_centers", False)),
-            refine_channels=int(d.get("refine_channels", 0)),
-            center_branch_channels=int(d.get("center_branch_channels", 0)),
-            center_votes=bool(d.get("center_votes", False)),
-            vote_sigma_px=float(d.get("vote_sigma_px", 3.0)),
-            vote_mix=str(d.get("vote_mix", "max")),
+            channels=tuple(_integer(c, "channels") for c in _sequence(d["channels"], "channels")),
+            strides=tuple(_integer(s, "strides") for s in _sequence(d["strides"], "strides")),
+            head_channels=_integer(d["head_channels"], "head_channels"),
+            center_channels=_integer(d["center_channels"], "center_channels"),
+            width=_real(d["width"], "width"),
+            name=_text(d["name"], "name"),
+            context_dilations=tuple(
+                _integer(x, "context_dilations") for x in _sequence(d.get("context_dilations", ()), "context_dilations")
+            ),
+            factored_centers=_flag(d.get("factored_centers", False), "factored_centers"),
+            refine_channels=_integer(d.get("refine_channels", 0), "refine_channels"),
+            center_branch_channels=_integer(d.get("center_branch_channels", 0), "center_branch_channels"),
+            center_votes=_flag(d.get("center_votes", False), "center_votes"),
+            vote_sigma_px=_real(d.get("vote_sigma_px", 3.0), "vote_sigma_px"),
+            vote_mix=_text(d.get("vote_mix", "max"), "vote_mix"),
         )
+
+
+def _flag(value: object, field: str) -> bool:
+    if not isinstance(value, bool):
+        raise TypeError(f"{field} must be true or false, got {value!r}")
+    return value
+
+
+def _integer(value: object, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{field} must be an integer, got {value!r}")
+    return value
+
+
+def _real(value: object, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise TypeError(f"{field} must be a number, got {value!r}")
+    return float(value)
+
+
+def _text(value: object, field: str) -> str:
+    if not isinstance(value, str):
+        raise TypeError(f"{field} must be a string, got {value!r}")
+    return value
+
+
+def _sequence(value: object, field: str) -> list | tuple:
+    if not isinstance(value, list | tuple):
+        raise TypeError(f"{field} must be a list, got {value!r}")
+    return value
 
 
 class _Block(nn.Module):
@@ -516,14 +558,14 @@ def center_probabilities(
         if objectness is not None and raw.shape[1] == 1:
             return objectness.float()
         return torch.sigmoid(raw.float())
-    classes = raw[:, 1:].float()
     agnostic = torch.sigmoid(raw[:, :1].float()) if objectness is None else objectness.float()
     if class_mask is None:
-        return agnostic * torch.softmax(classes, dim=1)
+        return agnostic * torch.softmax(raw[:, 1:].float(), dim=1)
+    shape = (raw.shape[0], raw.shape[1] - 1, *raw.shape[2:])
     mask = class_mask.to(device=raw.device, dtype=torch.bool)
     mask = mask.expand(raw.shape[0], -1) if mask.dim() == 1 else mask
-    if mask.shape != (raw.shape[0], classes.shape[1]):
-        raise ValueError(f"class_mask must be ({classes.shape[1]},) or ({raw.shape[0]}, {classes.shape[1]})")
+    if mask.shape != shape[:2]:
+        raise ValueError(f"class_mask must be ({shape[1]},) or ({shape[0]}, {shape[1]})")
     mask = mask | ~mask.any(dim=1, keepdim=True)  # nothing known of a sample: all classes
     # Only the classes some sample keeps are computed (a T-LESS scene's 3-6 of 30: the softmax and the product at
     # full resolution were a quarter of a 720x540 view's inference); the others are exactly 0, as their -inf
@@ -531,7 +573,7 @@ def center_probabilities(
     kept = torch.nonzero(mask.any(dim=0)).flatten()
     subset = raw.index_select(1, kept + 1).float()  # from ``raw`` itself: 40x faster than from its channel slice
     subset = subset.masked_fill(~mask[:, kept, None, None], float("-inf"))
-    out = classes.new_zeros(classes.shape)
+    out = torch.zeros(shape, dtype=torch.float32, device=raw.device)
     out[:, kept] = agnostic * torch.softmax(subset, dim=1)
     return out
 

@@ -105,6 +105,74 @@ def test_targets_are_rendered_once_then_read_from_the_cache(tiny_root, tmp_path,
     assert sorted((cache / "targets").rglob("*.npz")) == files
 
 
+def _damaged_caches(path: Path):
+    """Ways a cached targets file goes bad (name, damage), each applied to the good file's arrays or bytes."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    good = path.read_bytes()
+    with np.load(io.BytesIO(good)) as data:
+        arrays = {k: data[k] for k in data.files}
+
+    def saved(**changes):
+        def write(p: Path) -> None:
+            with open(p, "wb") as f:
+                np.savez_compressed(f, **{**arrays, **changes})
+
+        return write
+
+    table = arrays["vote_table"]
+    nan_table = table.copy()
+    nan_table[0, 1] = np.nan
+    far_view = table.copy()
+    far_view[0, 0] = 99
+    big_ids = arrays["vote_ids"].copy()
+    big_ids[0, 0, 0] = 200
+    with zipfile.ZipFile(io.BytesIO(good)) as z:  # an archive whose compressed bytes are flipped
+        member = z.infolist()[0]
+        offset = member.header_offset + 30 + len(member.filename) + len(member.extra) + 40
+    flipped = bytearray(good)
+    flipped[offset : offset + 64] = bytes(b ^ 0xFF for b in flipped[offset : offset + 64])
+    return [
+        ("truncated", lambda p: p.write_bytes(good[: len(good) // 2])),
+        ("empty", lambda p: p.write_bytes(b"")),
+        ("flipped bytes", lambda p: p.write_bytes(bytes(flipped))),
+        ("a bare array", lambda p: np.save(open(p, "wb"), arrays["center"])),
+        ("fewer views of vote ids", saved(vote_ids=arrays["vote_ids"][:1])),
+        ("another height", saved(center=arrays["center"][:, :, :-1])),
+        ("float maps", saved(center=arrays["center"].astype(np.float64))),
+        ("an id beyond its table", saved(vote_ids=big_ids)),
+        ("a table of 3 columns", saved(vote_table=table[:, :3])),
+        ("NaN in the table", saved(vote_table=nan_table)),
+        ("a view beyond the scene", saved(vote_table=far_view)),
+    ]
+
+
+def test_a_damaged_targets_cache_file_is_rendered_again_whatever_the_damage(tiny_root, tmp_path) -> None:
+    import numpy as np
+
+    from bop_cender.net.samples import _read_cached_targets, _scene_targets_cached
+
+    dataset = open_dataset(DatasetRequest("dimo", tiny_root, "real"))
+    meshes = MeshCache(dataset.models)
+    scene = dataset.loader(dataset.scene_keys[0])
+    config = TargetConfig.for_dataset("dimo")
+    cache = tmp_path / "cache"
+    center, curvature, votes = _scene_targets_cached(scene, dataset, config, meshes, None, cache)
+    (path,) = sorted((cache / "targets").rglob("*.npz"))
+    for name, damage in _damaged_caches(path):
+        damage(path)
+        c, k, v = _scene_targets_cached(scene, dataset, config, meshes, None, cache)
+        assert np.array_equal(c, center) and np.array_equal(k, curvature), name
+        assert np.array_equal(v.ids, votes.ids) and all(
+            np.array_equal(a, b) for a, b in zip(v.tables, votes.tables, strict=True)
+        ), name
+        replaced = _read_cached_targets(path, scene, 1)  # the file is replaced by a good one
+        assert replaced is not None and np.array_equal(replaced[0], center), name
+
+
 def test_runs_are_guarded(tiny_root, tmp_path) -> None:
     train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "run", progress=False)
     with pytest.raises(ConfigError, match="--resume"):

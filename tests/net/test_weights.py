@@ -107,6 +107,17 @@ def test_malformed_weights_contents_are_one_clear_error_naming_the_field(tmp_pat
         (tless, "text.pt", lambda p: p.update(channel_obj_ids="125"), r"channel_obj_ids: expected a list of object"),
         (good, "kind.pt", lambda p: p.update(dataset="foo"), r"dataset: expected one of dimo, tless, got 'foo'"),
         (good, "nospec.pt", lambda p: p.pop("spec"), r"missing key 'spec'"),
+        (good, "votes.pt", lambda p: p["spec"].update(center_votes="false"), r"center_votes must be true or false"),
+        (good, "vsig.pt", lambda p: p["spec"].update(vote_sigma_px=True), r"vote_sigma_px must be a number, got True"),
+        (good, "tiny.pt", lambda p: p["spec"].update(vote_sigma_px=1e-30), r"vote sigma must be 0\.1 to 100 pixels"),
+        (good, "huge.pt", lambda p: p["spec"].update(vote_sigma_px=1e7), r"vote sigma must be 0\.1 to 100 pixels"),
+        (
+            good,
+            "chan.pt",
+            lambda p: p["spec"].update(channels=["16", 24, 32]),
+            r"channels must be an integer, got '16'",
+        ),
+        (good, "width.pt", lambda p: p["spec"].update(width="1"), r"width must be a number"),
     ]
     for source, name, edit, message in cases:
         path = _edited(tmp_path, source, name, edit)
