@@ -27,7 +27,7 @@ from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.patch_maps import PatchMaps
 from bop_cender.net.predictor import scene_rgb
-from bop_cender.net.targets import TargetConfig, scene_targets_with_votes
+from bop_cender.net.targets import TargetConfig, center_channel_ids, scene_targets_with_votes
 from bop_cender.net.votes import VoteTargets, dense_vote_targets
 from bop_cender.progress import progress_bar
 from bop_cender.render.mesh import RenderMesh
@@ -102,8 +102,7 @@ def load_samples(
         DatasetError: a view without a colour image, or views of different sizes.
     """
     keys = list(dataset.scene_keys if scene_keys is None else scene_keys)
-    if config.per_object_channels and channel_obj_ids is None:
-        channel_obj_ids = tuple(sorted(i for i, m in dataset.models.items() if m.is_target))
+    channel_obj_ids = center_channel_ids(dataset.models, config, channel_obj_ids)
     images, centers, curvatures, sample_keys, obj_ids = [], [], [], [], []
     vote_ids: list[np.ndarray] = []
     vote_tables: list[np.ndarray] = []
@@ -161,8 +160,8 @@ def _scene_targets_cached(
         folder = Path(cache_dir) / "targets" / f"{dataset.name}-{dataset.split}"
         path = folder / f"{scene.key.replace('/', '_')}-{digest}.npz"
         if path.is_file():
-            channels = len(channel_obj_ids) if config.per_object_channels and channel_obj_ids else 1
-            cached = _read_cached_targets(path, scene, channels)
+            ids = center_channel_ids(dataset.models, config, channel_obj_ids)
+            cached = _read_cached_targets(path, scene, 1 if ids is None else len(ids))
             if cached is not None:
                 return cached
     maps, votes = scene_targets_with_votes(scene, dataset.models, meshes, config, channel_obj_ids)

@@ -78,6 +78,16 @@ def blob_sigma(s_e: float, bbox_size: np.ndarray, distance_mm: np.ndarray) -> np
     return s_e * float(np.mean(bbox_size)) * 100.0 / np.asarray(distance_mm, dtype=np.float64)
 
 
+def center_channel_ids(
+    models: Mapping[int, ObjectModel], config: TargetConfig, channel_obj_ids: tuple[int, ...] | None = None
+) -> tuple[int, ...] | None:
+    """The object id of each center channel of the targets: None for one shared channel, else ``channel_obj_ids``
+    or, where not given, every target object's id in ascending order."""
+    if not config.per_object_channels:
+        return None
+    return channel_obj_ids or tuple(sorted(i for i, m in models.items() if m.is_target))
+
+
 def scene_targets(
     scene: Scene,
     models: Mapping[int, ObjectModel],
@@ -128,10 +138,7 @@ def scene_targets_with_votes(
             file=odd.rgb_path or odd.source,
             field="size",
         )
-    if config.per_object_channels:
-        channels = channel_obj_ids or tuple(sorted(i for i, m in models.items() if m.is_target))
-    else:
-        channels = None
+    channels = center_channel_ids(models, config, channel_obj_ids)
     V = len(views)
     n_channels = 1 if channels is None else len(channels)
     center = torch.zeros((V, n_channels, H, W), dtype=torch.float32, device=device)
