@@ -152,23 +152,22 @@ def cmd_train(args: argparse.Namespace) -> int:
     from bop_cender.data.bop_io import check_output_dir
     from bop_cender.datasets import resolve_data_root
     from bop_cender.errors import ConfigError
-    from bop_cender.net.train import TrainConfig, train, votes_need_factored_centers
+    from bop_cender.net.train import TrainConfig, network_spec_of, train
     from bop_cender.net.unet import UNetSpec
     from bop_cender.synth.demo import cache_dir
 
     kind = "dimo" if args.dataset == "dimo" else "tless"
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
     variant = args.variant or f"{kind}-lean"
-    factored = args.factored_centers or UNetSpec.named(variant, center_channels=2).factored_centers
+    channels = 1 if kind == "dimo" else 2  # "one per object id": the data's count is known once it is read
+    spec = network_spec_of(variant, args.width, channels, args.factored_centers, args.center_votes)  # before the data
+    factored, votes = spec.factored_centers, spec.center_votes
     if args.class_loss_weight is not None and not factored:  # it would be recorded in config.json and not used
         raise ConfigError(
             "weights the class loss of a factored center head; this network has none (--variant tless-factored, or"
             " --factored-centers)",
             field="--class-loss-weight",
         )
-    votes = args.center_votes or UNetSpec.named(variant, center_channels=2).center_votes
-    if votes and kind != "dimo" and not factored:  # one channel per object id: the votes' map would join none
-        raise votes_need_factored_centers()
     if args.vote_loss_weight is not None and not votes:
         raise ConfigError(
             "weights the loss of centre votes; this network has none (--variant dimo-votes or tless-votes, or"
@@ -185,7 +184,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,
-        center_votes=args.center_votes and not UNetSpec.named(variant, center_channels=2).center_votes,
+        center_votes=args.center_votes and not UNetSpec.named(variant, center_channels=channels).center_votes,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
         **({} if args.class_loss_weight is None else {"class_loss_weight": args.class_loss_weight}),
         **({} if args.vote_loss_weight is None else {"vote_loss_weight": args.vote_loss_weight}),

@@ -169,28 +169,53 @@ class TrainConfig:
     def same_run_as(self, other: TrainConfig) -> bool:
         """Whether a checkpoint of ``other`` can be resumed under this config (more epochs allowed; the class loss's
         weight only matters to a factored variant)."""
-        if not self.network_spec(center_channels=2).factored_centers:
+        spec = self.network_spec()
+        if not spec.factored_centers:
             other = replace(other, class_loss_weight=self.class_loss_weight)
-        if not self.network_spec(center_channels=2).center_votes:
+        if not spec.center_votes:
             other = replace(other, vote_loss_weight=self.vote_loss_weight)
         return replace(self, epochs=other.epochs) == other
 
-    def network_spec(self, center_channels: int) -> UNetSpec:
-        """The run's network: ``variant`` at ``width`` with ``center_channels`` outputs, factored where asked.
+    def network_spec(self, center_channels: int | None = None) -> UNetSpec:
+        """The run's network (:func:`network_spec_of`) with ``center_channels`` outputs; None: the dataset kind's
+        (1 for DIMO, 2 standing for "one per object id" where only the architecture matters).
 
         Raises:
-            ConfigError: ``factored_centers`` with one shared center channel (DIMO).
+            ConfigError: a network that cannot be built (:func:`network_spec_of`).
         """
-        spec = UNetSpec.named(self.variant, center_channels=center_channels, width=self.width)
-        if self.factored_centers and not spec.factored_centers:
-            if center_channels < 2:
-                raise ConfigError(
-                    "needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers"
-                )
-            spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
-        if self.center_votes and not spec.center_votes:
-            spec = replace(spec, center_votes=True, name=f"{spec.name}+votes")
-        return spec
+        if center_channels is None:
+            center_channels = 1 if self.dataset == "dimo" else 2
+        return network_spec_of(self.variant, self.width, center_channels, self.factored_centers, self.center_votes)
+
+
+def network_spec_of(
+    variant: str, width: float, center_channels: int, factored_centers: bool = False, center_votes: bool = False
+) -> UNetSpec:
+    """``variant`` at ``width`` with ``center_channels`` outputs, factored and with a vote head where asked (the CLI
+    checks its flags with it before any data is read; :class:`TrainConfig` builds the run's network with it).
+
+    Raises:
+        ConfigError: a variant that does not fit the data's center channels (a factored head on one shared channel),
+            or centre votes on one independent center channel per object id (their map is class-agnostic: only a
+            factored head's channels share it).
+    """
+    try:
+        spec = UNetSpec.named(variant, center_channels=center_channels, width=width)
+    except ValueError as exc:
+        raise ConfigError(f"{variant} cannot be built for this data ({exc})", field="--variant") from None
+    if factored_centers and not spec.factored_centers:
+        if center_channels < 2:
+            raise ConfigError("needs one center channel per object id (T-LESS / BOP data)", field="--factored-centers")
+        spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
+    if center_votes and not spec.center_votes:
+        spec = replace(spec, center_votes=True, name=f"{spec.name}+votes")
+    if spec.center_votes and spec.center_channels > 1 and not spec.factored_centers:
+        raise ConfigError(
+            "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
+            " center head (--factored-centers, or --variant tless-votes)",
+            field="--center-votes",
+        )
+    return spec
 
 
 @dataclass
@@ -250,7 +275,7 @@ def train(
     device = torch.device(device)
     kind = "dimo" if config.dataset == "dimo" else "tless"
     targets = TargetConfig.for_dataset(kind)
-    votes = config.network_spec(center_channels=2).center_votes
+    votes = config.network_spec().center_votes
     train_set = _open_samples(
         config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress, votes=votes
     )
@@ -272,8 +297,6 @@ def train(
         )
     n_channels = 1 if train_set.channel_obj_ids is None else len(train_set.channel_obj_ids)
     spec = config.network_spec(n_channels)
-    if spec.center_votes and spec.center_channels > 1 and not spec.factored_centers:
-        raise votes_need_factored_centers()
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
@@ -293,12 +316,8 @@ def train(
                 field="--init-weights",
             )
         missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
-        new_modules = (
-            "context.",
-            "refine.",
-            "center_branch.",
-            "vote_head.",
-        )  # each starts as the identity (_can_start_from)
+        # the modules a run may add to the init weights' network: each starts as the identity (_can_start_from)
+        new_modules = ("context.", "refine.", "center_branch.", "vote_head.")
         assert not unexpected and all(k.startswith(new_modules) for k in missing), (missing, unexpected)
     trainable = _freeze_all_but(model, config.train_only)
     optimiser = torch.optim.Adam(trainable, lr=config.lr)
@@ -344,16 +363,6 @@ def train(
         _write_metrics(run_dir / METRICS, history)
         say(_epoch_line(record, config.epochs))
     return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
-
-
-def votes_need_factored_centers() -> ConfigError:
-    """The error of centre votes on a network with one independent center channel per object id: the votes make one
-    class-agnostic map, which only a factored head's channels share (``UNet.probabilities``)."""
-    return ConfigError(
-        "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
-        " center head (--factored-centers, or --variant tless-votes)",
-        field="--center-votes",
-    )
 
 
 def _ids_text(ids: tuple[int, ...] | None) -> str:

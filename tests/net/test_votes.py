@@ -263,10 +263,20 @@ def test_a_vote_map_reads_only_the_voting_pixels_and_equals_the_dense_computatio
     assert torch.equal(vote_map(torch.full((1, 4, 5, 6), -5.0), 1.0), torch.zeros(1, 1, 5, 6))
 
 
-def test_train_refuses_votes_on_independent_channels_per_object(tmp_path) -> None:
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--dataset", "tless", "--variant", "tless-lean", "--center-votes"], "--center-votes: votes make one"),
+        (["--dataset", "dimo", "--variant", "tless-factored"], "--variant: tless-factored cannot be built"),
+        (["--dataset", "dimo", "--factored-centers"], "--factored-centers: needs one center channel per object"),
+    ],
+)
+def test_train_refuses_a_network_that_does_not_fit_the_data_before_reading_it(tmp_path, capsys, flags, message) -> None:
+    """Votes on independent per-object channels, a factored variant on DIMO's one channel: one line, nothing
+    written, before any data is resolved (``network_spec_of`` is the one check, for the CLI and ``TrainConfig``)."""
     from bop_cender.cli import main
 
-    code = main(
-        ["train", "--dataset", "tless", "--variant", "tless-lean", "--center-votes", "--out", str(tmp_path / "r")]
-    )
+    code = main(["train", *flags, "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
     assert code == 2 and not (tmp_path / "r").exists()
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
