@@ -14,6 +14,11 @@ as training's losses take them (a factored head's raw channels). CUDA with bf16 
 Prints a table and writes ``results/bench/net_<machine>.md``:
 
     python scripts/bench_net.py [--repeats 5] [--devices cpu,cuda]
+
+It also times the heads' post-processing at 720x540 (a T-LESS view): the vote map (:func:`~bop_cender.net.votes.vote_map`)
+of a vote field where a given share of the pixels votes (7 % on a T-LESS test view with the shipped network), and a
+factored head's probabilities over 30 classes, all of them or restricted to a scene's 5 (``run`` restricts them
+to the objects its BOP targets name).
 """
 
 from __future__ import annotations
@@ -29,7 +34,8 @@ import torch
 import torch.nn.functional as F
 from torch.utils.flop_counter import FlopCounterMode
 
-from bop_cender.net.unet import UNet, UNetSpec, count_parameters
+from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, count_parameters
+from bop_cender.net.votes import vote_map
 
 VARIANTS = [  # name, spec, (H, W), views per scene, training batch, training crop
     ("dimo (paper)", UNetSpec.dimo(), (256, 320), 7, 8, None),
@@ -105,6 +111,27 @@ def bench_variant(spec: UNetSpec, size, views: int, batch: int, crop, device: to
     }
 
 
+def bench_post_processing(device: torch.device, repeats: int, voting_share: float = 0.07) -> dict[str, float]:
+    """ms per 720x540 view of the heads' post-processing, on a batch of 5 views (a T-LESS group)."""
+    gen = torch.Generator().manual_seed(0)
+    B, H, W = 5, 540, 720
+    votes = torch.randn(B, 4, H, W, generator=gen)
+    votes[:, 0] = torch.where(torch.rand(B, H, W, generator=gen) < voting_share, 4.0, -4.0)  # fg logits
+    votes = votes.to(device)
+    raw = torch.randn(B, 31, H, W, generator=gen).to(device)
+    present = torch.zeros(30, dtype=torch.bool, device=device)
+    present[[2, 7, 11, 19, 25]] = True
+
+    def per_view(fn) -> float:
+        return 1000 * _timed(fn, device, repeats) / B
+
+    return {
+        "vote_map": per_view(lambda: vote_map(votes, 4.0)),
+        "all_classes": per_view(lambda: center_probabilities(raw, True)),
+        "five_classes": per_view(lambda: center_probabilities(raw, True, present)),
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
@@ -125,6 +152,15 @@ def main(argv=None) -> int:
                 f"  train {r['train_images_per_s']:6.1f} images/s at {r['train_size'][1]}x{r['train_size'][0]}",
                 flush=True,
             )
+    post = []
+    for device in devices:
+        r = bench_post_processing(device, args.repeats)
+        post.append((device.type, r))
+        print(
+            f"{device.type:4} post-processing per 720x540 view: vote map {r['vote_map']:.1f} ms (7 % voting),"
+            f" factored probabilities {r['all_classes']:.1f} ms (30 classes), {r['five_classes']:.1f} ms (5 of 30)",
+            flush=True,
+        )
     gpu = torch.cuda.get_device_name(0) if any(d.type == "cuda" for d in devices) else None
     machine = bench_machine.machine_slug(gpu)
     lines = [
@@ -144,6 +180,15 @@ def main(argv=None) -> int:
             f"| {dev} | {name} | {size[1]}x{size[0]} | {r['params']:,} | {r['gmac']:.2f} | {r['ms_one']:.1f} |"
             f" {r['ms_scene']:.1f} | {r['train_images_per_s']:.1f} ({r['train_size'][1]}x{r['train_size'][0]}) |"
         )
+    lines += [
+        "",
+        "Post-processing per 720x540 view (batch of 5): the vote map with 7 % of the pixels voting, a factored head's"
+        " probabilities over 30 classes, all of them or restricted to a scene's 5 (`run`'s case).",
+        "",
+        "| device | vote map (ms) | probabilities, 30 classes (ms) | probabilities, 5 of 30 (ms) |",
+        "|---|---:|---:|---:|",
+    ]
+    lines += [f"| {d} | {r['vote_map']:.1f} | {r['all_classes']:.1f} | {r['five_classes']:.1f} |" for d, r in post]
     lines += ["", "Goal: the shipped DIMO model (dimo-context) at most 150 ms per 320x256 view on 2 CPU cores."]
     out = Path(args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"net_{machine}.md")
     out.write_text("\n".join(lines) + "\n")

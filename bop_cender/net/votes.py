@@ -145,8 +145,8 @@ def vote_map(raw: torch.Tensor, sigma_px: float) -> torch.Tensor:
     B, _, H, W = raw.shape
     out = torch.zeros(B * H * W, dtype=torch.float32, device=raw.device)
     # Only the pixels that vote are read further: a few percent of a view (7 % on a T-LESS test view), so the
-    # offsets, areas and the four bilinear corners cost that share of the full image (76 -> ~20 ms per 720x540
-    # view on one CPU thread, most of the rest the blur).
+    # offsets, areas and the four bilinear corners cost that share of the full image (63 -> 28-34 ms per 720x540
+    # view on 2 CPU cores, most of the rest the blur: ``python scripts/bench_net.py``, its post-processing row).
     p_all = torch.sigmoid(raw[:, 0])
     b, y, x = torch.nonzero(p_all >= VOTE_MIN_FG, as_tuple=True)
     if len(b):
