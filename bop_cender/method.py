@@ -161,7 +161,9 @@ class CenDerNet:
         T_cw = np.stack([v.T_cam_world for v in scene.views])
         counts = self._known_counts(scene, heatmaps) if self.config.known_counts else None
         center_maps = heatmaps.center.detach().cpu().numpy()  # (V, C, H, W)
-        centers = detect_centers(center_maps, Ks, T_cw, self.config.centers, heatmaps.channel_obj_ids, counts)
+        centers = detect_centers(
+            center_maps, Ks, T_cw, self.config.centers, heatmaps.channel_obj_ids, counts, heatmaps.exclusive_channels
+        )
         t2 = time.perf_counter()
         candidate_ids = self._candidate_ids(scene)
         targets = [

@@ -7,6 +7,7 @@ import pytest
 
 from bop_cender.centers import (
     CenterConfig,
+    class_agnostic_map,
     closest_points,
     detect_centers,
     find_peaks,
@@ -133,6 +134,56 @@ def test_merge_is_greedy_by_score():
     # the best (25) takes 0, 10 and 45 (all within 30 of it): one point, pulled towards 25
     assert merged.shape == (1, 3)
     assert 15 < merged[0, 0] < 30
+
+
+def test_merge_matches_the_all_pairs_reference():
+    """The merge computes one row of distances per merged point; the result is the all-pairs version's, bit for bit
+    (random clouds with equal scores and duplicate points too)."""
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 50, 400):
+        pts = rng.normal(0.0, 20.0, (n, 3))
+        pts[n // 2 :: 7] = pts[0]  # duplicates
+        scores = rng.integers(0, 4, n).astype(float)  # ties
+        order = np.argsort(-scores, kind="stable")
+        ref_pts, sc = pts[order], np.maximum(scores[order], 1e-12)
+        dist = np.linalg.norm(ref_pts[:, None] - ref_pts[None], axis=-1)
+        free, ref = np.ones(n, bool), []
+        for k in range(n):
+            if free[k]:
+                group = free & (dist[k] < 10.0)
+                free &= ~group
+                ref.append((ref_pts[group] * sc[group][:, None]).sum(0) / sc[group].sum())
+        np.testing.assert_array_equal(merge_candidates(pts, scores, 10.0), np.asarray(ref))
+
+
+def test_the_class_agnostic_map_sums_exclusive_channels_and_joins_independent_ones_by_noisy_or():
+    """Exclusive channels (a factored network's): the sum, clipped. Independent ones (the oracle's): 1 - prod(1 - p),
+    which keeps one peak of 1 per part where two parts' unit blobs of different ids overlap; their clipped sum is a
+    plateau of 1 between them that the peak finder returns as a grid of peaks."""
+    rng = np.random.default_rng(4)
+    maps = rng.random((2, 3, 5, 6))
+    np.testing.assert_allclose(class_agnostic_map(maps, True), np.clip(maps.sum(1, keepdims=True), 0, 1))
+    np.testing.assert_allclose(class_agnostic_map(maps, False), 1 - np.prod(1 - maps, axis=1, keepdims=True))
+    T_cw = ring_cameras(1)
+    truth = np.array([[0.0, 0.0, 0.0], [15.0, 0.0, 0.0]])  # 6 px apart, sigma 4 px: the blobs overlap
+    two = np.concatenate([blob_maps(truth[:1], T_cw, 4.0), blob_maps(truth[1:], T_cw, 4.0)], axis=1)
+    assert len(find_peaks(class_agnostic_map(two, True)[0, 0], 0.15, 2)[0]) > 2  # the clipped sum's plateau
+    xy, values = find_peaks(class_agnostic_map(two, False)[0, 0], 0.15, 2)
+    expected = np.array([np.unravel_index(np.argmax(two[0, c]), (H, W))[::-1] for c in range(2)]) + 0.5
+    assert len(xy) == 2 and np.all(values > 0.99)  # a blob centred on a pixel edge: either pixel is its peak
+    assert np.abs(np.sort(xy, axis=0) - np.sort(expected, axis=0)).max() <= 1.0
+
+
+def test_oracle_like_channels_of_two_overlapping_parts_give_both_centres():
+    """Two parts 15 mm apart with unit blobs in their own channels (as the oracle's maps): both centres found,
+    each named by its channel, from a handful of peaks (not a plateau's grid)."""
+    truth = np.array([[0.0, 0.0, 0.0], [15.0, 0.0, 0.0]])
+    T_cw = ring_cameras(5)
+    Ks = np.repeat(K[None], 5, 0)
+    maps = np.concatenate([blob_maps(truth[:1], T_cw, 4.0), blob_maps(truth[1:], T_cw, 4.0)], axis=1)
+    found = detect_centers(maps, Ks, T_cw, CenterConfig(), (11, 12), {0: 1, 1: 1})
+    assert [c.obj_id for c in found] == [11, 12]
+    np.testing.assert_array_less(np.linalg.norm([c.position for c in found] - truth, axis=1), TOL_MM)
 
 
 def test_two_objects_closer_than_the_old_d_o_are_both_kept():

@@ -464,6 +464,39 @@ def test_the_network_curvature_threshold_precedence():
     assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")
 
 
+def test_stage_2_joins_the_channels_as_the_centre_maps_say(mini_root, monkeypatch):
+    """The heatmaps' ``exclusive_channels`` (a factored network's) reaches stage 2, through a mixed source with the
+    centre maps it goes with; the oracle's channels are independent."""
+    seen = []
+
+    def fake_detect(*args):
+        seen.append(args[6])
+        return []
+
+    monkeypatch.setattr(method_module, "detect_centers", fake_detect)
+    ds = open_dimo(mini_root, "real")
+    scene = ds.scene(ds.scene_keys[0])
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    meshes = MeshCache(ds.models)
+    oracle = OraclePredictor(ds.models, meshes, config.targets)
+
+    class Factored:
+        name = "net"
+
+        def predict(self, s):
+            return dataclasses.replace(oracle.predict(s), centers_from_network=True, exclusive_channels=True)
+
+    for predictor, expected in (
+        (oracle, False),
+        (Factored(), True),
+        (MixedPredictor(Factored(), oracle), True),
+        (MixedPredictor(oracle, Factored()), False),
+    ):
+        seen.clear()
+        CenDerNet(ds.models, config, predictor, meshes).estimate(scene)
+        assert seen == [expected]
+
+
 def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
     """Stage 3 gets ``poses.translation_*_network`` and ``scene_polish_passes_network`` where the centre maps are a
     network's (also through a mixed source), the general ones for the oracle's; None falls back to the general."""

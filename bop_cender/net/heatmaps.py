@@ -16,13 +16,17 @@ class Heatmaps:
             shared channel (DIMO, ``channel_obj_ids`` None) or one channel per object id (T-LESS).
         curvature: ``(V, H, W)`` float32 in [0, 1]: ``clip(curvature / c, 0, 1)`` of the visible target
             surfaces (see :mod:`bop_cender.net.targets`).
-        channel_obj_ids: object id of each center channel, or None for one channel shared by all objects.
+        channel_obj_ids: object id of each center channel, or None for one channel shared by all objects. A
+            scene's maps may hold some of a network's ids only: those its GT holds (the others would be 0).
         im_ids: the image id of each view, in order.
         curvature_threshold: where stage 3 should binarise this curvature, when its maker knows better than
             ``PoseConfig.t_b`` (a network: its calibrated threshold, ``PoseConfig.t_b_network``); None: ``t_b``
             (the oracle's rendered curvature).
         centers_from_network: the centre maps are a network's (True) or rendered from the ground truth (False):
             stage 3 searches wider around a network's centres (``PoseConfig.translation_*_network``).
+        exclusive_channels: the center channels split one class-agnostic probability among the object ids (a
+            factored network's: their sum is it) rather than each being a probability of its own (the oracle's,
+            independent channels): how stage 2 joins them (:func:`bop_cender.centers.class_agnostic_map`).
     """
 
     center: torch.Tensor
@@ -31,6 +35,7 @@ class Heatmaps:
     im_ids: tuple[int, ...]
     curvature_threshold: float | None = None
     centers_from_network: bool = False
+    exclusive_channels: bool = False
 
     def __post_init__(self) -> None:
         if self.center.dim() != 4 or self.curvature.dim() != 3:

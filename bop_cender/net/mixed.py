@@ -60,4 +60,5 @@ class MixedPredictor:
             centers.im_ids,
             curvature.curvature_threshold,  # the curvature's binarisation goes with it
             centers.centers_from_network,  # and the centres' search width with them
+            centers.exclusive_channels,
         )

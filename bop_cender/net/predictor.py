@@ -40,11 +40,17 @@ def known_class_mask(
 
 @torch.no_grad()
 def predict_probabilities(
-    model: UNet, image: torch.Tensor, batch_size: int = 8, flips: int = 1, class_mask: torch.Tensor | None = None
+    model: UNet,
+    image: torch.Tensor,
+    batch_size: int = 8,
+    flips: int = 1,
+    class_mask: torch.Tensor | None = None,
+    compact: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Sigmoid of ``model``'s logits for ``image (N, 3, H, W)`` in [0, 1], in batches: ``(N, C, H, W)``, ``(N, H, W)``.
 
-    ``class_mask`` ``(C,)`` bool: a factored network's classes restricted to these (:meth:`UNet.probabilities`).
+    ``class_mask`` ``(C,)`` bool: a factored network's classes restricted to these (:meth:`UNet.probabilities`);
+    ``compact``: the center maps hold those classes' channels only, ``(N, K, H, W)``.
     ``flips`` (1, 2 or 4, :data:`TEST_FLIPS`): the center maps are the mean of the probabilities of the image and
     of its left-right (2) and up-down flips (4), each flipped back; the curvature map is the image's alone. The
     network is trained with both flips (the appendix's augmentations), so each pass is an equally good estimate
@@ -62,7 +68,7 @@ def predict_probabilities(
         batch = image[i : i + batch_size]
         center_sum, curvature = None, None
         for dims in TEST_FLIPS[flips]:
-            c, k = model.probabilities(batch.flip(dims) if dims else batch, class_mask)
+            c, k = model.probabilities(batch.flip(dims) if dims else batch, class_mask, compact)
             if dims:
                 c = c.flip(dims)
             else:
@@ -117,7 +123,9 @@ class NetPredictor:
     ``known_object_ids``: for a network with factored centers (``tless-factored``), the class softmax is
     restricted to the object ids the scene is known to hold (its GT, as BOP's test targets give them; ``run`` sets
     it from ``CenDerNetConfig.known_object_ids``), so that a part mistaken for a look-alike of another size
-    that is not in the image goes to the look-alike that is. No effect on independent channels or without GT.
+    that is not in the image goes to the look-alike that is, and the heatmaps hold those ids' channels only
+    (the others would be exactly 0: a T-LESS group's maps are 6x smaller). No effect on independent channels
+    or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
     ``PoseConfig.t_b_network`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
@@ -156,12 +164,17 @@ class NetPredictor:
         ids = self.channel_obj_ids
         class_mask = None
         if self.known_object_ids and self.model.spec.factored_centers and ids is not None and scene.gt:
-            class_mask = known_class_mask(ids, {g.obj_id for g in scene.gt}, self.device)
-        center, curvature = predict_probabilities(self.model, image, self.batch_size, self.flips, class_mask)
+            known = {g.obj_id for g in scene.gt}
+            if any(i in known for i in ids):  # none of the network's ids: every class, as without GT
+                class_mask = known_class_mask(ids, known, self.device)
+                ids = tuple(i for i in ids if i in known)
+        center, curvature = predict_probabilities(
+            self.model, image, self.batch_size, self.flips, class_mask, compact=class_mask is not None
+        )
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         self.last_seconds_per_view = (time.perf_counter() - t0) / max(1, image.shape[0])
         return Heatmaps(
-            center, curvature, self.channel_obj_ids, tuple(scene.im_ids), self.curvature_threshold,
-            centers_from_network=True,
+            center, curvature, ids, tuple(scene.im_ids), self.curvature_threshold, centers_from_network=True,
+            exclusive_channels=self.model.spec.factored_centers,
         )  # fmt: skip

@@ -458,15 +458,16 @@ class UNet(nn.Module):
         return center, curvature
 
     def probabilities(
-        self, image: torch.Tensor, class_mask: torch.Tensor | None = None
+        self, image: torch.Tensor, class_mask: torch.Tensor | None = None, compact: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``sigmoid`` of :meth:`forward`'s logits, float32: center ``(B, C, H, W)`` and curvature ``(B, H, W)``.
 
         A factored head's probabilities are computed directly (:func:`center_probabilities`), not through the
         combined logits' log space at full resolution (the same values to float rounding; ``tless-factored`` 94
         against 209 ms per 720x540 view on 2 CPU cores, ``python scripts/bench_net.py --variants tless-factored``). ``class_mask`` ``(C,)`` or ``(B, C)`` bool:
-        a factored head's softmax over the True classes only (the others 0); ignored by independent channels."""
-        return self.probabilities_of(*self.forward_outputs(image), class_mask)
+        a factored head's softmax over the True classes only (the others 0); ignored by independent channels.
+        ``compact``: only the True classes' channels are returned (:func:`center_probabilities`)."""
+        return self.probabilities_of(*self.forward_outputs(image), class_mask, compact)
 
     def probabilities_of(
         self,
@@ -474,6 +475,7 @@ class UNet(nn.Module):
         curvature: torch.Tensor,
         votes: torch.Tensor | None,
         class_mask: torch.Tensor | None = None,
+        compact: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`probabilities` from :meth:`forward_outputs`' three outputs (validation has them already)."""
         objectness = None
@@ -484,7 +486,7 @@ class UNet(nn.Module):
             else:
                 head = center[:, :1] if self.spec.factored_centers else center
                 objectness = torch.maximum(torch.sigmoid(head.float()), voted)
-        probabilities = center_probabilities(center, self.spec.factored_centers, class_mask, objectness)
+        probabilities = center_probabilities(center, self.spec.factored_centers, class_mask, objectness, compact)
         return probabilities, torch.sigmoid(curvature.float())
 
     def forward_raw(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -541,7 +543,11 @@ def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:
 
 
 def center_probabilities(
-    raw: torch.Tensor, factored: bool, class_mask: torch.Tensor | None = None, objectness: torch.Tensor | None = None
+    raw: torch.Tensor,
+    factored: bool,
+    class_mask: torch.Tensor | None = None,
+    objectness: torch.Tensor | None = None,
+    compact: bool = False,
 ) -> torch.Tensor:
     """Center probabilities ``(B, C, H, W)`` from the center head's ``raw`` output (:meth:`UNet.forward_raw`).
 
@@ -553,7 +559,14 @@ def center_probabilities(
 
     ``objectness`` ``(B, 1, H, W)`` in [0, 1] replaces ``sigmoid(raw[:, 0])`` of a factored head, and ``sigmoid(raw)``
     of one shared channel (a vote map joined with the head's, :meth:`UNet.probabilities`).
+
+    ``compact`` (a factored head and a ``(C,)`` ``class_mask`` only): ``(B, K, H, W)``, the channels of the K True
+    classes alone, in order (all C where none is True). The others are exactly 0 and a scene's maps need not hold
+    them: a T-LESS group of 5 views at 720x540 holds 5 of 30 channels, 39 MB instead of 233 MB, before stage 2's
+    float64 copy doubles it (``NetPredictor``).
     """
+    if compact and (not factored or class_mask is None or class_mask.dim() != 1):
+        raise ValueError("compact needs a factored head and a (C,) class_mask")
     if not factored:
         if objectness is not None and raw.shape[1] == 1:
             return objectness.float()
@@ -572,6 +585,8 @@ def center_probabilities(
     kept = torch.nonzero(mask.any(dim=0)).flatten()
     subset = raw.index_select(1, kept + 1).float()  # from ``raw`` itself (selecting from its channel slice was slow)
     subset = subset.masked_fill(~mask[:, kept, None, None], float("-inf"))
+    if compact:
+        return agnostic * torch.softmax(subset, dim=1)
     out = torch.zeros(shape, dtype=torch.float32, device=raw.device)
     out[:, kept] = agnostic * torch.softmax(subset, dim=1)
     return out

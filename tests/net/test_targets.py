@@ -99,6 +99,26 @@ def test_per_object_channels(mini):
     assert torch.allclose(torch.maximum(maps.center[:, 0], maps.center[:, 1]), shared.center[:, 0])
 
 
+def test_the_oracle_holds_the_channels_of_the_scene_ids_only(mini):
+    """Per-object channels: the oracle's maps hold the channels of the ids the scene's GT holds, in the given
+    order, each equal to that channel of the full targets (whose other channels are 0 everywhere); a scene
+    holding none of the ids gets them all."""
+    ds, scene, meshes = mini
+    config = TargetConfig(per_object_channels=True, min_visib_fract=0.0)
+    ids = (7, 4, 3)  # the scene holds parts 3 and 4, not 7
+    maps = OraclePredictor(ds.models, meshes, config, ids).predict(scene)
+    full = scene_targets(scene, ds.models, meshes, config, ids)
+    assert maps.channel_obj_ids == (4, 3) and maps.center.shape[1] == 2
+    assert not maps.exclusive_channels  # each channel a probability of its own: stage 2's noisy-OR
+    assert torch.equal(maps.center, full.center[:, 1:]) and float(full.center[:, 0].abs().max()) == 0.0
+    assert torch.equal(maps.curvature, full.curvature)
+    missed = OraclePredictor(ds.models, meshes, config, ids, Degradation(miss_prob=1.0)).predict(scene)
+    assert missed.channel_obj_ids == (4, 3) and float(missed.center.max()) == 0.0
+    other = OraclePredictor(ds.models, meshes, config, (7, 8)).predict(scene)
+    assert other.channel_obj_ids == (7, 8) and float(other.center.max()) == 0.0
+    assert OraclePredictor(ds.models, meshes, TargetConfig()).predict(scene).channel_obj_ids is None
+
+
 def test_oracle_degradations_are_seeded(mini):
     ds, scene, meshes = mini
     config = TargetConfig()

@@ -15,7 +15,7 @@ import method_data  # noqa: E402
 
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError  # noqa: E402
-from bop_cender.net.predictor import NetPredictor, predict_probabilities  # noqa: E402
+from bop_cender.net.predictor import NetPredictor, predict_probabilities, scene_images  # noqa: E402
 from bop_cender.net.targets import TargetConfig  # noqa: E402
 from bop_cender.net.unet import UNet, UNetSpec, center_probabilities  # noqa: E402
 from bop_cender.net.weights import load_weights, save_weights, shipped_weights_path, weights_payload  # noqa: E402
@@ -188,11 +188,37 @@ def test_the_predictor_restricts_a_factored_network_to_the_scene_ids(tmp_path) -
         model.center_head.body[-1].bias.copy_(torch.tensor([2.0, 0.0, 0.0, 3.0]))  # channel 7 favoured
     save_weights(tmp_path / "f.pt", weights_payload(model, "tless", ids, TargetConfig.for_dataset("tless")))
     weights = load_weights(tmp_path / "f.pt", dataset="tless")
-    restricted = NetPredictor(weights).predict(scene).center
-    free = NetPredictor(weights, known_object_ids=False).predict(scene).center
+    maps = NetPredictor(weights).predict(scene)
+    free_maps = NetPredictor(weights, known_object_ids=False).predict(scene)
+    restricted, free = maps.center, free_maps.center
     assert float(free[:, 2].mean()) > float(free[:, :2].mean(1).mean())  # unrestricted: 7 takes the most
-    assert float(restricted[:, 2].abs().max()) == 0.0
+    # The maps hold the scene's ids' channels only (7's would be exactly 0), each as the full restricted maps have it
+    assert maps.channel_obj_ids == (3, 4) and free_maps.channel_obj_ids == ids and restricted.shape[1] == 2
+    assert maps.exclusive_channels  # a factored head's channels split one probability: stage 2 sums them
+    dense = predict_probabilities(weights.model, scene_images(scene), class_mask=torch.tensor([True, True, False]))[0]
+    assert torch.equal(restricted, dense[:, :2]) and float(dense[:, 2].abs().max()) == 0.0
     assert torch.allclose(restricted.sum(1), free.sum(1), atol=1e-5)  # the centre probability is kept
+    assert torch.equal(maps.curvature, free_maps.curvature)
+    # A scene whose GT holds none of the network's ids: every channel, as without GT
+    stranger = NetPredictor(weights).predict(replace(scene, gt=tuple(g for g in scene.gt if g.obj_id not in ids)))
+    assert stranger.channel_obj_ids == ids and torch.equal(stranger.center, free)
+
+
+def test_compact_probabilities_are_the_kept_channels_of_the_dense_ones() -> None:
+    """compact: the True classes' channels alone, bit for bit those of the dense maps (votes too); a factored head
+    and a (C,) mask are required; a mask with no True class keeps every class."""
+    torch.manual_seed(6)
+    raw = torch.randn(3, 1 + 5, 7, 9)
+    present = torch.tensor([False, True, False, True, True])
+    objectness = torch.rand(3, 1, 7, 9)
+    for obj in (None, objectness):
+        dense = center_probabilities(raw, True, present, obj)
+        assert torch.equal(center_probabilities(raw, True, present, obj, compact=True), dense[:, [1, 3, 4]])
+    none = torch.zeros(5, dtype=torch.bool)
+    assert torch.equal(center_probabilities(raw, True, none, compact=True), center_probabilities(raw, True))
+    for args in ((raw, False, present), (raw, True, None), (raw, True, present.expand(3, -1))):
+        with pytest.raises(ValueError, match="compact needs"):
+            center_probabilities(*args, compact=True)
 
 
 def test_test_flips_average_the_passes_flipped_back() -> None:
