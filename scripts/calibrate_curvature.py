@@ -10,7 +10,8 @@ edges into fragments. Only the threshold changes: the network's parameters are c
         --data-root data/dimo_val --split sim [--out OTHER.pt]
 
 Prints the F1 at ``t_b`` and at the calibrated threshold. Calibrate on validation views, never on the test
-split whose figures you report.
+split whose figures you report. Where the weights have a JSON card beside them (``WEIGHTS.json``, as
+``ship_weights.py`` writes it), its threshold entry is refreshed too.
 
 ``--for-split NAME`` stores the threshold for runs on split ``NAME`` only (the weights' general threshold stays):
 a network's best binarisation moves with the camera and its domain (DIMO's ``real`` camera against ``sim``), and
@@ -23,11 +24,14 @@ a network's best binarisation moves with the camera and its domain (DIMO's ``rea
 from __future__ import annotations
 
 import argparse
+import json
+import shlex
 import sys
 from pathlib import Path
 
 import torch
 
+from bop_cender.data.bop_io import write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
@@ -37,10 +41,17 @@ from bop_cender.net.weights import CURVATURE_THRESHOLD, CURVATURE_THRESHOLD_BY_S
 
 
 def calibrate(
-    weights_path: Path, dataset: str, data_root: Path, split: str, out: Path, for_split: str | None = None
+    weights_path: Path,
+    dataset: str,
+    data_root: Path,
+    split: str,
+    out: Path,
+    for_split: str | None = None,
+    command: str | None = None,
 ) -> dict[str, float]:
     """Measure the best-F1 threshold of ``weights_path`` on ``data_root``/``split`` and write the weights with it
-    to ``out`` (atomically): as their general threshold, or (``for_split``) as that for runs on split ``for_split``.
+    to ``out`` (atomically): as their general threshold, or (``for_split``) as that for runs on split ``for_split``;
+    and on ``out``'s card where it has one (:func:`update_card`, ``command`` the one to state there).
     Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``).
 
     Raises:
@@ -67,8 +78,57 @@ def calibrate(
     else:
         payload[CURVATURE_THRESHOLD_BY_SPLIT] = {**(payload.get(CURVATURE_THRESHOLD_BY_SPLIT) or {}),
                                                  for_split: float(threshold)}  # fmt: skip
+    card = read_card(out)  # before anything is written: a damaged card stops the calibration whole
     save_weights(out, payload)
-    return {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
+    figures = {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
+    if card is not None:
+        card = card_with_threshold(card, data_root, split, for_split, figures, command)
+        write_text_atomic(out.with_suffix(".json"), json.dumps(card, indent=2) + "\n")
+    return figures
+
+
+def read_card(weights: Path) -> dict | None:
+    """The JSON card of ``weights`` (``WEIGHTS.json`` beside them, as ``ship_weights.py`` writes it), None where there
+    is none (or that JSON is not this file's card: its ``weights`` names another file).
+
+    Raises:
+        ConfigError: the card is there but not readable JSON."""
+    card_path = weights.with_suffix(".json")
+    if not card_path.is_file():
+        return None
+    try:
+        card = json.loads(card_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"the weights' card is not readable JSON ({exc}); nothing written", file=card_path) from None
+    return card if isinstance(card, dict) and card.get("weights") == weights.name else None
+
+
+def card_with_threshold(
+    card: dict, data_root: Path, split: str, for_split: str | None, figures: dict, command: str | None
+) -> dict:
+    """``card`` with the new threshold, so that a card never states another threshold than its weights hold (the
+    shipped weights' test checks both): its ``curvature_threshold`` (or, ``for_split``, that split's entry of
+    ``curvature_threshold_by_split``, the others kept) becomes the value, where and how it was calibrated, and the
+    F1 at ``t_b`` and at the value; a ``why`` already there stays."""
+    card = dict(card)
+    entry = {
+        "value": round(float(figures["curvature_best_threshold"]), 3),
+        "calibrated_on": f"{data_root} split {split} ({int(figures['views'])} validation views): the threshold with"
+        " the best curvature F1",
+        "command": command or "python scripts/calibrate_curvature.py",
+        "curvature_f1_at_t_b": round(float(figures["curvature_f1"]), 3),
+        "curvature_f1_at_value": round(float(figures["curvature_best_f1"]), 3),
+    }
+    if for_split is None:
+        old = card.get("curvature_threshold")
+        card["curvature_threshold"] = entry | ({"why": old["why"]} if isinstance(old, dict) and "why" in old else {})
+    else:
+        by_split = card.get("curvature_threshold_by_split")
+        by_split = dict(by_split) if isinstance(by_split, dict) else {}
+        old = by_split.get(for_split)
+        by_split[for_split] = entry | ({"why": old["why"]} if isinstance(old, dict) and "why" in old else {})
+        card["curvature_threshold_by_split"] = by_split
+    return card
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,8 +145,9 @@ def main(argv: list[str] | None = None) -> int:
         print("error: --for-split: expected a split name", file=sys.stderr)
         return 2
     try:
+        command = "python scripts/calibrate_curvature.py " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
         figures = calibrate(
-            args.weights, args.dataset, args.data_root, args.split, args.out or args.weights, args.for_split
+            args.weights, args.dataset, args.data_root, args.split, args.out or args.weights, args.for_split, command
         )
     except BopCenderError as exc:
         print(f"error: {exc}", file=sys.stderr)

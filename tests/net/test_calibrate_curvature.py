@@ -84,3 +84,45 @@ def test_a_threshold_for_one_split_leaves_the_general_one(setup, tmp_path, capsy
     assert after.curvature_threshold_for("test") == (0.62, None) and after.curvature_threshold_for(None) == (0.62, None)
     assert calibrate_curvature.main([*argv, "--for-split", " "]) == 2
     assert "--for-split: expected a split name" in capsys.readouterr().err
+
+
+def test_the_card_beside_the_weights_gets_the_threshold(setup, tmp_path, capsys) -> None:
+    """A card (``WEIGHTS.json`` naming the weights) states the threshold the weights now hold, general or per split,
+    with where it was calibrated; its ``why`` and every other field stay. A JSON of something else is left alone; a
+    damaged card is one error, and nothing is written."""
+    import json
+
+    root, weights, figures = setup
+    figures.update(curvature_f1=0.4, curvature_best_f1=0.6, curvature_best_threshold=0.62, curvature_ap=0.5)
+    card = {"weights": "w.pt", "epochs": 7, "curvature_threshold": {"value": 0.5, "why": "kept"},
+            "curvature_threshold_by_split": {"sim": {"value": 0.3}}}  # fmt: skip
+    (tmp_path / "w.json").write_text(json.dumps(card))
+    argv = [str(weights), "--dataset", "dimo", "--data-root", str(root), "--split", "real"]
+    assert calibrate_curvature.main(argv) == 0
+    after = json.loads((tmp_path / "w.json").read_text())
+    entry = after["curvature_threshold"]
+    assert entry["value"] == 0.62 == load_weights(weights).curvature_threshold and entry["why"] == "kept"
+    assert entry["curvature_f1_at_t_b"] == 0.4 and entry["curvature_f1_at_value"] == 0.6
+    assert "split real (4 validation views)" in entry["calibrated_on"] and "--split real" in entry["command"]
+    assert after["epochs"] == 7 and after["curvature_threshold_by_split"] == {"sim": {"value": 0.3}}
+    figures.update(curvature_best_threshold=0.51)
+    assert calibrate_curvature.main([*argv, "--for-split", "real"]) == 0
+    after = json.loads((tmp_path / "w.json").read_text())
+    assert after["curvature_threshold"]["value"] == 0.62 and after["curvature_threshold_by_split"]["sim"] == {
+        "value": 0.3
+    }
+    assert (
+        after["curvature_threshold_by_split"]["real"]["value"]
+        == 0.51
+        == load_weights(weights).curvature_threshold_by_split["real"]
+    )
+    other = tmp_path / "o.pt"
+    (tmp_path / "o.json").write_text('{"weights": "another.pt"}')
+    assert calibrate_curvature.main([*argv, "--out", str(other)]) == 0
+    assert (tmp_path / "o.json").read_text() == '{"weights": "another.pt"}'
+    (tmp_path / "w.json").write_text("{truncated")
+    before = weights.read_bytes()
+    figures.update(curvature_best_threshold=0.7)
+    assert calibrate_curvature.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "w.json" in err and "not readable JSON" in err and weights.read_bytes() == before
