@@ -464,6 +464,24 @@ def test_the_network_curvature_threshold_precedence():
     assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")
 
 
+def _oracle_and_network_like(mini_root, **fields):
+    """The mini scene's dataset and scene, a cheap config, meshes, the oracle, and a source class that serves the
+    oracle's maps as a network's (``fields`` also set on its :class:`Heatmaps`)."""
+    ds = open_dimo(mini_root, "real")
+    scene = ds.scene(ds.scene_keys[0])
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    meshes = MeshCache(ds.models)
+    oracle = OraclePredictor(ds.models, meshes, config.targets)
+
+    class AsNetwork:
+        name = "net"
+
+        def predict(self, s):
+            return dataclasses.replace(oracle.predict(s), centers_from_network=True, **fields)
+
+    return ds, scene, config, meshes, oracle, AsNetwork
+
+
 def test_stage_2_joins_the_channels_as_the_centre_maps_say(mini_root, monkeypatch):
     """The heatmaps' ``exclusive_channels`` (a factored network's) reaches stage 2, through a mixed source with the
     centre maps it goes with; the oracle's channels are independent."""
@@ -474,18 +492,7 @@ def test_stage_2_joins_the_channels_as_the_centre_maps_say(mini_root, monkeypatc
         return []
 
     monkeypatch.setattr(method_module, "detect_centers", fake_detect)
-    ds = open_dimo(mini_root, "real")
-    scene = ds.scene(ds.scene_keys[0])
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
-    meshes = MeshCache(ds.models)
-    oracle = OraclePredictor(ds.models, meshes, config.targets)
-
-    class Factored:
-        name = "net"
-
-        def predict(self, s):
-            return dataclasses.replace(oracle.predict(s), centers_from_network=True, exclusive_channels=True)
-
+    ds, scene, config, meshes, oracle, Factored = _oracle_and_network_like(mini_root, exclusive_channels=True)
     for predictor, expected in (
         (oracle, False),
         (Factored(), True),
@@ -507,17 +514,7 @@ def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
         return []
 
     monkeypatch.setattr(method_module, "optimise_scene", fake_optimise)
-    ds = open_dimo(mini_root, "real")
-    scene = ds.scene(ds.scene_keys[0])
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
-    meshes = MeshCache(ds.models)
-    oracle = OraclePredictor(ds.models, meshes, config.targets)
-
-    class AsNetwork:
-        name = "net"
-
-        def predict(self, s):
-            return dataclasses.replace(oracle.predict(s), centers_from_network=True)
+    ds, scene, config, meshes, oracle, AsNetwork = _oracle_and_network_like(mini_root)
 
     for predictor, expected in (
         (oracle, (5.0, 20.0, 2)),
