@@ -48,16 +48,28 @@ def calibrate(
     out: Path,
     for_split: str | None = None,
     command: str | None = None,
-) -> dict[str, float]:
+) -> dict:
     """Measure the best-F1 threshold of ``weights_path`` on ``data_root``/``split`` and write the weights with it
     to ``out`` (atomically): as their general threshold, or (``for_split``) as that for runs on split ``for_split``;
-    and on ``out``'s card where it has one (:func:`update_card`, ``command`` the one to state there).
-    Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``).
+    and, written in place, on the weights' card where they have one (:func:`card_with_threshold`, ``command`` the
+    one to state there). Returns the figures (``curvature_f1`` at t_b, ``curvature_best_*``) and ``card`` (the card
+    written, or None).
 
     Raises:
         ConfigError: the split has no ground truth, or the best threshold is not inside (0, 1) (a network
-            whose curvature ranks nothing: binarising it anywhere is as good as at 0).
+            whose curvature ranks nothing: binarising it anywhere is as good as at 0); the weights' card is
+            damaged; ``out`` is another file whose card (of the weights there before) would be left stating
+            another network. Each before anything is written.
     """
+    in_place = Path(out).resolve() == Path(weights_path).resolve()
+    card = read_card(out)  # first: a damaged card stops the calibration before minutes of evaluation
+    if card is not None and not in_place:
+        raise ConfigError(
+            f"a card of the weights now at {out} sits beside them; writing other weights there would leave it"
+            " describing another network: remove the card, or write elsewhere",
+            file=out.with_suffix(".json"),
+            field="--out",
+        )
     weights = load_weights(weights_path, dataset=dataset)
     data = open_dataset(DatasetRequest(dataset, data_root, split))
     report = evaluate_heatmaps(
@@ -78,13 +90,18 @@ def calibrate(
     else:
         payload[CURVATURE_THRESHOLD_BY_SPLIT] = {**(payload.get(CURVATURE_THRESHOLD_BY_SPLIT) or {}),
                                                  for_split: float(threshold)}  # fmt: skip
-    card = read_card(out)  # before anything is written: a damaged card stops the calibration whole
     save_weights(out, payload)
     figures = {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
     if card is not None:
         card = card_with_threshold(card, data_root, split, for_split, figures, command)
-        write_text_atomic(out.with_suffix(".json"), json.dumps(card, indent=2) + "\n")
-    return figures
+        try:
+            write_text_atomic(out.with_suffix(".json"), json.dumps(card, indent=2) + "\n")
+        except OSError as exc:
+            raise ConfigError(
+                f"the weights were written, their card not ({exc}): it still states the old threshold",
+                file=out.with_suffix(".json"),
+            ) from None
+    return figures | {"card": None if card is None else str(out.with_suffix(".json"))}
 
 
 def read_card(weights: Path) -> dict | None:
@@ -92,15 +109,21 @@ def read_card(weights: Path) -> dict | None:
     is none (or that JSON is not this file's card: its ``weights`` names another file).
 
     Raises:
-        ConfigError: the card is there but not readable JSON."""
+        ConfigError: the card is there but not readable JSON, or its threshold entries are not objects."""
     card_path = weights.with_suffix(".json")
     if not card_path.is_file():
         return None
     try:
-        card = json.loads(card_path.read_text())
+        card = json.loads(card_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"the weights' card is not readable JSON ({exc}); nothing written", file=card_path) from None
-    return card if isinstance(card, dict) and card.get("weights") == weights.name else None
+    if not isinstance(card, dict) or card.get("weights") != weights.name:
+        return None
+    for key in ("curvature_threshold", "curvature_threshold_by_split"):
+        if card.get(key) is not None and not isinstance(card[key], dict):
+            raise ConfigError(f"expected an object, got {type(card[key]).__name__}; nothing written", file=card_path,
+                              field=key)  # fmt: skip
+    return card
 
 
 def card_with_threshold(
@@ -152,12 +175,16 @@ def main(argv: list[str] | None = None) -> int:
     except BopCenderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the weights file not writable, the disk full: before the card
+        print(f"error: {args.out or args.weights}: not written ({exc})", file=sys.stderr)
+        return 2
     print(
         f"{int(figures['views'])} views: curvature F1 {figures['curvature_f1']:.3f} at t_b,"
         f" {figures['curvature_best_f1']:.3f} at {figures['curvature_best_threshold']:.3f};"
         f" wrote {args.out or args.weights} ({CURVATURE_THRESHOLD}"
         + (f" for split {args.for_split}" if args.for_split else "")
         + f" {figures['curvature_best_threshold']:.3f})"
+        + (f" and its card {figures['card']}" if figures["card"] else "")
     )
     return 0
 

@@ -1,7 +1,8 @@
 """Which parts a network's centre map finds, per part family: the figure that showed T-LESS's brackets lost.
 
 Per view, every target instance more visible than ``--min-visib`` (0.5, the T-LESS targets' rule) is looked up in
-the network's class-agnostic center map (the sum of its channels: one for DIMO, one per object id for T-LESS) at the
+the network's class-agnostic center map (stage 2's join of its channels, ``centers.class_agnostic_map``: one for DIMO,
+one per object id for T-LESS) at the
 projection of its 3D centre (bounding-box centre): the map's highest value within 3 px of it, whether stage 2's peak
 detector (its threshold and minimum distance, ``CenterConfig``) has a peak within ``--peak-px`` (5) of it, and the
 distance to the nearest peak. Printed per part family (our synthetic catalogues name each object's part type: a
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.centers import CenterConfig, find_peaks, project_points
+from bop_cender.centers import CenterConfig, class_agnostic_map, find_peaks, project_points
 from bop_cender.errors import BopCenderError
 from bop_cender.geometry.poses import transform_points
 from bop_cender.runner import RunRequest, method_for
@@ -135,7 +136,9 @@ def main() -> None:
         keys = dataset.scene_keys[: args.scenes]
         for i, key in enumerate(keys):
             scene = dataset.scene(key)
-            agnostic = method.predictor.predict(scene).center.sum(1).detach().cpu().numpy()  # (V, H, W)
+            maps = method.predictor.predict(scene)
+            center = maps.center.detach().cpu().numpy()
+            agnostic = class_agnostic_map(center, maps.exclusive_channels)[:, 0]  # (V, H, W): stage 2's joined map
             gts = [g for g in scene.gt if g.obj_id in dataset.models]
             if not gts:
                 continue

@@ -174,6 +174,24 @@ def test_the_class_agnostic_map_sums_exclusive_channels_and_joins_independent_on
     assert np.abs(np.sort(xy, axis=0) - np.sort(expected, axis=0)).max() <= 1.0
 
 
+def test_detect_centers_joins_the_channels_as_told(monkeypatch):
+    """``exclusive_channels`` reaches :func:`class_agnostic_map` (the factored network's rows depend on it: its sum)."""
+    import bop_cender.centers as centers_module
+
+    seen = []
+
+    def spy(maps, exclusive):
+        seen.append(exclusive)
+        return class_agnostic_map(maps, exclusive)
+
+    monkeypatch.setattr(centers_module, "class_agnostic_map", spy)
+    T_cw = ring_cameras(3)
+    maps = np.concatenate([blob_maps(np.zeros((1, 3)), T_cw)] * 2, axis=1)
+    for exclusive in (True, False):
+        detect_centers(maps, np.repeat(K[None], 3, 0), T_cw, CenterConfig(), (1, 2), None, exclusive)
+    assert seen == [True, False]
+
+
 def test_oracle_like_channels_of_two_overlapping_parts_give_both_centres():
     """Two parts 15 mm apart with unit blobs in their own channels (as the oracle's maps): both centres found,
     each named by its channel, from a handful of peaks (not a plateau's grid)."""

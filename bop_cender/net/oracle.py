@@ -43,7 +43,8 @@ class OraclePredictor:
     With one center channel per object id, a scene's heatmaps hold the channels of the ids in its GT only (of
     ``channel_obj_ids``, default every target id): the others would be 0 in every view (a T-LESS group of 5 views
     at 720x540: 5 of 30 channels, 39 MB instead of 233 MB), as :class:`~bop_cender.net.predictor.NetPredictor`'s
-    restricted to a scene's known ids."""
+    restricted to a scene's known ids. A :class:`Degradation`'s noise is drawn for those channels only (since
+    2026-12-07: its draws, and so noisy figures with per-object channels, differ from before)."""
 
     name = "oracle"
 

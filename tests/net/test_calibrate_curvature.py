@@ -99,6 +99,7 @@ def test_the_card_beside_the_weights_gets_the_threshold(setup, tmp_path, capsys)
     (tmp_path / "w.json").write_text(json.dumps(card))
     argv = [str(weights), "--dataset", "dimo", "--data-root", str(root), "--split", "real"]
     assert calibrate_curvature.main(argv) == 0
+    assert f"and its card {tmp_path / 'w.json'}" in capsys.readouterr().out
     after = json.loads((tmp_path / "w.json").read_text())
     entry = after["curvature_threshold"]
     assert entry["value"] == 0.62 == load_weights(weights).curvature_threshold and entry["why"] == "kept"
@@ -120,6 +121,14 @@ def test_the_card_beside_the_weights_gets_the_threshold(setup, tmp_path, capsys)
     (tmp_path / "o.json").write_text('{"weights": "another.pt"}')
     assert calibrate_curvature.main([*argv, "--out", str(other)]) == 0
     assert (tmp_path / "o.json").read_text() == '{"weights": "another.pt"}'
+    stale = tmp_path / "s.pt"  # --out onto weights with a card of their own: it would describe another network
+    stale.write_bytes(b"old weights")
+    (tmp_path / "s.json").write_text('{"weights": "s.pt", "network": {"name": "old"}}')
+    assert calibrate_curvature.main([*argv, "--out", str(stale)]) == 2
+    assert "s.json" in capsys.readouterr().err and stale.read_bytes() == b"old weights"
+    (tmp_path / "w.json").write_text('{"weights": "w.pt", "curvature_threshold_by_split": [0.5]}')
+    assert calibrate_curvature.main(argv) == 2
+    assert "curvature_threshold_by_split" in capsys.readouterr().err
     (tmp_path / "w.json").write_text("{truncated")
     before = weights.read_bytes()
     figures.update(curvature_best_threshold=0.7)
