@@ -341,13 +341,13 @@ def class_agnostic_map(center_maps: np.ndarray, exclusive: bool) -> np.ndarray:
     ``exclusive`` (the channels split one probability among the ids, as a factored network's do): their sum,
     clipped to [0, 1] for float rounding. Otherwise (each channel a probability of its own: the oracle's GT, a
     network with independent channels) their noisy-OR ``1 - prod(1 - p)``: the sum of such maps exceeds 1 where
-    blobs of two ids overlap, and clipped it made flat plateaus that the peak finder returned as a grid of peaks
-    (a pile of the T-LESS layout's oracle maps: 113 peaks in one view for 5 parts, a million ray pairs, 15 s and
-    4.5 GB in stage 2); the noisy-OR is 1 at every GT centre and smooth between, and like the sum it adds up a
-    network's evidence spread over look-alike ids. Measured on the oracle (2026-12-07, 2-core AMD EPYC,
-    ``results/accuracy/README.md``): that group 15 s and 4.5 GB -> 0.5 s and 0.7 GB; BOP AR on four T-LESS-layout sets
+    blobs of two ids overlap, and clipped it made flat plateaus that the peak finder returned as a grid of peaks,
+    each a ray paired with every other view's; the noisy-OR is 1 at every GT centre and smooth between, and like the
+    sum it adds up a network's evidence spread over look-alike ids. Measured on the oracle (2026-12-07, 2-core AMD
+    EPYC): stage 2 of a T-LESS-layout run on seed 6161 12.3 s and 6.1 GB peak -> 0.4 s and 0.7 GB
+    (``results/bench/run_tless_heatmaps-stage2_amd-epyc-2cores_2026-12-07.md``); BOP AR on four T-LESS-layout sets
     0.935 / 0.972 / 0.897 / 0.963 -> 0.945 / 0.972 / 0.887 / 0.963 (one part more placed on 4243, one fewer on 7272,
-    where other centres led stage 3 elsewhere; the mean 0.942 either way)."""
+    where other centres led stage 3 elsewhere; the mean 0.942 either way; ``results/accuracy/README.md``)."""
     maps = np.asarray(center_maps, dtype=np.float64)
     if exclusive:
         return np.clip(maps.sum(1, keepdims=True), 0.0, 1.0)

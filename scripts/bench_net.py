@@ -18,7 +18,7 @@ Prints a table and writes ``results/bench/net_<machine>.md``:
 It also times the heads' post-processing at 720x540 (a T-LESS view): the vote map (:func:`~bop_cender.net.votes.vote_map`)
 of a vote field where a given share of the pixels votes (7 % on a T-LESS test view with the shipped network), and a
 factored head's probabilities over 30 classes, all of them or restricted to a scene's 5 (``run`` restricts them
-to the objects its BOP targets name).
+to the objects its BOP targets name, and its maps hold those 5 channels only).
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.flop_counter import FlopCounterMode
 
+from bop_cender.data.bop_io import write_text_atomic
 from bop_cender.net.unet import UNet, UNetSpec, center_probabilities, count_parameters
 from bop_cender.net.votes import vote_map
 
@@ -128,7 +129,7 @@ def bench_post_processing(device: torch.device, repeats: int, voting_share: floa
     return {
         "vote_map": per_view(lambda: vote_map(votes, 4.0)),
         "all_classes": per_view(lambda: center_probabilities(raw, True)),
-        "five_classes": per_view(lambda: center_probabilities(raw, True, present)),
+        "five_classes": per_view(lambda: center_probabilities(raw, True, present, compact=True)),  # run's maps
     }
 
 
@@ -191,7 +192,7 @@ def main(argv=None) -> int:
     lines += [f"| {d} | {r['vote_map']:.1f} | {r['all_classes']:.1f} | {r['five_classes']:.1f} |" for d, r in post]
     lines += ["", "Goal: the shipped DIMO model (dimo-context) at most 150 ms per 320x256 view on 2 CPU cores."]
     out = Path(args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"net_{machine}.md")
-    out.write_text("\n".join(lines) + "\n")
+    write_text_atomic(out, "\n".join(lines) + "\n")
     print(f"wrote {out}")
     return 0
 

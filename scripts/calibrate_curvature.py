@@ -92,16 +92,17 @@ def calibrate(
                                                  for_split: float(threshold)}  # fmt: skip
     save_weights(out, payload)
     figures = {k: v for k, v in report.metrics.items() if k.startswith("curvature_")} | {"views": report.views}
-    if card is not None:
-        card = card_with_threshold(card, data_root, split, for_split, figures, command)
-        try:
-            write_text_atomic(out.with_suffix(".json"), json.dumps(card, indent=2) + "\n")
-        except OSError as exc:
-            raise ConfigError(
-                f"the weights were written, their card not ({exc}): it still states the old threshold",
-                file=out.with_suffix(".json"),
-            ) from None
-    return figures | {"card": None if card is None else str(out.with_suffix(".json"))}
+    if card is None:
+        return figures | {"card": None}
+    card_path = out.with_suffix(".json")
+    try:
+        write_text_atomic(card_path, json.dumps(card_with_threshold(card, data_root, split, for_split, figures, command),
+                                                indent=2) + "\n")  # fmt: skip
+    except OSError as exc:
+        raise ConfigError(
+            f"the weights were written, their card not ({exc}): it still states the old threshold", file=card_path
+        ) from None
+    return figures | {"card": str(card_path)}
 
 
 def read_card(weights: Path) -> dict | None:
@@ -142,15 +143,15 @@ def card_with_threshold(
         "curvature_f1_at_t_b": round(float(figures["curvature_f1"]), 3),
         "curvature_f1_at_value": round(float(figures["curvature_best_f1"]), 3),
     }
-    if for_split is None:
-        old = card.get("curvature_threshold")
-        card["curvature_threshold"] = entry | ({"why": old["why"]} if isinstance(old, dict) and "why" in old else {})
+    if for_split is None:  # read_card checked both entries are objects where present
+        entries, key = card, "curvature_threshold"
     else:
-        by_split = card.get("curvature_threshold_by_split")
-        by_split = dict(by_split) if isinstance(by_split, dict) else {}
-        old = by_split.get(for_split)
-        by_split[for_split] = entry | ({"why": old["why"]} if isinstance(old, dict) and "why" in old else {})
-        card["curvature_threshold_by_split"] = by_split
+        entries = card["curvature_threshold_by_split"] = dict(card.get("curvature_threshold_by_split") or {})
+        key = for_split
+    old = entries.get(key)
+    if isinstance(old, dict) and "why" in old:
+        entry["why"] = old["why"]
+    entries[key] = entry
     return card
 
 

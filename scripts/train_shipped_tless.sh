@@ -34,6 +34,17 @@ train_stage() {
   [ -f "$out/checkpoint.pt" ] && resume=(--resume)
   OMP_NUM_THREADS=2 bop-cender train "$@" --out "$out" "${resume[@]}"
 }
+# The flags every stage shares, for the train_pbr piles in ROOT and the network VARIANT, into the array FLAGS:
+# stage_flags ROOT VARIANT
+stage_flags() {
+  FLAGS=(--dataset tless --data-root "$1" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
+         --variant "$2" --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1 --class-loss-weight 0.1)
+}
+# 150 train_pbr piles of 8 images of the randomised look: randomised_piles OUT SEED
+randomised_piles() {
+  bop-cender synth --layout tless --out "$1" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed "$2" \
+    --appearance randomised --workers 2 --no-contact-sheets
+}
 DATA=${DATA:-data}
 RUN=${RUN:-runs/tless-shipped}
 EPOCHS=${EPOCHS:-40}
@@ -42,33 +53,25 @@ EPOCHS=${EPOCHS:-40}
 bop-cender synth --layout tless --out "$DATA/tless_train150" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed 9102 --workers 2 --no-contact-sheets
 bop-cender synth --layout tless --out "$DATA/tless_val" --scenes 2 --views 10 --pbr-scenes 0 --seed 9103 --no-contact-sheets
 bop-cender synth --layout tless --out "$DATA/tless_eval4243" --scenes 3 --views 10 --pbr-scenes 0 --seed 4243 --no-contact-sheets
-common=(--dataset tless --data-root "$DATA/tless_train150" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
-        --variant tless-factored --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1
-        --class-loss-weight 0.1)
-train_stage "$RUN" "${common[@]}" --epochs "$EPOCHS" --lr 1e-3 --seed 1
-train_stage "$RUN-ft" "${common[@]}" --epochs 2 --lr 1e-4 --seed 2 --init-weights "$RUN/weights.pt"
-bop-cender synth --layout tless --out "$DATA/tless_train_dr" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed 9104 \
-  --appearance randomised --workers 2 --no-contact-sheets
-dr=(--dataset tless --data-root "$DATA/tless_train_dr" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
-    --variant tless-factored --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1 --class-loss-weight 0.1)
-train_stage "$RUN-dr" "${dr[@]}" --epochs 8 --lr 1e-3 --seed 20 --init-weights "$RUN-ft/weights.pt"
-train_stage "$RUN-dr-ft" "${dr[@]}" --epochs 2 --lr 1e-4 --seed 21 --init-weights "$RUN-dr/weights.pt"
+stage_flags "$DATA/tless_train150" tless-factored
+train_stage "$RUN" "${FLAGS[@]}" --epochs "$EPOCHS" --lr 1e-3 --seed 1
+train_stage "$RUN-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 2 --init-weights "$RUN/weights.pt"
+randomised_piles "$DATA/tless_train_dr" 9104
+stage_flags "$DATA/tless_train_dr" tless-factored
+train_stage "$RUN-dr" "${FLAGS[@]}" --epochs 8 --lr 1e-3 --seed 20 --init-weights "$RUN-ft/weights.pt"
+train_stage "$RUN-dr-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 21 --init-weights "$RUN-dr/weights.pt"
 # Centre votes: every pixel of a part points at its centre (a bracket's lies in the air, where the head finds nothing).
-bop-cender synth --layout tless --out "$DATA/tless_train_dr9106" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed 9106 \
-  --appearance randomised --workers 2 --no-contact-sheets
-votes=(--dataset tless --data-root "$DATA/tless_train_dr9106" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
-       --variant tless-votes --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1 --class-loss-weight 0.1)
-train_stage "$RUN-votes" "${votes[@]}" --epochs 8 --lr 1e-3 --seed 30 --init-weights "$RUN-dr-ft/weights.pt"
-train_stage "$RUN-votes-ft" "${votes[@]}" --epochs 2 --lr 1e-4 --seed 31 --init-weights "$RUN-votes/weights.pt"
-train_stage "$RUN-votes2" "${votes[@]}" --epochs 6 --lr 1e-3 --seed 32 --init-weights "$RUN-votes-ft/weights.pt"
-train_stage "$RUN-votes2-ft" "${votes[@]}" --epochs 2 --lr 1e-4 --seed 33 --init-weights "$RUN-votes2/weights.pt"
+randomised_piles "$DATA/tless_train_dr9106" 9106
+stage_flags "$DATA/tless_train_dr9106" tless-votes
+train_stage "$RUN-votes" "${FLAGS[@]}" --epochs 8 --lr 1e-3 --seed 30 --init-weights "$RUN-dr-ft/weights.pt"
+train_stage "$RUN-votes-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 31 --init-weights "$RUN-votes/weights.pt"
+train_stage "$RUN-votes2" "${FLAGS[@]}" --epochs 6 --lr 1e-3 --seed 32 --init-weights "$RUN-votes-ft/weights.pt"
+train_stage "$RUN-votes2-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 33 --init-weights "$RUN-votes2/weights.pt"
 # Fresh piles for the next 8 epochs (the loss on the last ones still fell, but they had been seen 18 times).
-bop-cender synth --layout tless --out "$DATA/tless_train_dr9107" --scenes 0 --pbr-scenes 150 --pbr-images 8 --seed 9107 \
-  --appearance randomised --workers 2 --no-contact-sheets
-votes3=(--dataset tless --data-root "$DATA/tless_train_dr9107" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
-        --variant tless-votes --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1 --class-loss-weight 0.1)
-train_stage "$RUN-votes3" "${votes3[@]}" --epochs 6 --lr 1e-3 --seed 34 --init-weights "$RUN-votes2-ft/weights.pt"
-train_stage "$RUN-votes3-ft" "${votes3[@]}" --epochs 2 --lr 1e-4 --seed 35 --init-weights "$RUN-votes3/weights.pt"
+randomised_piles "$DATA/tless_train_dr9107" 9107
+stage_flags "$DATA/tless_train_dr9107" tless-votes
+train_stage "$RUN-votes3" "${FLAGS[@]}" --epochs 6 --lr 1e-3 --seed 34 --init-weights "$RUN-votes2-ft/weights.pt"
+train_stage "$RUN-votes3-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 35 --init-weights "$RUN-votes3/weights.pt"
 # The test figures: seed 4243's test views.
 bop-cender heatmaps --dataset tless --split test --data-root "$DATA/tless_eval4243" --weights "$RUN-votes3-ft/weights.pt" \
   --out "$RUN-votes3-ft/test"

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from bop_cender.data.types import ObjectModel, Scene
-from bop_cender.net.heatmaps import Heatmaps
+from bop_cender.net.heatmaps import Heatmaps, scene_channel_ids
 from bop_cender.net.targets import TargetConfig, center_channel_ids, scene_targets
 from bop_cender.render.mesh import RenderMesh
 
@@ -40,11 +40,10 @@ class Degradation:
 class OraclePredictor:
     """Heatmaps rendered from the ground truth (:func:`bop_cender.net.targets.scene_targets`).
 
-    With one center channel per object id, a scene's heatmaps hold the channels of the ids in its GT only (of
-    ``channel_obj_ids``, default every target id): the others would be 0 in every view (a T-LESS group of 5 views
-    at 720x540: 5 of 30 channels, 39 MB instead of 233 MB), as :class:`~bop_cender.net.predictor.NetPredictor`'s
-    restricted to a scene's known ids. A :class:`Degradation`'s noise is drawn for those channels only (since
-    2026-12-07: its draws, and so noisy figures with per-object channels, differ from before)."""
+    With one center channel per object id (``channel_obj_ids``, default every target id), a scene's heatmaps hold
+    the channels of the ids in its GT only (:func:`~bop_cender.net.heatmaps.scene_channel_ids`), as
+    :class:`~bop_cender.net.predictor.NetPredictor`'s do. A :class:`Degradation`'s noise is drawn for those channels
+    only (since 2026-12-07: its draws, and so noisy figures with per-object channels, differ from before)."""
 
     name = "oracle"
 
@@ -64,7 +63,9 @@ class OraclePredictor:
 
     def predict(self, scene: Scene) -> Heatmaps:
         d = self.degradation
-        channels = self.scene_channels(scene)
+        channels = center_channel_ids(self.models, self.config, self.channel_obj_ids)
+        if channels is not None:
+            channels = scene_channel_ids(channels, {g.obj_id for g in scene.gt})
         if d.miss_prob > 0:
             rng = np.random.default_rng([d.seed, _key_seed(scene.key)])
             kept = tuple(g for g in scene.gt if rng.random() >= d.miss_prob or not self.models[g.obj_id].is_target)
@@ -75,16 +76,6 @@ class OraclePredictor:
         else:
             maps = scene_targets(scene, self.models, self.meshes, self.config, channels, self.device)
         return degrade(maps, d, _key_seed(scene.key)) if d.blur_sigma > 0 or d.noise_std > 0 else maps
-
-    def scene_channels(self, scene: Scene) -> tuple[int, ...] | None:
-        """The object ids of ``scene``'s center channels: None (one shared channel), or those of the channel ids
-        (``channel_obj_ids``, default every target id) that the scene's GT holds, in their order (all of them where
-        it holds none)."""
-        ids = center_channel_ids(self.models, self.config, self.channel_obj_ids)
-        if ids is None:
-            return None
-        present = {g.obj_id for g in scene.gt}
-        return tuple(i for i in ids if i in present) or ids
 
 
 def degrade(maps: Heatmaps, d: Degradation, scene_seed: int = 0) -> Heatmaps:

@@ -16,7 +16,7 @@ import torch
 from bop_cender.data.bop_io import load_rgb
 from bop_cender.data.types import Scene
 from bop_cender.errors import DatasetError
-from bop_cender.net.heatmaps import Heatmaps
+from bop_cender.net.heatmaps import Heatmaps, scene_channel_ids
 from bop_cender.net.unet import UNet
 from bop_cender.net.weights import NetWeights
 
@@ -124,8 +124,8 @@ class NetPredictor:
     restricted to the object ids the scene is known to hold (its GT, as BOP's test targets give them; ``run`` sets
     it from ``CenDerNetConfig.known_object_ids``), so that a part mistaken for a look-alike of another size
     that is not in the image goes to the look-alike that is, and the heatmaps hold those ids' channels only
-    (the others would be exactly 0: a T-LESS group's maps are 6x smaller). No effect on independent channels
-    or without GT.
+    (:func:`~bop_cender.net.heatmaps.scene_channel_ids`; the others would be exactly 0). No effect on independent
+    channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
     ``PoseConfig.t_b_network`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
@@ -163,11 +163,11 @@ class NetPredictor:
         t0 = time.perf_counter()
         ids = self.channel_obj_ids
         class_mask = None
-        if self.known_object_ids and self.model.spec.factored_centers and ids is not None and scene.gt:
-            known = {g.obj_id for g in scene.gt}
-            if any(i in known for i in ids):  # none of the network's ids: every class, as without GT
-                class_mask = known_class_mask(ids, known, self.device)
-                ids = tuple(i for i in ids if i in known)
+        if self.known_object_ids and self.model.spec.factored_centers and ids is not None:
+            kept = scene_channel_ids(ids, {g.obj_id for g in scene.gt})
+            if kept != ids:
+                class_mask = known_class_mask(ids, set(kept), self.device)
+                ids = kept
         center, curvature = predict_probabilities(
             self.model, image, self.batch_size, self.flips, class_mask, compact=class_mask is not None
         )
