@@ -76,7 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--deterministic-time", action="store_true", help="write -1 as every row's time (reproducible files)"
     )
     p.add_argument(
-        "--vis", default=None, metavar="DIR", help="write a figure per scene (views, heatmaps, centres, contours)"
+        "--vis",
+        default=None,
+        metavar="DIR",
+        help="write a figure per scene (views, heatmaps, centres, outlines: right / wrong / missed)",
     )
     p.add_argument(
         "--max-views",

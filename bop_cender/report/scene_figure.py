@@ -1,24 +1,118 @@
-"""Per-scene figure of a run (``bop-cender run --vis DIR``): what each stage saw and produced.
+"""Per-scene figure of a run (``bop-cender run --vis DIR``): what each stage saw and produced, and which poses are right.
 
-Columns are views; rows are the input image, the center heatmap with the detected 3D centres
-projected (red crosses; GT centres as green circles), the curvature heatmap, and the input with the
-contours of the estimated models (red) and of the GT models (green) where the scene is annotated.
+Columns are views; rows are the input image, the center heatmap with the detected 3D centres projected (red
+crosses; GT centres as green circles), the curvature heatmap, and the input with the outlines of the estimated
+models, each coloured by its verdict where the scene is annotated: green for a pose within the paper's strict
+figure (MSSD under 5 % of the object's diameter, symmetries included: :func:`judge_estimates`), red for one that is
+not, and cyan for a GT part that no estimate matches (yellow: estimates of a scene without GT).
+
+Each column shows the part of its view where the objects are (:func:`crop_box`: the GT and estimated parts and
+the centres, with a margin, at the image's aspect ratio), the same crop in all four rows: piles fill a fifth of a
+T-LESS-layout view, and one-pixel outlines of a whole 720 x 540 view shrunk into a panel were not legible.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from bop_cender.data.bop_io import atomic_path
-from bop_cender.data.types import Scene
+from bop_cender.data.types import ObjectModel, Scene
+from bop_cender.eval.model_points import eval_vertices
+from bop_cender.eval.pose_errors import hull_vertices, mssd
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
 
+MSSD_FRACTION = 0.05
+"""A pose is right when its MSSD is under this fraction of the object's diameter (the paper's AR_MSSD<5%)."""
 
-def scene_figure(output, scene: Scene, models, meshes, path: Path) -> Path:
+RIGHT, WRONG, MISSED, UNJUDGED = (0.1, 0.9, 0.1), (1.0, 0.1, 0.1), (0.0, 0.9, 1.0), (1.0, 0.85, 0.0)
+"""Outline colours (RGB in [0, 1]): a right estimate, a wrong one, a GT part no estimate matches, an estimate of a
+scene without GT."""
+
+
+@dataclass(frozen=True)
+class Verdicts:
+    """Which estimates are right and which GT parts they find (:func:`judge_estimates`).
+
+    Attributes:
+        estimate_right: per estimate, True where it matches a GT part.
+        gt_found: per GT part, True where an estimate matches it.
+        errors_mm: per estimate, the MSSD (mm) to the GT part it matches, else to the nearest GT part of its id
+            (``inf``: none).
+    """
+
+    estimate_right: tuple[bool, ...]
+    gt_found: tuple[bool, ...]
+    errors_mm: tuple[float, ...]
+
+
+def judge_estimates(
+    estimates: Sequence[tuple[int, np.ndarray]],
+    gt: Sequence[tuple[int, np.ndarray]],
+    models: Mapping[int, ObjectModel],
+    fraction: float = MSSD_FRACTION,
+) -> Verdicts:
+    """One-to-one verdicts of ``estimates`` against ``gt`` (each a list of ``(obj_id, T (4, 4))`` in one frame, mm).
+
+    Pairs of the same object id are taken by increasing MSSD (symmetries included, as the scorer), each estimate
+    and each GT part at most once; a pair matches when its MSSD is under ``fraction`` of the diameter. Greedy
+    matching by error is what BOP's per-image matching does by score, close enough for a figure that says which
+    outline is which."""
+    errors = np.full((len(estimates), len(gt)), np.inf)
+    for obj_id in {i for i, _ in estimates} & {i for i, _ in gt}:
+        e_idx = [k for k, (i, _) in enumerate(estimates) if i == obj_id]
+        g_idx = [k for k, (i, _) in enumerate(gt) if i == obj_id]
+        model = models[obj_id]
+        sym_R, sym_t = model.symmetry_transforms()
+        E = np.stack([estimates[k][1] for k in e_idx])[:, None].repeat(len(g_idx), 1).reshape(-1, 4, 4)
+        G = np.stack([gt[k][1] for k in g_idx])[None].repeat(len(e_idx), 0).reshape(-1, 4, 4)
+        err = mssd(E[:, :3, :3], E[:, :3, 3], G[:, :3, :3], G[:, :3, 3], hull_vertices(eval_vertices(model)),
+                   sym_R, sym_t)  # fmt: skip
+        errors[np.ix_(e_idx, g_idx)] = err.reshape(len(e_idx), len(g_idx))
+    right, found = [False] * len(estimates), [False] * len(gt)
+    matched_error = errors.min(1, initial=np.inf)
+    for flat in np.argsort(errors, axis=None, kind="stable"):
+        e, g = divmod(int(flat), max(1, len(gt)))
+        if not np.isfinite(errors[e, g]):
+            break  # the rest are pairs of different ids
+        if right[e] or found[g] or not errors[e, g] < fraction * models[estimates[e][0]].diameter:
+            continue
+        right[e] = found[g] = True
+        matched_error[e] = errors[e, g]
+    return Verdicts(tuple(right), tuple(found), tuple(float(x) for x in matched_error))
+
+
+def crop_box(
+    mask: np.ndarray, points: np.ndarray, margin: float = 0.15, min_fraction: float = 0.3
+) -> tuple[int, int, int, int]:
+    """``(top, left, height, width)`` of the region of a view worth showing: the bounding box of ``mask (H, W)``
+    (bool) and of ``points (N, 2)`` (x, y pixels; those outside the image are left out), grown by ``margin`` of its
+    longer side on each side, then to the image's aspect ratio and at least ``min_fraction`` of its size, moved
+    inside the image. The whole image where there is nothing to show."""
+    H, W = mask.shape
+    rows, cols = np.nonzero(mask)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(1) & (pts[:, 0] >= 0) & (pts[:, 0] < W) & (pts[:, 1] >= 0) & (pts[:, 1] < H)]
+    ys = np.concatenate([rows.astype(np.float64), pts[:, 1]])
+    xs = np.concatenate([cols.astype(np.float64), pts[:, 0]])
+    if len(ys) == 0:
+        return 0, 0, H, W
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    grow = margin * max(y1 - y0, x1 - x0)
+    h, w = y1 - y0 + 2 * grow, x1 - x0 + 2 * grow
+    h, w = max(h, w * H / W, min_fraction * H), max(w, h * W / H, min_fraction * W)  # the image's aspect ratio
+    h, w = min(H, int(np.ceil(h))), min(W, int(np.ceil(w)))
+    top = int(np.clip(round((y0 + y1 - h) / 2), 0, H - h))
+    left = int(np.clip(round((x0 + x1 - w) / 2), 0, W - w))
+    return top, left, h, w
+
+
+def scene_figure(output, scene: Scene, models: Mapping[int, ObjectModel], meshes, path: Path) -> Path:
     """Write the figure of one scene's :class:`bop_cender.method.SceneOutput` to ``path`` (PNG, atomically)."""
     import matplotlib
 
@@ -32,34 +126,50 @@ def scene_figure(output, scene: Scene, models, meshes, path: Path) -> Path:
     curv = output.heatmaps.curvature.detach().cpu().numpy()
     est = [(o.obj_id, o.T_world_model) for o in output.estimate.objects]
     gt = [(g.obj_id, g.T_world_model) for g in scene.gt if models[g.obj_id].is_target]
-    est_edges = _contours(est, scene, meshes, H, W)
-    gt_edges = _contours(gt, scene, meshes, H, W)
+    verdicts = judge_estimates(est, gt, models) if gt else None
+    est_inst = _instances(est, scene, meshes, H, W)
+    gt_inst = _instances(gt, scene, meshes, H, W)
+    centres = [c.position for c in output.centers]
+    gt_centres = [T[:3, :3] @ models[obj_id].center + T[:3, 3] for obj_id, T in gt]
     fig, axes = plt.subplots(4, V, figsize=(2.2 * V, 2.2 * 4 * H / W + 0.6), squeeze=False)
     for v, view in enumerate(views):
+        detected_xy = np.array([_project(view, p) for p in centres]).reshape(-1, 2)
+        gt_xy = np.array([_project(view, p) for p in gt_centres]).reshape(-1, 2)
+        mask = (est_inst[v] >= 0) | (gt_inst[v] >= 0)
+        top, left, h, w = crop_box(mask, np.concatenate([detected_xy, gt_xy]))
+        window = (slice(top, top + h), slice(left, left + w))
         rgb = _read_rgb(view.rgb_path, H, W)
-        axes[0, v].imshow(rgb)
+        axes[0, v].imshow(rgb[window])
         axes[0, v].set_title(f"image {view.im_id}", fontsize=7)
-        axes[1, v].imshow(center[v], cmap="magma", vmin=0, vmax=1)
-        for c in output.centers:
-            x, y = _project(view, c.position)
-            axes[1, v].plot(x - 0.5, y - 0.5, "x", color="red", ms=5, mew=1.2)
-        for obj_id, T in gt:
-            x, y = _project(view, T[:3, :3] @ models[obj_id].center + T[:3, 3])
-            axes[1, v].plot(x - 0.5, y - 0.5, "o", mfc="none", color="lime", ms=6, mew=0.8)
-        axes[2, v].imshow(curv[v], cmap="gray", vmin=0, vmax=1)
+        axes[1, v].imshow(center[v][window], cmap="magma", vmin=0, vmax=1)
+        for (x, y), style in [(p, ("x", "red", 5, 1.2)) for p in detected_xy] + [
+            (p, ("o", "lime", 6, 0.8)) for p in gt_xy
+        ]:
+            marker, colour, size, width = style
+            axes[1, v].plot(x - 0.5 - left, y - 0.5 - top, marker, mfc="none", color=colour, ms=size, mew=width)
+        axes[1, v].set_xlim(-0.5, w - 0.5)
+        axes[1, v].set_ylim(h - 0.5, -0.5)
+        axes[2, v].imshow(curv[v][window], cmap="gray", vmin=0, vmax=1)
         overlay = rgb.astype(np.float32) / 255.0
-        if gt_edges is not None:
-            overlay[gt_edges[v]] = (0.1, 1.0, 0.1)
-        if est_edges is not None:
-            overlay[est_edges[v]] = (1.0, 0.1, 0.1)
-        axes[3, v].imshow(overlay)
-    for ax, label in zip(axes[:, 0], ("input", "centers", "curvature", "poses (red) / GT (green)"), strict=True):
+        if verdicts is not None:
+            for k, found in enumerate(verdicts.gt_found):
+                if not found:
+                    overlay[_outline(gt_inst[v] == k)] = MISSED
+        for k in range(len(est)):
+            colour = UNJUDGED if verdicts is None else (RIGHT if verdicts.estimate_right[k] else WRONG)
+            overlay[_outline(est_inst[v] == k)] = colour
+        axes[3, v].imshow(overlay[window])
+    pose_label = "poses (yellow)" if verdicts is None else "poses: right (green) /\nwrong (red) / missed GT (cyan)"
+    for ax, label in zip(axes[:, 0], ("input", "centers", "curvature", pose_label), strict=True):
         ax.set_ylabel(label, fontsize=7)
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
+    judged = ""
+    if verdicts is not None:
+        judged = f", {sum(verdicts.estimate_right)} right (MSSD < {MSSD_FRACTION:.0%} of the diameter)"
     t = output.estimate.timings
-    fig.suptitle(f"scene {scene.key}: {len(est)} estimated, {len(gt)} GT; " +
+    fig.suptitle(f"scene {scene.key}: {len(est)} estimated, {len(gt)} GT{judged}; " +
                  ", ".join(f"{k} {v:.1f} s" for k, v in t.items()), fontsize=8)  # fmt: skip
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -75,18 +185,22 @@ def _project(view, point: np.ndarray) -> tuple[float, float]:
     return float(x), float(y)
 
 
-def _contours(objects, scene: Scene, meshes, H: int, W: int) -> np.ndarray | None:
-    """``(V, H, W)`` bool outlines of each object's visible region, or None with no objects."""
+def _instances(objects, scene: Scene, meshes, H: int, W: int) -> np.ndarray:
+    """``(V, H, W)`` int64: the index into ``objects`` of the object seen at each pixel (the objects hide each
+    other), -1 where none."""
     if not objects:
-        return None
+        return np.full((len(scene.views), H, W), -1, dtype=np.int64)
     mesh_list: list[RenderMesh] = [meshes(obj_id) for obj_id, _ in objects]
     T = np.stack([[v.T_cam_world @ T_wm for _, T_wm in objects] for v in scene.views])
     Ks = np.stack([v.K for v in scene.views])
-    inst = render_scene(mesh_list, torch.as_tensor(T, dtype=torch.float32), Ks, H, W).instance
-    edge = torch.zeros_like(inst, dtype=torch.bool)
-    edge[:, 1:] |= inst[:, 1:] != inst[:, :-1]
-    edge[:, :, 1:] |= inst[:, :, 1:] != inst[:, :, :-1]
-    return edge.numpy()
+    return render_scene(mesh_list, torch.as_tensor(T, dtype=torch.float32), Ks, H, W).instance.numpy()
+
+
+def _outline(mask: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: the pixels of ``mask`` with a 4-neighbour outside it (or on the image's border)."""
+    inner = np.zeros_like(mask)
+    inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
+    return mask & ~inner
 
 
 def _read_rgb(path: Path | None, H: int, W: int) -> np.ndarray:
