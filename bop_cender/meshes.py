@@ -11,7 +11,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from bop_cender.data.models import check_extent
 from bop_cender.data.ply_ascii import MeshArrays, ascii_mesh
+from bop_cender.data.types import ObjectModel
 
 if TYPE_CHECKING:
     from bop_cender.render.mesh import RenderMesh
@@ -43,6 +45,8 @@ class MeshCache:
             mesh = None if path is None else ascii_mesh(path)
             if mesh is None:
                 mesh = MeshArrays(np.asarray(model.mesh.vertices, np.float64), np.asarray(model.mesh.faces, np.int64))
+            if isinstance(model, ObjectModel):  # a dataset's model: its mesh must be the size its entry says
+                check_extent(model, mesh.vertices)
             self._arrays[obj_id] = mesh
         return self._arrays[obj_id]
 

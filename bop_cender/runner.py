@@ -222,15 +222,10 @@ def net_predictor(request: RunRequest, dataset: Dataset):
             dataset, or targets (curvature scale) other than the config's.
     """
     from bop_cender.net.predictor import NetPredictor
-    from bop_cender.net.weights import load_weights
+    from bop_cender.net.weights import check_channels, load_weights
 
     weights = load_weights(resolve_weights(request).weights, dataset=request.dataset)
-    if weights.channel_obj_ids is not None:
-        missing = sorted(i for i, m in dataset.models.items() if m.is_target and i not in weights.channel_obj_ids)
-        if missing:
-            raise ConfigError(
-                f"the weights have no center channel for object(s) {missing} of this dataset", file=weights.path
-            )
+    check_channels(weights, dataset.models)
     if weights.targets.curvature_scale != request.config.targets.curvature_scale:
         raise ConfigError(
             f"the weights were trained on curvature / {weights.targets.curvature_scale:g}; this run's config says"

@@ -57,16 +57,19 @@ class FileCheck:
 
 
 def check_meshes(models: Iterable[ObjectModel]) -> tuple[int, list[str]]:
-    """``(meshes checked, problems)`` for the PLY files of ``models`` (each file once)."""
+    """``(meshes checked, problems)`` for the PLY files of ``models`` (each file once): readable, and the size their
+    ``models_info.json`` entry says (:func:`~bop_cender.data.models.check_extent`)."""
     from bop_cender.data.bop_io import load_ply
+    from bop_cender.data.models import check_extent
     from bop_cender.data.ply_ascii import ascii_mesh
 
-    paths = sorted({Path(m.path) for m in models})
+    by_path = {Path(m.path): m for m in models}
+    paths = sorted(by_path)
     problems = []
     for path in paths:
         try:
-            if ascii_mesh(path) is None:  # binary, or not a triangle list: the readers use trimesh
-                load_ply(path)
+            mesh = ascii_mesh(path)
+            check_extent(by_path[path], mesh.vertices if mesh is not None else load_ply(path).vertices)
         except DatasetError as e:
             problems.append(e.format())
         except OSError as e:

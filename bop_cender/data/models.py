@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from bop_cender.data.bop_io import as_number, load_json, require_keys
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
@@ -12,6 +14,54 @@ from bop_cender.geometry.symmetry import symmetries_from_model_info
 
 _INFO_KEYS = ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z")
 _POSITIVE_KEYS = ("diameter", "size_x", "size_y", "size_z")
+
+EXTENT_TOLERANCE = 0.05
+"""How far (a fraction of the longest side, and at least 1 mm) a mesh's bounding box may be from its
+``models_info.json`` entry, and the entry's diameter from what its box allows (:func:`check_extent`,
+:func:`check_diameter`). The toolkit computes both from the same mesh, so real data agrees to rounding; a mesh or an
+entry in metres is off by a factor of 1,000."""
+
+
+def _slack(size: np.ndarray) -> float:
+    return max(EXTENT_TOLERANCE * float(np.max(size)), 1.0)
+
+
+def check_diameter(diameter: float, size: np.ndarray, info_path: Path, where: str) -> None:
+    """Refuse an entry whose ``diameter`` (the largest distance between two vertices) is not between its bounding
+    box's longest side and its diagonal (``size (3,)``, mm), within :data:`EXTENT_TOLERANCE`: every MSSD threshold
+    is a fraction of the diameter, so one in other units than the box scores every pose right or none."""
+    size = np.asarray(size, dtype=np.float64)
+    lo, hi = float(size.max()) - _slack(size), float(np.linalg.norm(size)) + _slack(size)
+    if not lo <= diameter <= hi:
+        raise DatasetError(
+            f"diameter {diameter:g} mm does not fit its bounding box {' x '.join(f'{x:g}' for x in size)} mm (a"
+            f" diameter lies between the longest side, {size.max():g}, and the diagonal, {np.linalg.norm(size):.4g}):"
+            " an entry in other units?",
+            file=info_path,
+            field=f"{where}.diameter",
+        )
+
+
+def check_extent(model: ObjectModel, vertices: np.ndarray) -> None:
+    """Refuse a mesh whose bounding box is not its ``models_info.json`` entry's (``min_*``, ``size_*``) within
+    :data:`EXTENT_TOLERANCE`: a mesh in metres scored with a millimetre entry made every MSSD and MSPD tiny, so that
+    wrong poses scored AR 1.0 (and the renderer drew parts 1,000 times too small)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    lo, hi = vertices.min(0), vertices.max(0)
+    slack = _slack(model.bbox_size)
+    if np.abs(hi - lo - model.bbox_size).max() <= slack and np.abs(lo - model.bbox_min).max() <= slack:
+        return
+    info = Path(model.source).name if model.source else "models_info.json"
+
+    def box(low: np.ndarray, size: np.ndarray) -> str:
+        return f"min {', '.join(f'{x:.4g}' for x in low)}, size {' x '.join(f'{x:.4g}' for x in size)}"
+
+    raise DatasetError(
+        f"the mesh's bounding box ({box(lo, hi - lo)}) is not the one {info} gives object {model.obj_id}"
+        f" ({box(model.bbox_min, model.bbox_size)}, mm): a mesh in other units than its entry?",
+        file=model.path,
+        field=f"{info} {model.obj_id}: min_x..size_z",
+    )
 
 
 def model_path(models_dir: Path, obj_id: int) -> Path:
@@ -51,6 +101,7 @@ def load_models(
                 raise DatasetError(
                     f"expected a positive number (mm), got {entry[k]!r}", file=info_path, field=f"{where}.{k}"
                 )
+        check_diameter(vals["diameter"], np.array([vals[k] for k in ("size_x", "size_y", "size_z")]), info_path, where)
         try:
             discrete, continuous = symmetries_from_model_info(entry)
         except ValueError as e:

@@ -14,15 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
+from bop_cender.data.models import check_extent
 from bop_cender.data.ply_ascii import ascii_vertices
 from bop_cender.data.types import ObjectModel
 
 
 def eval_vertices(model: ObjectModel) -> np.ndarray:
-    """``(N, 3)`` float64 vertices of ``model`` as the toolkit's ``load_ply`` returns them (read-only)."""
+    """``(N, 3)`` float64 vertices of ``model`` as the toolkit's ``load_ply`` returns them (read-only).
+
+    Raises:
+        DatasetError: the mesh's bounding box is not its ``models_info.json`` entry's (:func:`check_extent`)."""
     ascii_pts = ascii_vertices(str(Path(model.path).resolve()))
     if ascii_pts is not None:
+        check_extent(model, ascii_pts)
         return ascii_pts
     pts = np.array(model.mesh.vertices, dtype=np.float64)
+    check_extent(model, pts)
     pts.setflags(write=False)
     return pts

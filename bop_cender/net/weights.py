@@ -19,6 +19,7 @@ from typing import Any
 import torch
 
 from bop_cender.data.bop_io import atomic_path
+from bop_cender.data.types import ObjectModel
 from bop_cender.errors import ConfigError
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec
@@ -116,6 +117,22 @@ def shipped_weights_path(dataset: str) -> Path:
 def _shipped_names() -> list[str]:
     folder = Path(str(resources.files("bop_cender.net") / "weights"))
     return sorted(d for d, n in SHIPPED.items() if (folder / n).is_file())
+
+
+def check_channels(weights: NetWeights, models: Mapping[int, ObjectModel]) -> None:
+    """Refuse weights with one center channel per object (T-LESS kind) that have none for a target object of
+    ``models``: that object could never be found, and figures of the network on the dataset would mean nothing.
+
+    Raises:
+        ConfigError: naming the weights file and the objects without a channel.
+    """
+    if weights.channel_obj_ids is None:
+        return
+    missing = sorted(i for i, m in models.items() if m.is_target and i not in weights.channel_obj_ids)
+    if missing:
+        raise ConfigError(
+            f"the weights have no center channel for object(s) {missing} of this dataset", file=weights.path
+        )
 
 
 def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:

@@ -105,16 +105,20 @@ def test_load_models_errors(tmp_path):
     (d / "models_info.json").write_text('{"1": {"diameter": 10, "min_x": 0}}')
     with pytest.raises(DatasetError, match=r"models_info.json: 1: missing key 'min_y'"):
         load_models(d)
-    entry = '"diameter": 10, "min_x": 0, "min_y": 0, "min_z": 0, "size_x": 1, "size_y": 1, "size_z": "x"'
+    entry = '"diameter": 10, "min_x": 0, "min_y": 0, "min_z": 0, "size_x": 8, "size_y": 5, "size_z": "x"'
     (d / "models_info.json").write_text('{"1": {' + entry + "}}")
     with pytest.raises(DatasetError, match=r"1.size_z: expected a number"):
         load_models(d)
-    good = {"diameter": 10, "min_x": 0, "min_y": 0, "min_z": 0, "size_x": 1, "size_y": 1, "size_z": 1}
+    good = {"diameter": 10, "min_x": 0, "min_y": 0, "min_z": 0, "size_x": 8, "size_y": 5, "size_z": 1}
     for key, bad in (("size_z", -1), ("diameter", 0), ("size_x", -0.5)):
         (d / "models_info.json").write_text(json.dumps({"1": {**good, key: bad}}))
         with pytest.raises(
             DatasetError, match=rf"models_info.json: 1.{key}: expected a positive number \(mm\), got {bad}"
         ):
+            load_models(d)
+    for diameter in (0.01, 40):  # in metres; beyond the box's diagonal (9.5)
+        (d / "models_info.json").write_text(json.dumps({"1": {**good, "diameter": diameter}}))
+        with pytest.raises(DatasetError, match=rf"models_info.json: 1.diameter: diameter {diameter:g} mm does not fit"):
             load_models(d)
     entry = entry.replace('"x"', "1")
     (d / "models_info.json").write_text('{"1": {' + entry + "}}")

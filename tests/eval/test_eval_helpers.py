@@ -51,13 +51,13 @@ def test_ascii_ply_vertices_are_parsed_as_float64_like_the_toolkit(tmp_path: Pat
         "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
         "18.70469475 0.1 -3.3\n1.0 2.0 3.0\n0.0 0.0 1.0\n3 0 1 2\n"
     )
-    model = ObjectModel(1, path, 10.0, np.zeros(3), np.ones(3))
+    model = ObjectModel(1, path, 20.0, np.array([0.0, 0.0, -3.3]), np.array([18.70469475, 1.9, 6.3]))
     pts = eval_vertices(model)
     assert pts[0, 0] == 18.70469475 and pts[0, 1] == 0.1 and pts.dtype == np.float64
     assert model.mesh.vertices[0, 0] != 18.70469475  # the float32 value: why this module exists
     binary = tmp_path / "obj_000002.ply"
     binary.write_bytes(trimesh.exchange.ply.export_ply(trimesh.creation.box(), encoding="binary"))
-    model2 = ObjectModel(2, binary, 2.0, np.zeros(3), np.ones(3))
+    model2 = ObjectModel(2, binary, 2.0, np.full(3, -0.5), np.ones(3))
     np.testing.assert_array_equal(eval_vertices(model2), model2.mesh.vertices)
 
 

@@ -129,3 +129,25 @@ def test_a_failing_scene_leaves_no_pngs_behind(tmp_path, capsys) -> None:
     old.write_bytes(b"x")
     assert main([*argv, "--out", str(tmp_path / "old")]) == 2
     assert sorted(p.name for p in old.parent.iterdir()) == ["earlier.png"]
+
+
+def test_weights_without_a_channel_for_an_object_of_the_dataset_are_refused(tmp_path, capsys) -> None:
+    """One center channel per object (T-LESS kind): weights that lack a target object of the dataset could never
+    find it; `heatmaps` printed figures of them with exit 0 (recall 1.0 beside 0 true positives)."""
+    root = tmp_path / "tless"
+    assert main(["synth", "--layout", "tless", "--out", str(root), "--scenes", "1", "--views", "2", "--pbr-scenes",
+                 "0", "--seed", "5", "--no-contact-sheets"]) == 0  # fmt: skip
+    path = tmp_path / "few.pt"
+    spec = UNetSpec.tless_lean(center_channels=3, width=0.25)
+    save_weights(path, weights_payload(UNet(spec), "tless", (1, 2, 5), TargetConfig.for_dataset("tless")))
+    capsys.readouterr()
+    data = ["--dataset", "tless", "--data-root", str(root), "--split", "test", "--weights", str(path), "--no-progress"]
+    for argv in (
+        ["heatmaps", *data, "--out", str(tmp_path / "hm")],
+        ["run", *data, "--out", str(tmp_path / "m_tless-test.csv")],
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {path}: the weights have no center channel for object(s) [3, 4, 6,"), err
+        assert err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["few.pt", "tless"]
