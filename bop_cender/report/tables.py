@@ -28,7 +28,7 @@ from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from bop_cender.data.bop_io import atomic_path, check_output_dir, require_file, write_text_atomic
+from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
@@ -41,6 +41,7 @@ from bop_cender.eval.score_file import (
     write_scored,
 )
 from bop_cender.eval.score_report import SCORE_KEYS, is_recall, read_scores_json
+from bop_cender.results.files import parse_result_filename
 
 #: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
 #: installed package finds them (a copy of results/reference/paper_tables.csv, kept equal by a test).
@@ -150,8 +151,7 @@ def compare(
             planned[path] = (request.dataset, request.split_name) if known else (None, None)
         else:
             jsons[path] = read_scores_json(path)
-            meta = jsons[path].get("metadata") or {}
-            planned[path] = (meta.get("dataset"), meta.get("split"))
+            planned[path] = _json_dataset_and_split(path, jsons[path])
     _one_dataset_and_split(planned)  # before anything is scored
     score_dirs = _score_dirs(paths, out_dir)
     _check_outputs(paths, [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)])
@@ -177,13 +177,7 @@ def compare(
             meta = data.get("metadata") or {}
             scores = {k: data[k] for k in SCORE_KEYS}
             rows.append(
-                MethodRow(
-                    meta.get("method") or method_name(path),
-                    f"scores {path.name}",
-                    scores,
-                    meta.get("dataset"),
-                    meta.get("split"),
-                )
+                MethodRow(meta.get("method") or method_name(path), f"scores {path.name}", scores, *planned[path])
             )
     _one_dataset_and_split({path: (r.dataset, r.split) for path, r in zip(paths, rows, strict=True)})
     rows = _named_apart(rows, paths)
@@ -215,6 +209,24 @@ def compare(
     return comparison
 
 
+def _json_dataset_and_split(path: Path, data: dict) -> tuple[str | None, str | None]:
+    """The dataset and split a scores JSON is for: its ``metadata``, else its file name where that is a BOP result
+    name (``scores_{method}_{dataset}-{split}...json``, a DIMO or T-LESS one: a BOP dataset's split is told only once
+    its folder is opened), else unknown (the JSON then fits any table). Without the name a bare JSON named for T-LESS
+    went into a DIMO table."""
+    meta = data.get("metadata") or {}
+    if meta.get("dataset") is not None or meta.get("split") is not None:
+        return meta.get("dataset"), meta.get("split")
+    name = path.name.removeprefix("scores_")
+    try:
+        parsed = parse_result_filename(name)
+    except ResultsError:
+        return None, None
+    if parsed.dataset not in ("dimo", "tless"):
+        return None, None
+    return parsed.dataset, DatasetRequest(parsed.dataset, split=parsed.split, split_type=parsed.split_type).split_name
+
+
 def _score_dirs(paths: list[Path], out_dir: Path) -> dict[Path, Path]:
     """Where each CSV input's scores and errors files go: ``out_dir``, or, where two CSVs would write the same files
     there (one file name from different folders; their rows named apart by path), ``out_dir/input<k>/`` (k: the
@@ -227,10 +239,12 @@ def _score_dirs(paths: list[Path], out_dir: Path) -> dict[Path, Path]:
 
 def _check_outputs(inputs: list[Path], outputs: list[Path]) -> None:
     """Refuse outputs that would overwrite an input (``scores_X.json`` given as an input beside ``X.csv``, scored
-    into the same folder) or each other: one file would be lost without a word."""
+    into the same folder) or each other (one file would be lost without a word), or that cannot be written (a
+    directory there: found only after the first files were written, it left half a comparison behind)."""
     given = {p.resolve(): p for p in inputs}
     seen: dict[Path, Path] = {}
     for out in outputs:
+        check_output_file(out, field="--out")
         resolved = out.resolve()
         if resolved in given:
             raise ConfigError(

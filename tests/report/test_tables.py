@@ -226,6 +226,42 @@ def test_compare_checks_everything_before_writing_anything(small_fixture, result
     assert "folder.csv: is a directory" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize(
+    "blocked", ["comparison_tless-test.png", "comparison_tless-test.md", "scores_gt_tless-test.json"]
+)
+def test_compare_refuses_an_output_it_cannot_write_before_writing_any(small_fixture, results_dir, capsys, blocked):
+    """A directory where an output goes was found when that file was written, after the others: half a
+    comparison was left behind."""
+    good = results_dir / "gt_tless-test.csv"
+    write_bop_results(good, gt_rows(small_fixture))
+    out = results_dir / "tables"
+    (out / blocked).mkdir(parents=True)
+    assert main(["compare", str(good), "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {out / blocked}: --out: is a directory, expected an output file\n"
+    assert [p.name for p in out.iterdir()] == [blocked]
+
+
+def test_a_bare_scores_json_is_for_the_dataset_and_split_its_name_says(tmp_path: Path, capsys) -> None:
+    """A scores JSON without metadata fitted any table: one named for T-LESS went into a DIMO table."""
+    scores = {k: 0.5 for k in ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")}
+    tless = tmp_path / "scores_a_tless-test.json"
+    tless.write_text(json.dumps(scores))
+    dimo = tmp_path / "scores_b_dimo-real.json"
+    dimo.write_text(json.dumps({**scores, "metadata": {"dataset": "dimo", "split": "real"}}))
+    with pytest.raises(ConfigError, match="scores_a_tless-test.json: tless test; scores_b_dimo-real.json: dimo real"):
+        compare([tless, dimo], out_dir=tmp_path / "t", progress=False)
+    assert not (tmp_path / "t").exists()
+    alone = compare([tless], out_dir=tmp_path / "u", progress=False)
+    assert (alone.dataset, alone.split) == ("tless", "test") and alone.files["csv"].name == "comparison_tless-test.csv"
+    other = tmp_path / "scores_c_tless-test-kinect.json"
+    other.write_text(json.dumps(scores))
+    assert compare([other], out_dir=tmp_path / "v", progress=False).split == "test_kinect"
+    unnamed = tmp_path / "scores.json"  # no BOP name: fits any table, as before
+    unnamed.write_text(json.dumps(scores))
+    assert compare([unnamed, dimo], out_dir=tmp_path / "w", progress=False).dataset == "dimo"
+
+
 def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir, capsys) -> None:
     """compare scores through score: a file of another data set's images is an error, not a 0.000 row."""
     targets = set(small_fixture.target_images)
