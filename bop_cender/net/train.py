@@ -451,18 +451,37 @@ def _restore(path: Path, config: TrainConfig, model: UNet, optimiser, device) ->
     saved = weights.extra.get("config")
     if not isinstance(saved, dict) or "optimiser" not in weights.extra:
         raise ConfigError("is not a training checkpoint (no config or optimiser state)", file=path)
-    saved_config = TrainConfig(**{**saved, "crop": None if saved.get("crop") is None else tuple(saved["crop"])})
+
+    def unusable(field: str, e: Exception) -> ConfigError:  # another version's checkpoint, or an edited one
+        return ConfigError(f"cannot resume from this checkpoint ({type(e).__name__}: {e}): use another --out",
+                           file=path, field=field)  # fmt: skip
+
+    try:
+        crop = saved.get("crop")
+        saved_config = TrainConfig(**{**saved, "crop": None if crop is None else tuple(crop)})
+    except (TypeError, ValueError, ConfigError) as e:
+        raise unusable("config", e) from None
     if not config.same_run_as(saved_config):
         diff = sorted(k for k, v in config.as_dict().items() if k != "epochs" and saved.get(k) != v)
         raise ConfigError(f"was trained with other settings ({', '.join(diff)}): use another --out", file=path)
+    epoch = weights.extra.get("epoch")
+    if not isinstance(epoch, int) or isinstance(epoch, bool) or epoch < 0:
+        raise ConfigError(f"expected the number of epochs trained, got {epoch!r}", file=path, field="epoch")
+    records = weights.extra.get("history", [])
+    try:
+        history = [EpochRecord(**h) for h in records]
+    except (TypeError, ValueError) as e:
+        raise unusable("history", e) from None
     model.load_state_dict(weights.model.state_dict())
-    optimiser.load_state_dict(weights.extra["optimiser"])
+    try:
+        optimiser.load_state_dict(weights.extra["optimiser"])
+    except (TypeError, ValueError, KeyError, RuntimeError) as e:
+        raise unusable("optimiser", e) from None
     for state in optimiser.state.values():  # the optimiser's moments follow the model's device
         for k, v in state.items():
             if isinstance(v, torch.Tensor) and k != "step":
                 state[k] = v.to(device)
-    history = [EpochRecord(**h) for h in weights.extra.get("history", [])]
-    return int(weights.extra["epoch"]), history
+    return epoch, history
 
 
 def center_loss(logits: torch.Tensor, target: torch.Tensor, pos_weight: float = 0.0) -> torch.Tensor:

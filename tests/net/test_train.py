@@ -201,6 +201,31 @@ def test_runs_are_guarded(tiny_root, tmp_path) -> None:
     assert any("holds no checkpoint yet; starting a new run" in line for line in said)
 
 
+@pytest.mark.parametrize(
+    ("damage", "field"),
+    [
+        (lambda p: p["config"].update(old_option=1), "config"),  # another version's settings
+        (lambda p: p["config"].update(crop="64x64"), "config"),
+        (lambda p: p.pop("epoch"), "epoch"),
+        (lambda p: p.update(epoch="x"), "epoch"),
+        (lambda p: p.update(history=[{"foo": 1}]), "history"),
+        (lambda p: p.update(history=[3]), "history"),
+        (lambda p: p.update(optimiser={"state": {}, "param_groups": []}), "optimiser"),
+    ],
+)
+def test_resuming_from_a_checkpoint_of_other_contents_is_one_error_naming_the_field(tiny_root, tmp_path, damage, field):
+    """A checkpoint of another version (or edited) ended in a traceback from deep in the restore."""
+    run = tmp_path / "run"
+    train(_config(tiny_root, epochs=1, val_split=None), run, progress=False)
+    path = run / "checkpoint.pt"
+    payload = torch.load(path, weights_only=True)
+    damage(payload)
+    torch.save(payload, path)
+    with pytest.raises(ConfigError) as caught:
+        train(_config(tiny_root, epochs=2, val_split=None), run, resume=True, progress=False)
+    assert str(caught.value.file) == str(path) and caught.value.field == field, caught.value.format()
+
+
 def test_a_diverged_run_stops_with_one_error_and_keeps_the_last_good_checkpoint(tiny_root, tmp_path, monkeypatch):
     """A non-finite loss ends the run (never NaN weights written with exit 0): the error names the epoch, the batch
     and --lr, and the previous epoch's checkpoint, weights and metrics are what is left."""
