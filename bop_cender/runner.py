@@ -19,7 +19,7 @@ import re
 import shutil
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
@@ -317,8 +317,9 @@ def _remove_empty(created: list[Path]) -> None:
 def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[dict[str, SceneOutcome], int]:
     """Shards of the same settings kept, the other scenes estimated and written as they finish."""
     outcomes: dict[str, SceneOutcome] = {}
+    targets = {i for i, m in dataset.models.items() if m.is_target}
     for key in keys:
-        shard = read_shard(shard_path(work, key), fingerprint)
+        shard = read_shard(shard_path(work, key), fingerprint, key, targets)
         if shard is not None:
             outcomes[key] = shard
     resumed = len(outcomes)
@@ -480,9 +481,13 @@ def write_shard(path: Path, outcome: SceneOutcome, fingerprint: str) -> None:
         tmp.write_text(json.dumps(content, indent=1))
 
 
-def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
+def read_shard(
+    path: Path, fingerprint: str, scene_key: str | None = None, obj_ids: Collection[int] | None = None
+) -> SceneOutcome | None:
     """A shard made with the same settings, or None (missing, other settings, unreadable, or of a scene that failed:
-    it is redone)."""
+    it is redone). With ``scene_key``, a shard of another scene is None too; with ``obj_ids`` (the dataset's target
+    objects), one that estimates another object (an edited or foreign shard wrote rows of a carrier or of an unknown
+    id, or ended the run in a traceback)."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -503,6 +508,10 @@ def read_shard(path: Path, fingerprint: str) -> SceneOutcome | None:
         )
         est = SceneEstimate(data["scene_key"], data["scene_id"], objects, data["time_s"], data["timings"])
     except (KeyError, TypeError, ValueError, BopCenderError):
+        return None
+    if scene_key is not None and (est.scene_key != scene_key or est.scene_id != scene_key.split("/")[0]):
+        return None
+    if obj_ids is not None and any(o.obj_id not in obj_ids for o in est.objects):
         return None
     return SceneOutcome(data["scene_key"], est)
 

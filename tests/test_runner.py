@@ -82,6 +82,28 @@ def test_resume_ignores_shards_of_other_settings(mini_root, tmp_path):
     assert run(request(mini_root, out, resume=True, config=other)).resumed == 0
 
 
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda d: d.update(scene_key="000001", scene_id="000001"),  # another scene's shard under this name
+        lambda d: d.update(scene_id="000009"),
+        lambda d: d["objects"][0].update(obj_id=99),  # an object the dataset lacks
+        lambda d: d["objects"][0].update(obj_id=100),  # a carrier: never a target
+    ],
+)
+def test_resume_redoes_a_shard_of_another_scene_or_object(mini_root, reference_csv, tmp_path, edit):
+    """A shard edited (or another scene's) ended the run in a traceback or wrote rows of unknown objects."""
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    with pytest.raises(KeyboardInterrupt):
+        run(request(mini_root, out), progress=lambda d, t, k: (_ for _ in ()).throw(KeyboardInterrupt) if d else None)
+    (shard,) = work_dir(out).glob("*.json")
+    data = json.loads(shard.read_text())
+    edit(data)
+    shard.write_text(json.dumps(data))
+    summary = run(request(mini_root, out, resume=True))
+    assert summary.resumed == 0 and out.read_bytes() == reference_csv.read_bytes()
+
+
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     run(request(mini_root, out, workers=2))
