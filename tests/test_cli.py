@@ -100,3 +100,24 @@ def test_cuda_asked_for_without_a_cuda_device_is_one_clear_error(workdir: Path, 
     err = capsys.readouterr().err.splitlines()
     assert err[-1] == f"error: {flag}: CUDA was asked for but torch sees no CUDA device", err
     assert sorted(p.name for p in workdir.iterdir()) == ["a_file", "gt_dimo-real.csv"]
+
+
+def test_a_cache_variable_naming_a_file_is_one_error_naming_the_variable(tmp_path, monkeypatch, capsys) -> None:
+    """It read "…/demo-dimo-v2.partial: Not a directory", naming neither the variable nor what it is for."""
+    (tmp_path / "afile").write_text("x")
+    monkeypatch.setenv("BOP_CENDER_CACHE", str(tmp_path / "afile" / "cache"))
+    assert main(["info", "--dataset", "dimo", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err == f"error: {tmp_path / 'afile'}: $BOP_CENDER_CACHE: is a file, not a folder: bop-cender's cache is"
+        f" {tmp_path / 'afile' / 'cache'}\n"
+    )
+
+
+def test_debug_is_taken_before_or_after_the_command() -> None:
+    from bop_cender.cli.app import build_parser
+
+    parser = build_parser()
+    info = ["info", "--dataset", "dimo"]
+    assert parser.parse_args([*info, "--debug"]).debug and parser.parse_args(["--debug", *info]).debug
+    assert parser.parse_args(info).debug is False

@@ -114,7 +114,10 @@ def load_json(path: str | Path, keys_to_int: bool = False, error: type[BopCender
     try:
         return json.loads(text, object_pairs_hook=_int_keys if keys_to_int else _unique_keys)
     except json.JSONDecodeError as e:
-        raise error(f"malformed JSON: {e.msg} at line {e.lineno}, column {e.colno}", file=Path(path)) from None
+        # json's own messages may end in "at" ("Unterminated string starting at"): "at at line 2" read badly
+        where = f"line {e.lineno}, column {e.colno}"
+        what = e.msg[: -len(" at")] if e.msg.endswith(" at") else e.msg
+        raise error(f"malformed JSON: {what} at {where}", file=Path(path)) from None
     except _RepeatedKey as e:
         raise error(
             f"a JSON object repeats the key {e.key!r} (only its last value would be read)",

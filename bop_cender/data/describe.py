@@ -34,6 +34,7 @@ def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False)
     """
     s = DatasetSummary()
     keys = dataset.scene_keys
+    failed: dict[str, list[str]] = {}  # one line per error: a scene's view groups share its broken file
     bar = progress_bar(keys, desc="loading scenes", unit="scene", disable=not progress or len(keys) < 20, leave=False)
     for key in bar:
         try:
@@ -41,7 +42,7 @@ def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False)
         except BopCenderError as e:
             if not keep_going:
                 raise
-            s.problems.append(e.format())
+            failed.setdefault(e.format(), []).append(key)
             continue
         s.loaded.append(key)
         s.scenes += 1
@@ -55,6 +56,8 @@ def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False)
             model = dataset.models.get(g.obj_id)
             if model is not None and model.is_target:
                 s.target_instances += 1
+    for message, where in failed.items():
+        s.problems.append(message if len(where) == 1 else f"{message} (scenes {', '.join(where)}: the same error)")
     return s
 
 

@@ -300,7 +300,7 @@ def train(
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
-        init = load_weights(config.init_weights, dataset=config.dataset)
+        init = load_weights(config.init_weights, dataset=config.dataset, field="--init-weights")
         if not _can_start_from(init.model.spec, spec):
             raise ConfigError(
                 f"its network ({init.model.spec.name}, {init.model.spec.center_channels} center channels) is not"

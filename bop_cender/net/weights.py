@@ -135,13 +135,15 @@ def check_channels(weights: NetWeights, models: Mapping[int, ObjectModel]) -> No
         )
 
 
-def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
+def load_weights(path: str | Path, dataset: str | None = None, field: str = "--weights") -> NetWeights:
     """Read and check a weights file (or a training checkpoint).
 
     Args:
         path: the file.
         dataset: when given, the file must have been trained for this dataset kind (``dimo`` or ``tless``;
             other BOP datasets use ``tless``-kind weights: one center channel per object).
+        field: the option that gave the file, named in the errors that concern it (``train`` names
+            ``--init-weights``).
 
     Raises:
         ConfigError: missing, truncated or not a weights file, another architecture than its spec says,
@@ -149,9 +151,9 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
     """
     path = Path(path)
     if path.is_dir():
-        raise ConfigError("is a directory, not a weights file", file=path, field="--weights")
+        raise ConfigError("is a directory, not a weights file", file=path, field=field)
     if not path.is_file():
-        raise ConfigError("weights file not found", file=path, field="--weights")
+        raise ConfigError("weights file not found", file=path, field=field)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
@@ -185,7 +187,7 @@ def load_weights(path: str | Path, dataset: str | None = None) -> NetWeights:
             raise ConfigError(
                 f"these weights were trained for {kind!r} data; dataset {dataset!r} needs {wanted!r} weights",
                 file=path,
-                field="--weights",
+                field=field,
             )
     model = UNet(spec)
     try:

@@ -290,6 +290,10 @@ def _named_apart(rows: list[MethodRow], paths: list[Path]) -> list[MethodRow]:
     ]
 
 
+REFERENCE_COLUMNS = ("dataset", "split", "method", "source", "metric", "value")
+"""The columns of a reference table (``--reference FILE.csv``), in any order."""
+
+
 def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
     """Every record of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are
     comments), each checked (a number, a known metric), so that a bad table fails before anything is scored.
@@ -306,6 +310,10 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
     except UnicodeDecodeError as exc:
         raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
+    header = next(csv.reader(lines[:1]), None)
+    if header is None or sorted(h.strip() for h in header) != sorted(REFERENCE_COLUMNS):  # in any order
+        found = "no header" if header is None else f"header {','.join(header)}"
+        raise ConfigError(f"expected the header {','.join(REFERENCE_COLUMNS)}, found {found}", field=str(path))
     records = []
     first: dict[tuple[str, str, str, str], tuple[str, int]] = {}  # each figure's first value and its row
     for n, rec in enumerate(csv.DictReader(lines), start=2):

@@ -22,6 +22,8 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+from bop_cender.errors import ConfigError
+
 #: Bump when the synthetic generator's output changes, so cached demos are regenerated.
 #: v2: the T-LESS layout has one 30-object catalogue (the DIMO demo is byte-identical to v1's, plus the
 #: root record bop_cender_synth.json).
@@ -34,11 +36,18 @@ CACHE_ENV = "BOP_CENDER_CACHE"
 def cache_dir() -> Path:
     """Root of bop-cender's cache: ``$BOP_CENDER_CACHE``, else ``$XDG_CACHE_HOME/bop-cender``, else ``~/.cache/bop-cender``."""
     env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env).expanduser()
     xdg = os.environ.get("XDG_CACHE_HOME")
-    base = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
-    return base / "bop-cender"
+    if env:
+        path, source = Path(env).expanduser(), f"${CACHE_ENV}"
+    else:
+        path = (Path(xdg).expanduser() if xdg else Path.home() / ".cache") / "bop-cender"
+        source = "$XDG_CACHE_HOME" if xdg else "~/.cache"
+    for above in (path, *path.parents):  # a file on the way: said with the variable that put it there
+        if above.exists():
+            if not above.is_dir():
+                raise ConfigError(f"is a file, not a folder: bop-cender's cache is {path}", file=above, field=source)
+            break
+    return path
 
 
 def demo_root(layout: str) -> Path:

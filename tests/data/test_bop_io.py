@@ -234,3 +234,13 @@ def test_quiet_stderr_silences_fd_2_and_restores_it_after_nested_and_threaded_us
         list(pool.map(inside, range(16)))
     os.write(2, b"shown\n")
     assert capfd.readouterr().err == "shown\n"
+
+
+def test_a_cut_json_string_says_where_once(tmp_path) -> None:
+    """json's message "Unterminated string starting at" was followed by our " at line ...": "at at"."""
+    from bop_cender.data.bop_io import load_json
+
+    path = tmp_path / "scene_gt.json"
+    path.write_text('{"0": [{"obj_id": "ab')
+    with pytest.raises(DatasetError, match=r"malformed JSON: Unterminated string starting at line 1, column 19$"):
+        load_json(path)

@@ -218,3 +218,23 @@ def test_a_mesh_without_a_models_info_entry_is_a_note(tless: Path, capsys) -> No
         code == 0
         and f"note      {stray}: no entry 42 in models_info.json: not loaded (neither scored nor an occluder)" in lines
     )
+
+
+def test_a_broken_file_of_several_view_groups_is_one_problem() -> None:
+    """A scene of 8 images in groups of 5 is two scene keys over one scene_gt.json: one problem, not two."""
+    from types import SimpleNamespace
+
+    from bop_cender.data.describe import summarise
+
+    def scene(key: str):
+        if key.startswith("000001"):
+            raise DatasetError("malformed JSON", file="test/000001/scene_gt.json")
+        raise DatasetError("another", file=f"test/{key}/scene_camera.json")
+
+    keys = ["000001/g00", "000001/g01", "000002/g00"]
+    summary = summarise(SimpleNamespace(scene_keys=keys, scene=scene, models={}), progress=False, keep_going=True)
+    assert summary.problems == [
+        "test/000001/scene_gt.json: malformed JSON (scenes 000001/g00, 000001/g01: the same error)",
+        "test/000002/g00/scene_camera.json: another",
+    ]
+    assert summary.scenes == 0 and summary.loaded == []

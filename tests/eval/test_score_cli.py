@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -440,6 +441,17 @@ def test_translations_in_metres_are_refused_not_scored_zero(small_fixture, resul
     err = capsys.readouterr().err
     assert "t: implausible translations: the objects would lie a median" in err and "were they in metres?" in err
     assert not (results_dir / "scores_metres_tless-test.json").exists()
+
+
+def test_an_absurd_translation_is_a_miss_without_a_numpy_warning(small_fixture, results_dir, capsys) -> None:
+    """A row's t of 1e300 mm printed "warning: overflow encountered in multiply" (no file, no line): it is a miss."""
+    rows = gt_rows(small_fixture)
+    csv_path = results_dir / "huge_tless-test.csv"
+    write_bop_results(csv_path, [replace(rows[0], t=np.array([1e300, 0.0, 1e300])), *rows[1:]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        scored = score_file(csv_path, data_root=small_fixture.root, progress=False, render_process=False)
+    assert 0.9 < scored.report.scores["AR_MSSD"] < 1.0
 
 
 def test_placeholder_translations_are_left_out_of_the_metres_check_and_a_file_of_them_refused(

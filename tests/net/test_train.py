@@ -282,6 +282,11 @@ def test_fine_tuning_starts_from_the_given_weights(tiny_root, tmp_path) -> None:
             tmp_path / "x",
             progress=False,
         )
+    for missing in (tmp_path / "none.pt", tmp_path):  # errors of the file name the option that gave it
+        with pytest.raises(ConfigError, match="--init-weights: "):
+            train(
+                _config(tiny_root, epochs=1, val_split=None, init_weights=str(missing)), tmp_path / "z", progress=False
+            )
     # a lean network starts a context one (its new convolutions start as the identity), not the reverse
     context = train(
         _config(tiny_root, epochs=1, val_split=None, variant="dimo-context", init_weights=str(first)),

@@ -262,6 +262,20 @@ def test_a_bare_scores_json_is_for_the_dataset_and_split_its_name_says(tmp_path:
     assert compare([unnamed, dimo], out_dir=tmp_path / "w", progress=False).dataset == "dimo"
 
 
+def test_a_reference_table_needs_its_header_even_without_rows(tmp_path: Path) -> None:
+    """A table "a,b" of no rows was taken, with only a warning that it had no row for the split."""
+    from bop_cender.report.tables import read_reference_table
+
+    for text, found in (("a,b\n", "header a,b"), ("# only a comment\n", "no header"), ("", "no header")):
+        (tmp_path / "ref.csv").write_text(text)
+        with pytest.raises(
+            ConfigError, match=f"expected the header dataset,split,method,source,metric,value, found {found}"
+        ):
+            read_reference_table(tmp_path / "ref.csv")
+    (tmp_path / "ref.csv").write_text("value,metric,source,method,split,dataset\n0.5,AR,x,m,test,tless\n")  # any order
+    assert read_reference_table(tmp_path / "ref.csv")[0]["method"] == "m"
+
+
 def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir, capsys) -> None:
     """compare scores through score: a file of another data set's images is an error, not a 0.000 row."""
     targets = set(small_fixture.target_images)
