@@ -288,7 +288,8 @@ def _row(
     R = pose[:, :3]
     if abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
         raise ResultsError("the 3x3 part of the pose is not a rotation", file=path, field=where)
-    t_mm = pose[:, 3] * METRES_TO_MM
+    with np.errstate(over="ignore"):  # refused just below, in one error: no stray numpy warning before it
+        t_mm = pose[:, 3] * METRES_TO_MM
     if not np.all(np.isfinite(t_mm)):  # e.g. 1e308 m: finite, but not in mm
         raise ResultsError(f"translation {pose[:, 3].tolist()} m is not finite in mm", file=path, field=f"{where}.pose")
     return BopEstimate(scene, im, obj, score, R, t_mm, time_s)
