@@ -222,10 +222,10 @@ def net_predictor(request: RunRequest, dataset: Dataset):
             dataset, or targets (curvature scale) other than the config's.
     """
     from bop_cender.net.predictor import NetPredictor
-    from bop_cender.net.weights import check_channels, load_weights
+    from bop_cender.net.weights import check_covers_targets, load_weights
 
     weights = load_weights(resolve_weights(request).weights, dataset=request.dataset)
-    check_channels(weights, dataset.models)
+    check_covers_targets(weights, dataset.models)
     if weights.targets.curvature_scale != request.config.targets.curvature_scale:
         raise ConfigError(
             f"the weights were trained on curvature / {weights.targets.curvature_scale:g}; this run's config says"
@@ -268,6 +268,7 @@ def run(
     request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
     threshold = _curvature_threshold(request, dataset)  # bad weights fail here, once, before any scene
+    _check_meshes(dataset)  # and a bad mesh
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
@@ -293,6 +294,15 @@ def run(
             + ([f"... and {len(failed) - 10} more"] if len(failed) > 10 else []),
         )
     return _merge(request, dataset, keys, outcomes, resumed, work, start, threshold)
+
+
+def _check_meshes(dataset: Dataset) -> None:
+    """Every model's mesh read and checked once, before any scene (:meth:`~bop_cender.meshes.MeshCache.arrays`: a
+    mesh of another size than its ``models_info.json`` entry, a broken PLY): found by the first scene to use it, such
+    a mesh failed every scene after its network pass, each with the same error."""
+    meshes = MeshCache(dataset.models)
+    for obj_id in dataset.models:
+        meshes.arrays(obj_id)
 
 
 def _make_dirs(folder: Path) -> list[Path]:
@@ -509,7 +519,7 @@ def read_shard(
         est = SceneEstimate(data["scene_key"], data["scene_id"], objects, data["time_s"], data["timings"])
     except (KeyError, TypeError, ValueError, BopCenderError):
         return None
-    if scene_key is not None and (est.scene_key != scene_key or est.scene_id != scene_key.split("/")[0]):
+    if scene_key is not None and est.scene_key != scene_key:  # (its scene_id follows: SceneEstimate checks them)
         return None
     if obj_ids is not None and any(o.obj_id not in obj_ids for o in est.objects):
         return None

@@ -16,7 +16,7 @@ import method_data  # noqa: E402
 import bop_cender.method as method_module  # noqa: E402
 from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.dimo import open_dimo  # noqa: E402
-from bop_cender.errors import ConfigError  # noqa: E402
+from bop_cender.errors import ConfigError, DatasetError  # noqa: E402
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig  # noqa: E402
 from bop_cender.net.mixed import MixedPredictor  # noqa: E402
@@ -86,7 +86,6 @@ def test_resume_ignores_shards_of_other_settings(mini_root, tmp_path):
     "edit",
     [
         lambda d: d.update(scene_key="000001", scene_id="000001"),  # another scene's shard under this name
-        lambda d: d.update(scene_id="000009"),
         lambda d: d["objects"][0].update(obj_id=99),  # an object the dataset lacks
         lambda d: d["objects"][0].update(obj_id=100),  # a carrier: never a target
     ],
@@ -102,6 +101,26 @@ def test_resume_redoes_a_shard_of_another_scene_or_object(mini_root, reference_c
     shard.write_text(json.dumps(data))
     summary = run(request(mini_root, out, resume=True))
     assert summary.resumed == 0 and out.read_bytes() == reference_csv.read_bytes()
+
+
+def test_a_mesh_of_another_size_than_its_entry_stops_the_run_before_any_scene(mini_root, tmp_path):
+    """Found by the first scene that used it, it failed every scene (after each one's network pass) with the same
+    error."""
+    import shutil
+
+    import trimesh
+
+    root = tmp_path / "dimo"
+    shutil.copytree(mini_root, root)
+    ply = root / "models" / "obj_000003.ply"
+    mesh = trimesh.load(ply, process=False)
+    mesh.apply_scale(0.001)  # in metres
+    ply.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="ascii"))
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    calls = []
+    with pytest.raises(DatasetError, match=r"obj_000003.ply: models_info.json 3: min_x..size_z: the mesh's bounding"):
+        run(request(root, out), progress=lambda *a: calls.append(a))
+    assert calls == [] and not work_dir(out).exists() and not out.exists()
 
 
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):

@@ -77,11 +77,11 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
         source = "oracle"
     else:
         from bop_cender.net.predictor import NetPredictor
-        from bop_cender.net.weights import check_channels, load_weights, shipped_weights_path
+        from bop_cender.net.weights import check_covers_targets, load_weights, shipped_weights_path
 
         path = Path(args.weights) if args.weights else shipped_weights_path(kind)
         weights = load_weights(path, dataset=args.dataset)
-        check_channels(weights, dataset.models)
+        check_covers_targets(weights, dataset.models)
         targets = weights.targets
         predictor = NetPredictor(weights, device=device, flips=args.test_flips)
         source = str(path) + ("" if args.test_flips == 1 else f" ({args.test_flips} test flips)")

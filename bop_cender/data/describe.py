@@ -25,6 +25,10 @@ class DatasetSummary:
     problems: list[str] = field(default_factory=list)
 
 
+SHOWN_KEYS = 5
+"""Scene keys named in a problem line that several scenes share (a T-LESS scene has about 100 view groups)."""
+
+
 def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False) -> DatasetSummary:
     """Load every scene (lazily, with a progress bar on stderr) and count what is there.
 
@@ -57,7 +61,10 @@ def summarise(dataset: Dataset, progress: bool = True, keep_going: bool = False)
             if model is not None and model.is_target:
                 s.target_instances += 1
     for message, where in failed.items():
-        s.problems.append(message if len(where) == 1 else f"{message} (scenes {', '.join(where)}: the same error)")
+        if len(where) > 1:
+            more = f" and {len(where) - SHOWN_KEYS} more" if len(where) > SHOWN_KEYS else ""
+            message += f" (scenes {', '.join(where[:SHOWN_KEYS])}{more}: the same error)"
+        s.problems.append(message)
     return s
 
 

@@ -119,7 +119,7 @@ def _shipped_names() -> list[str]:
     return sorted(d for d, n in SHIPPED.items() if (folder / n).is_file())
 
 
-def check_channels(weights: NetWeights, models: Mapping[int, ObjectModel]) -> None:
+def check_covers_targets(weights: NetWeights, models: Mapping[int, ObjectModel]) -> None:
     """Refuse weights with one center channel per object (T-LESS kind) that have none for a target object of
     ``models``: that object could never be found, and figures of the network on the dataset would mean nothing.
 

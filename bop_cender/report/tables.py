@@ -154,7 +154,11 @@ def compare(
             planned[path] = _json_dataset_and_split(path, jsons[path])
     _one_dataset_and_split(planned)  # before anything is scored
     score_dirs = _score_dirs(paths, out_dir)
-    _check_outputs(paths, [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)])
+    outputs = [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)]
+    known = next(((ds, sp) for ds, sp in planned.values() if ds is not None and sp is not None), None)
+    if known is not None:  # the table's files too (a BOP dataset's split is told once it is opened: checked then)
+        outputs += _comparison_files(out_dir, *known).values()
+    _check_outputs(paths, outputs)
     rows: list[MethodRow] = []
     scored_files: list[ScoredFile] = []
     scores_paths: dict[Path, Path] = {}
@@ -194,12 +198,7 @@ def compare(
             )
         rows += reported
     comparison = Comparison(rows, table_dataset, table_split, scores=scores_paths)
-    stem = f"comparison_{table_dataset or 'results'}-{table_split or 'all'}"
-    comparison.files = {
-        "markdown": out_dir / f"{stem}.md",
-        "csv": out_dir / f"{stem}.csv",
-        "png": out_dir / f"{stem}.png",
-    }
+    comparison.files = _comparison_files(out_dir, table_dataset, table_split)
     _check_outputs(paths, list(comparison.files.values()))
     for scored in scored_files:  # every input scored: now the files
         write_scored(scored)
@@ -207,6 +206,12 @@ def compare(
     write_text_atomic(comparison.files["csv"], comparison.csv_text())
     bar_chart(comparison, comparison.files["png"])
     return comparison
+
+
+def _comparison_files(out_dir: Path, dataset: str | None, split: str | None) -> dict[str, Path]:
+    """The table's files (markdown, CSV, bar chart) for a dataset and split (unknown: ``results``, ``all``)."""
+    stem = f"comparison_{dataset or 'results'}-{split or 'all'}"
+    return {"markdown": out_dir / f"{stem}.md", "csv": out_dir / f"{stem}.csv", "png": out_dir / f"{stem}.png"}
 
 
 def _json_dataset_and_split(path: Path, data: dict) -> tuple[str | None, str | None]:
@@ -306,7 +311,7 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
             "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
         )
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (a spreadsheet's export) is not part of the header
     except UnicodeDecodeError as exc:
         raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
@@ -316,7 +321,7 @@ def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
         raise ConfigError(f"expected the header {','.join(REFERENCE_COLUMNS)}, found {found}", field=str(path))
     records = []
     first: dict[tuple[str, str, str, str], tuple[str, int]] = {}  # each figure's first value and its row
-    for n, rec in enumerate(csv.DictReader(lines), start=2):
+    for n, rec in enumerate(csv.DictReader(lines, skipinitialspace=True), start=2):  # "a, b" as the header check
         try:
             if not is_recall(float(rec["value"])):
                 raise ValueError

@@ -238,3 +238,9 @@ def test_a_broken_file_of_several_view_groups_is_one_problem() -> None:
         "test/000002/g00/scene_camera.json: another",
     ]
     assert summary.scenes == 0 and summary.loaded == []
+    many = [f"000001/g{k:02d}" for k in range(8)]
+    summary = summarise(SimpleNamespace(scene_keys=many, scene=scene, models={}), progress=False, keep_going=True)
+    assert summary.problems == [
+        "test/000001/scene_gt.json: malformed JSON (scenes 000001/g00, 000001/g01, 000001/g02, 000001/g03, 000001/g04"
+        " and 3 more: the same error)"
+    ]

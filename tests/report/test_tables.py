@@ -229,13 +229,18 @@ def test_compare_checks_everything_before_writing_anything(small_fixture, result
 @pytest.mark.parametrize(
     "blocked", ["comparison_tless-test.png", "comparison_tless-test.md", "scores_gt_tless-test.json"]
 )
-def test_compare_refuses_an_output_it_cannot_write_before_writing_any(small_fixture, results_dir, capsys, blocked):
+def test_compare_refuses_an_output_it_cannot_write_before_scoring(
+    small_fixture, results_dir, capsys, monkeypatch, blocked
+):
     """A directory where an output goes was found when that file was written, after the others: half a
-    comparison was left behind."""
+    comparison was left behind (and minutes of scoring spent)."""
     good = results_dir / "gt_tless-test.csv"
     write_bop_results(good, gt_rows(small_fixture))
     out = results_dir / "tables"
     (out / blocked).mkdir(parents=True)
+    import bop_cender.report.tables as tables
+
+    monkeypatch.setattr(tables, "score_file", lambda *a, **k: pytest.fail("scored before the outputs were checked"))
     assert main(["compare", str(good), "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err == f"error: {out / blocked}: --out: is a directory, expected an output file\n"
@@ -274,6 +279,11 @@ def test_a_reference_table_needs_its_header_even_without_rows(tmp_path: Path) ->
             read_reference_table(tmp_path / "ref.csv")
     (tmp_path / "ref.csv").write_text("value,metric,source,method,split,dataset\n0.5,AR,x,m,test,tless\n")  # any order
     assert read_reference_table(tmp_path / "ref.csv")[0]["method"] == "m"
+    spaced = "\ufeffdataset, split, method, source, metric, value\ntless, test, m, x, AR, 0.5\n"  # a BOM, spaces
+    (tmp_path / "ref.csv").write_text(spaced, encoding="utf-8")
+    assert read_reference_table(tmp_path / "ref.csv")[0] == {
+        "dataset": "tless", "split": "test", "method": "m", "source": "x", "metric": "AR", "value": "0.5"
+    }  # fmt: skip
 
 
 def test_compare_refuses_results_that_match_no_target(small_fixture, results_dir, capsys) -> None:
