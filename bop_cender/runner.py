@@ -19,7 +19,7 @@ import re
 import shutil
 import sys
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file
-from bop_cender.data.types import Dataset, Scene
+from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import BopCenderError, ConfigError, RunError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.meshes import MeshCache
@@ -438,12 +438,17 @@ def shard_path(work: Path, scene_key: str) -> Path:
 
 
 def estimate_scene(
-    method: CenDerNet, scene: Scene, vis_dir: Path | None = None, max_views: int | None = None
+    method: CenDerNet,
+    scene: Scene,
+    vis_dir: Path | None = None,
+    max_views: int | None = None,
+    eval_models: Mapping[int, ObjectModel] | None = None,
 ) -> SceneOutcome:
     """One scene, never raising for a problem of that scene: the error becomes the outcome.
 
-    With ``vis_dir``, the scene's figure is written there as ``<scene key>.png``; with ``max_views``
-    only the first K views are given to the method."""
+    With ``vis_dir``, the scene's figure is written there as ``<scene key>.png`` (its verdicts judged on
+    ``eval_models``, the scorer's, where given: T-LESS estimates on ``models_cad``, scores on ``models_eval``); with
+    ``max_views`` only the first K views are given to the method."""
     if max_views is not None:
         scene = replace(scene, views=scene.views[:max_views])
     try:
@@ -459,6 +464,7 @@ def estimate_scene(
             method.models,
             method.meshes,
             Path(vis_dir) / shard_path(Path(), scene.key).with_suffix(".png").name,
+            judge_models=eval_models or None,
         )
     return SceneOutcome(scene.key, output.estimate)
 
@@ -593,7 +599,9 @@ def _execute(request: RunRequest, dataset: Dataset, keys: list[str]):
             method = build_method(request, dataset, cost_threads=max(1, min(2, os.cpu_count() or 1)))
             with compiled_threads(request.threads):
                 for key in keys:
-                    yield estimate_scene(method, dataset.scene(key), request.vis_dir, request.max_views)
+                    yield estimate_scene(
+                        method, dataset.scene(key), request.vis_dir, request.max_views, dataset.eval_models
+                    )
         finally:
             torch.set_num_threads(threads)
         return
@@ -643,4 +651,7 @@ def _exit_with_parent() -> None:
 def _worker_scene(key: str) -> SceneOutcome:
     """One scene in a worker process."""
     state = _STATE[0]
-    return estimate_scene(state.method, state.dataset.scene(key), state.request.vis_dir, state.request.max_views)
+    return estimate_scene(
+        state.method, state.dataset.scene(key), state.request.vis_dir, state.request.max_views,
+        state.dataset.eval_models,
+    )  # fmt: skip

@@ -210,6 +210,24 @@ def test_a_scene_without_centres_has_no_estimates(mini_root):
     assert est.objects == () and set(est.timings) == {"heatmaps", "centers", "poses"}
 
 
+def test_the_figure_judges_poses_on_the_evaluation_models(mini_root, tmp_path, monkeypatch):
+    """T-LESS estimates on models_cad and is scored on models_eval: the figure's verdicts follow the scorer."""
+    import bop_cender.report.scene_figure as figure
+
+    seen = []
+    real = figure.judge_estimates
+    monkeypatch.setattr(figure, "judge_estimates", lambda e, g, models: seen.append(models) or real(e, g, models))
+    ds = open_dimo(mini_root, "real")
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    method = CenDerNet(ds.models, config, OraclePredictor(ds.models, MeshCache(ds.models), config.targets))
+    scene = ds.scene(ds.scene_keys[0])
+    judged_on = dict(ds.models)  # another mapping than the method's, of the same models
+    outcome = estimate_scene(method, scene, tmp_path / "vis", eval_models=judged_on)
+    assert outcome.error is None and seen[-1] is judged_on
+    estimate_scene(method, scene, tmp_path / "vis")
+    assert seen[-1] is method.models and (tmp_path / "vis" / "000000.png").is_file()
+
+
 def test_a_failing_scene_is_reported_not_raised(mini_root):
     class Broken:
         name = "broken"

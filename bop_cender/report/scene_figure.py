@@ -112,8 +112,18 @@ def crop_box(
     return top, left, h, w
 
 
-def scene_figure(output, scene: Scene, models: Mapping[int, ObjectModel], meshes, path: Path) -> Path:
-    """Write the figure of one scene's :class:`bop_cender.method.SceneOutput` to ``path`` (PNG, atomically)."""
+def scene_figure(
+    output,
+    scene: Scene,
+    models: Mapping[int, ObjectModel],
+    meshes,
+    path: Path,
+    judge_models: Mapping[int, ObjectModel] | None = None,
+) -> Path:
+    """Write the figure of one scene's :class:`bop_cender.method.SceneOutput` to ``path`` (PNG, atomically).
+
+    ``models`` and ``meshes``: the method's (centres, outlines); ``judge_models``: those the verdicts are judged on,
+    the scorer's evaluation models where the dataset has its own (default: ``models``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -126,7 +136,7 @@ def scene_figure(output, scene: Scene, models: Mapping[int, ObjectModel], meshes
     curv = output.heatmaps.curvature.detach().cpu().numpy()
     est = [(o.obj_id, o.T_world_model) for o in output.estimate.objects]
     gt = [(g.obj_id, g.T_world_model) for g in scene.gt if models[g.obj_id].is_target]
-    verdicts = judge_estimates(est, gt, models) if gt else None
+    verdicts = judge_estimates(est, gt, judge_models or models) if gt else None
     est_inst = _instances(est, scene, meshes, H, W)
     gt_inst = _instances(gt, scene, meshes, H, W)
     centres = [c.position for c in output.centers]
