@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import as_number, load_json, require_keys
 from bop_cender.data.types import ObjectModel
-from bop_cender.errors import DatasetError
+from bop_cender.errors import DatasetError, DatasetWarning
 from bop_cender.geometry.symmetry import symmetries_from_model_info
 
 _INFO_KEYS = ("diameter", "min_x", "min_y", "min_z", "size_x", "size_y", "size_z")
@@ -17,35 +18,49 @@ _POSITIVE_KEYS = ("diameter", "size_x", "size_y", "size_z")
 
 EXTENT_TOLERANCE = 0.05
 """How far (a fraction of the longest side, and at least 1 mm) a mesh's bounding box may be from its
-``models_info.json`` entry, and the entry's diameter from what its box allows (:func:`check_extent`,
-:func:`check_diameter`). The toolkit computes both from the same mesh, so real data agrees to rounding; a mesh or an
-entry in metres is off by a factor of 1,000."""
+``models_info.json`` entry, and the entry's diameter from what its box allows, without a word (:func:`check_extent`,
+:func:`check_diameter`). The toolkit computes both from the same mesh, so data it made agrees to rounding."""
+
+SCALE_LIMIT = 2.0
+"""Beyond this factor between a mesh's size and its entry's (or an entry's diameter and its box) the two are in other
+units (a mesh or an entry in metres is off by 1,000, in centimetres by 10) and the model is refused; between
+:data:`EXTENT_TOLERANCE` and this, a warning: a dataset of another maker whose entries are a little off is still
+read (its scores use the entry's diameter, as the toolkit's do)."""
 
 
 def _slack(size: np.ndarray) -> float:
     return max(EXTENT_TOLERANCE * float(np.max(size)), 1.0)
 
 
+def _refuse_or_warn(gross: bool, message: str, file: Path | str, field: str) -> None:
+    if gross:
+        raise DatasetError(message, file=file, field=field)
+    warnings.warn(f"{file}: {field}: {message}", DatasetWarning, stacklevel=3)
+
+
 def check_diameter(diameter: float, size: np.ndarray, info_path: Path, where: str) -> None:
-    """Refuse an entry whose ``diameter`` (the largest distance between two vertices) is not between its bounding
-    box's longest side and its diagonal (``size (3,)``, mm), within :data:`EXTENT_TOLERANCE`: every MSSD threshold
-    is a fraction of the diameter, so one in other units than the box scores every pose right or none."""
+    """An entry's ``diameter`` (the largest distance between two vertices) must lie between its bounding box's longest
+    side and its diagonal (``size (3,)``, mm): within :data:`EXTENT_TOLERANCE`, silently; within
+    :data:`SCALE_LIMIT`, with a warning; else refused. Every MSSD threshold is a fraction of the diameter, so one in
+    other units than the box scores every pose right or none."""
     size = np.asarray(size, dtype=np.float64)
-    lo, hi = float(size.max()) - _slack(size), float(np.linalg.norm(size)) + _slack(size)
-    if not lo <= diameter <= hi:
-        raise DatasetError(
-            f"diameter {diameter:g} mm does not fit its bounding box {' x '.join(f'{x:g}' for x in size)} mm (a"
-            f" diameter lies between the longest side, {size.max():g}, and the diagonal, {np.linalg.norm(size):.4g}):"
-            " an entry in other units?",
-            file=info_path,
-            field=f"{where}.diameter",
-        )
+    longest, diagonal = float(size.max()), float(np.linalg.norm(size))
+    if longest - _slack(size) <= diameter <= diagonal + _slack(size):
+        return
+    _refuse_or_warn(
+        not longest / SCALE_LIMIT <= diameter <= diagonal * SCALE_LIMIT,
+        f"diameter {diameter:g} mm does not fit its bounding box {' x '.join(f'{x:g}' for x in size)} mm (a diameter"
+        f" lies between the longest side, {longest:g}, and the diagonal, {diagonal:.4g}): an entry in other units?",
+        info_path,
+        f"{where}.diameter",
+    )
 
 
 def check_extent(model: ObjectModel, vertices: np.ndarray) -> None:
-    """Refuse a mesh whose bounding box is not its ``models_info.json`` entry's (``min_*``, ``size_*``) within
-    :data:`EXTENT_TOLERANCE`: a mesh in metres scored with a millimetre entry made every MSSD and MSPD tiny, so that
-    wrong poses scored AR 1.0 (and the renderer drew parts 1,000 times too small)."""
+    """A mesh's bounding box must be its ``models_info.json`` entry's (``min_*``, ``size_*``): within
+    :data:`EXTENT_TOLERANCE`, silently; its size within :data:`SCALE_LIMIT` of the entry's, with a warning; else
+    refused. A mesh in metres scored with a millimetre entry made every MSSD and MSPD tiny, so that wrong poses scored
+    AR 1.0 (and the renderer drew parts 1,000 times too small)."""
     vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(0), vertices.max(0)
     slack = _slack(model.bbox_size)
@@ -56,11 +71,13 @@ def check_extent(model: ObjectModel, vertices: np.ndarray) -> None:
     def box(low: np.ndarray, size: np.ndarray) -> str:
         return f"min {', '.join(f'{x:.4g}' for x in low)}, size {' x '.join(f'{x:.4g}' for x in size)}"
 
-    raise DatasetError(
+    scale = float((hi - lo).max()) / float(model.bbox_size.max())
+    _refuse_or_warn(
+        not 1.0 / SCALE_LIMIT <= scale <= SCALE_LIMIT,
         f"the mesh's bounding box ({box(lo, hi - lo)}) is not the one {info} gives object {model.obj_id}"
         f" ({box(model.bbox_min, model.bbox_size)}, mm): a mesh in other units than its entry?",
-        file=model.path,
-        field=f"{info} {model.obj_id}: min_x..size_z",
+        model.path,
+        f"{info} {model.obj_id}: min_x..size_z",
     )
 
 

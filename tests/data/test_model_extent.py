@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import pytest
@@ -10,7 +11,7 @@ import trimesh
 
 from bop_cender.data.file_checks import check_meshes
 from bop_cender.data.models import load_models
-from bop_cender.errors import DatasetError
+from bop_cender.errors import DatasetError, DatasetWarning
 from bop_cender.eval.model_points import eval_vertices
 from bop_cender.meshes import MeshCache
 
@@ -18,7 +19,7 @@ from bop_cender.meshes import MeshCache
 def _models_folder(root: Path, scale: float, binary: bool = False) -> Path:
     """A models folder with one 100 x 40 x 20 mm box (centred on the origin) whose PLY is scaled by ``scale``."""
     folder = root / "models"
-    folder.mkdir()
+    folder.mkdir(parents=True)
     box = trimesh.creation.box(extents=(100.0, 40.0, 20.0))
     box.apply_scale(scale)
     encoding = "binary" if binary else "ascii"
@@ -48,13 +49,30 @@ def test_a_mesh_in_metres_is_refused_by_the_scorer_the_renderer_and_info(tmp_pat
     assert checked == 1 and len(problems) == 1 and "other units than its entry" in problems[0]
 
 
-def test_a_mesh_off_by_a_little_is_read_and_one_off_by_more_is_not(tmp_path: Path) -> None:
+def test_a_mesh_off_by_a_little_is_read_off_by_more_is_warned_of_and_in_other_units_refused(tmp_path: Path) -> None:
     folder = _models_folder(tmp_path, 1.0)
     info = json.loads((folder / "models_info.json").read_text())
     info["1"]["size_x"] = 104.0  # 4 % of the longest side: rounding, a resampled evaluation mesh
     (folder / "models_info.json").write_text(json.dumps(info))
-    assert eval_vertices(load_models(folder)[1]).shape == (8, 3)
-    info["1"]["min_y"] = -27.0  # 7 mm off: another mesh
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert eval_vertices(load_models(folder)[1]).shape == (8, 3)
+    info["1"]["min_y"] = -27.0  # 7 mm off: another maker's entry, read with a warning (a real download stays usable)
     (folder / "models_info.json").write_text(json.dumps(info))
-    with pytest.raises(DatasetError, match="is not the one models_info.json gives object 1"):
-        eval_vertices(load_models(folder)[1])
+    with pytest.warns(DatasetWarning, match="is not the one models_info.json gives object 1"):
+        assert eval_vertices(load_models(folder)[1]).shape == (8, 3)
+    models = load_models(_models_folder(tmp_path / "cm", 0.1))  # centimetres: refused
+    with pytest.raises(DatasetError, match="a mesh in other units than its entry"):
+        eval_vertices(models[1])
+    models = load_models(_models_folder(tmp_path / "double", 2.5))
+    with pytest.raises(DatasetError, match="a mesh in other units than its entry"):
+        MeshCache(models).arrays(1)
+
+
+def test_a_diameter_a_little_off_its_box_is_warned_of(tmp_path: Path) -> None:
+    folder = _models_folder(tmp_path, 1.0)
+    info = json.loads((folder / "models_info.json").read_text())
+    info["1"]["diameter"] = 130.0  # beyond the diagonal (109.5) by 20 mm, under twice it
+    (folder / "models_info.json").write_text(json.dumps(info))
+    with pytest.warns(DatasetWarning, match=r"models_info.json: 1.diameter: diameter 130 mm does not fit"):
+        load_models(folder)
