@@ -19,6 +19,7 @@ import re
 import shutil
 import sys
 import time
+import warnings
 from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
@@ -30,7 +31,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file
 from bop_cender.data.types import Dataset, ObjectModel, Scene
-from bop_cender.errors import BopCenderError, ConfigError, RunError
+from bop_cender.errors import BopCenderError, ConfigError, DatasetWarning, RunError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig, network_curvature_choice
@@ -272,6 +273,7 @@ def run(
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
+    _check_views(request, dataset, keys)
     work = work_dir(request.out)
     fingerprint = request.fingerprint()
     if work.exists() and not request.resume:
@@ -294,6 +296,36 @@ def run(
             + ([f"... and {len(failed) - 10} more"] if len(failed) > 10 else []),
         )
     return _merge(request, dataset, keys, outcomes, resumed, work, start, threshold)
+
+
+def _check_views(request: RunRequest, dataset: Dataset, keys: list[str]) -> None:
+    """Scenes of fewer views than ``centers.min_views`` (after ``--max-views``) can have no 3D centre, so no object:
+    refused when every scene is one (a run of nothing but empty rows, exit 0, ended in a ``score`` that had nothing
+    to score), a warning naming them otherwise. BOP-layout images without a camera pose are scenes of one view each,
+    and a last group of a scene may hold fewer views than ``--n-views``. A scene that does not load is left to fail
+    on its own, with its error."""
+    need = request.config.centers.min_views
+    short: dict[str, int] = {}
+    for key in keys:
+        try:
+            views = len(dataset.scene(key).views)
+        except BopCenderError:
+            continue
+        views = views if request.max_views is None else min(views, request.max_views)
+        if views < need:
+            short[key] = views
+    if not short:
+        return
+    listed = ", ".join(f"{k} ({v})" for k, v in list(short.items())[:5]) + (" ..." if len(short) > 5 else "")
+    why = (
+        f"fewer views than centers.min_views = {need}, the fewest a 3D centre is triangulated from: {listed}; group"
+        " more views per scene (--n-views), or give every image its camera pose (cam_R_w2c, cam_t_w2c in"
+        " scene_camera.json)"
+    )
+    if len(short) == len(keys):
+        raise ConfigError(f"every scene has {why}", field="--n-views")
+    warnings.warn(f"{len(short)} of {len(keys)} scenes have {why}: no object can be found in them", DatasetWarning,
+                  stacklevel=3)  # fmt: skip
 
 
 def _check_meshes(dataset: Dataset) -> None:

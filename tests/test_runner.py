@@ -16,7 +16,7 @@ import method_data  # noqa: E402
 import bop_cender.method as method_module  # noqa: E402
 from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.dimo import open_dimo  # noqa: E402
-from bop_cender.errors import ConfigError, DatasetError  # noqa: E402
+from bop_cender.errors import ConfigError, DatasetError, DatasetWarning  # noqa: E402
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig  # noqa: E402
 from bop_cender.net.mixed import MixedPredictor  # noqa: E402
@@ -121,6 +121,22 @@ def test_a_mesh_of_another_size_than_its_entry_stops_the_run_before_any_scene(mi
     with pytest.raises(DatasetError, match=r"obj_000003.ply: models_info.json 3: min_x..size_z: the mesh's bounding"):
         run(request(root, out), progress=lambda *a: calls.append(a))
     assert calls == [] and not work_dir(out).exists() and not out.exists()
+
+
+def test_scenes_of_too_few_views_are_refused_or_named(tmp_path):
+    """Groups of one view (BOP images without camera poses, --n-views 1) wrote a CSV of no rows with exit 0."""
+    root = tmp_path / "tless"
+    assert main(["synth", "--layout", "tless", "--out", str(root), "--scenes", "1", "--views", "3", "--pbr-scenes",
+                 "0", "--seed", "5", "--no-contact-sheets"]) == 0  # fmt: skip
+    config = CenDerNetConfig.for_dataset("tless", **CHEAP)
+    out = tmp_path / "cendernet-oracle_tless-test.csv"
+    with pytest.raises(ConfigError, match=r"--n-views: every scene has fewer views than centers.min_views = 2, .*"
+                       r"000001/g00 \(1\), 000001/g01 \(1\), 000001/g02 \(1\)"):  # fmt: skip
+        run(RunRequest("tless", str(root), "test", out, n_views=1, config=config, deterministic_time=True))
+    assert not out.exists() and not work_dir(out).exists()
+    with pytest.warns(DatasetWarning, match=r"1 of 2 scenes have fewer views than centers.min_views = 2, .*g01 \(1\)"):
+        summary = run(RunRequest("tless", str(root), "test", out, n_views=2, config=config, deterministic_time=True))
+    assert summary.scenes == 2 and summary.rows > 0
 
 
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
