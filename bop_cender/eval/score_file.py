@@ -143,6 +143,11 @@ def choose_data(
         raise ResultsError(f"selection.n_views: expected a positive integer or null, got {views!r}",
                            file=sidecar_path(csv_path))  # fmt: skip
     seed_value = seed if seed is not None else int((sidecar or {}).get("seed", 0))
+    if model_type is None:  # the models folder the run read (BOP: --model-type cad), unless given now
+        model_type = ((sidecar or {}).get("extra") or {}).get("model_type")
+        if model_type is not None and not (isinstance(model_type, str) and model_type):
+            raise ResultsError(f"extra.model_type: expected a models folder type or null, got {model_type!r}",
+                               file=sidecar_path(csv_path))  # fmt: skip
     request = DatasetRequest(
         dataset=name, root=None if root is None else Path(root), split=chosen_split or None,
         n_views=None if views is None else int(views), seed=seed_value, model_type=model_type, split_type=split_type,

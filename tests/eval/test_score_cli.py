@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bop_cender.cli import main
-from bop_cender.errors import ConfigError, ResultsWarning
+from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
 from bop_cender.eval.score_file import choose_data, score_file
 from bop_cender.eval.score_report import SCORE_KEYS
 from bop_cender.results.bop_csv import write_bop_results
@@ -61,6 +61,18 @@ def test_score_reads_the_data_root_from_the_run_sidecar(small_fixture, results_d
     assert main(["score", str(csv_path), "--no-progress"]) == 0
     assert "run sidecar" in capsys.readouterr().out
     assert (results_dir / "scores_cendernet_tless-test.json").is_file()
+
+
+def test_score_reads_the_models_folder_type_from_the_run_sidecar(small_fixture, results_dir) -> None:
+    """`run --dataset bop --model-type cad` then `score F.csv` with no flag failed: models/ not found."""
+    csv_path = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(csv_path, gt_rows(small_fixture))
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0, extra={"model_type": "cad"})
+    assert choose_data(csv_path).request.model_type == "cad"
+    assert choose_data(csv_path, model_type="eval").request.model_type == "eval"  # an option given now wins
+    write_run_sidecar(csv_path, small_fixture.root, "tless", "test", {}, seed=0, extra={"model_type": 3})
+    with pytest.raises(ResultsError, match="extra.model_type: expected a models folder type or null, got 3"):
+        choose_data(csv_path)
 
 
 def test_score_refuses_a_sidecar_for_another_dataset(small_fixture, results_dir, capsys) -> None:
