@@ -274,6 +274,7 @@ def run(
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
     _check_views(request, dataset, keys)
+    _check_targets(dataset, keys)
     work = work_dir(request.out)
     fingerprint = request.fingerprint()
     if work.exists() and not request.resume:
@@ -326,6 +327,28 @@ def _check_views(request: RunRequest, dataset: Dataset, keys: list[str]) -> None
         raise ConfigError(f"every scene has {why}", field="--n-views")
     warnings.warn(f"{len(short)} of {len(keys)} scenes have {why}: no object can be found in them", DatasetWarning,
                   stacklevel=3)  # fmt: skip
+
+
+def _check_targets(dataset: Dataset, keys: list[str]) -> None:
+    """The BOP targets file as ``score`` will judge it, before any scene (:func:`~bop_cender.eval.targets.
+    targets_file_problems`: malformed, or asking for more instances than an image's ground truth has): a run on such a
+    file did all its work and exited 0, and its ``score`` then refused it.
+
+    Raises:
+        ConfigError: the first problem (``bop-cender info`` lists them all).
+    """
+    from bop_cender.eval.targets import targets_file_problems
+
+    scenes = []
+    for key in keys:
+        try:
+            scenes.append(dataset.scene(key))
+        except BopCenderError:
+            continue  # fails on its own, with its error
+    problems = targets_file_problems(dataset, scenes)
+    if problems:
+        more = f" (and {len(problems) - 1} more: bop-cender info lists them)" if len(problems) > 1 else ""
+        raise ConfigError(f"{problems[0]}{more}: score would refuse this split's targets")
 
 
 def _check_meshes(dataset: Dataset) -> None:

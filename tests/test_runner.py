@@ -123,11 +123,18 @@ def test_a_mesh_of_another_size_than_its_entry_stops_the_run_before_any_scene(mi
     assert calls == [] and not work_dir(out).exists() and not out.exists()
 
 
-def test_scenes_of_too_few_views_are_refused_or_named(tmp_path):
-    """Groups of one view (BOP images without camera poses, --n-views 1) wrote a CSV of no rows with exit 0."""
-    root = tmp_path / "tless"
+@pytest.fixture(scope="module")
+def tless_root(tmp_path_factory) -> Path:
+    """A T-LESS-layout test split of one scene of 3 views (BOP targets file included)."""
+    root = tmp_path_factory.mktemp("runner_tless") / "tless"
     assert main(["synth", "--layout", "tless", "--out", str(root), "--scenes", "1", "--views", "3", "--pbr-scenes",
                  "0", "--seed", "5", "--no-contact-sheets"]) == 0  # fmt: skip
+    return root
+
+
+def test_scenes_of_too_few_views_are_refused_or_named(tless_root, tmp_path):
+    """Groups of one view (BOP images without camera poses, --n-views 1) wrote a CSV of no rows with exit 0."""
+    root = tless_root
     config = CenDerNetConfig.for_dataset("tless", **CHEAP)
     out = tmp_path / "cendernet-oracle_tless-test.csv"
     with pytest.raises(ConfigError, match=r"--n-views: every scene has fewer views than centers.min_views = 2, .*"
@@ -137,6 +144,25 @@ def test_scenes_of_too_few_views_are_refused_or_named(tmp_path):
     with pytest.warns(DatasetWarning, match=r"1 of 2 scenes have fewer views than centers.min_views = 2, .*g01 \(1\)"):
         summary = run(RunRequest("tless", str(root), "test", out, n_views=2, config=config, deterministic_time=True))
     assert summary.scenes == 2 and summary.rows > 0
+
+
+def test_a_targets_file_score_would_refuse_stops_the_run_before_any_scene(tless_root, tmp_path):
+    """A run on it did all its work and exited 0; its score then refused the targets."""
+    import shutil
+
+    root = tmp_path / "tless"
+    shutil.copytree(tless_root, root)
+    path = root / "test_targets_bop19.json"
+    targets = json.loads(path.read_text())
+    targets[0]["inst_count"] = 9
+    path.write_text(json.dumps(targets))
+    out = tmp_path / "cendernet-oracle_tless-test.csv"
+    config = CenDerNetConfig.for_dataset("tless", **CHEAP)
+    calls = []
+    with pytest.raises(ConfigError, match=r"test_targets_bop19.json: inst_count: the target of scene 1, image \d+, "
+                       r"object \d+ has inst_count 9.*: score would refuse this split's targets"):  # fmt: skip
+        run(RunRequest("tless", str(root), "test", out, config=config), progress=lambda *a: calls.append(a))
+    assert calls == [] and not work_dir(out).exists()
 
 
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
