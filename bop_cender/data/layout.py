@@ -16,5 +16,8 @@ SCENE_GT_INFO = "scene_gt_info.json"
 TARGETS_FILE = "test_targets_bop19.json"
 #: Models' sizes and symmetries (in each models folder).
 MODELS_INFO = "models_info.json"
+#: The record ``bop-cender synth`` keeps at the root of a dataset it made (not a BOP file: real data has none); its
+#: ``complete`` field is False while a generation is under way (:func:`bop_cender.data.registry.open_dataset` warns).
+SYNTH_RECORD = "bop_cender_synth.json"
 #: The toolkit's minimum visible fraction of a BOP'19 target instance (``enumerate_test_targets.py``).
 MIN_VISIB_FRACT = 0.1

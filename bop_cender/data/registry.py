@@ -9,11 +9,14 @@ synthetic generator.
 
 from __future__ import annotations
 
+import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from bop_cender.data.layout import SYNTH_RECORD
 from bop_cender.data.types import Dataset
-from bop_cender.errors import ConfigError
+from bop_cender.errors import ConfigError, DatasetWarning
 
 #: The names the command line offers; any other BOP dataset name opens with the generic BOP loader.
 DATASETS = ("dimo", "tless", "bop")
@@ -76,6 +79,7 @@ def open_dataset(request: DatasetRequest) -> Dataset:
     root = request.root
     if root.exists() and not root.is_dir():  # said here, where the option is known, not as a missing folder
         raise ConfigError("is a file, expected the dataset root folder", file=root, field="--data-root")
+    _warn_if_unfinished(root)
     if loader == "dimo":
         from bop_cender.data.dimo import open_dimo
 
@@ -110,4 +114,24 @@ def _refuse_bop_only_options(request: DatasetRequest) -> None:
             f"a DIMO scene is the viewpoints of its folder, not groups of --n-views {request.n_views} images; "
             "--n-views is for BOP-layout test splits",
             field="--n-views",
+        )
+
+
+def _warn_if_unfinished(root: Path) -> None:
+    """A warning where ``root`` is a dataset ``bop-cender synth`` has not finished (its record says ``complete``
+    false: killed midway, or still running): its scene folders read as the whole dataset otherwise. Real data has no
+    record; records of before the field say nothing."""
+    path = root / SYNTH_RECORD
+    if not path.is_file():
+        return
+    try:
+        complete = json.loads(path.read_text()).get("complete")
+    except (OSError, ValueError, AttributeError):
+        return  # synth itself refuses a broken record; reading the data does not need it
+    if complete is False:
+        warnings.warn(
+            f"{path}: complete: bop-cender synth has not finished this dataset (interrupted, or still running): it"
+            " holds only the scenes written so far; rerun the same synth command to complete it",
+            DatasetWarning,
+            stacklevel=3,
         )

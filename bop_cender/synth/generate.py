@@ -31,7 +31,7 @@ from bop_cender.synth.done import scene_done
 from bop_cender.synth.models_info import model_folders_complete
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache
-from bop_cender.synth.record import check_or_write_record
+from bop_cender.synth.record import check_or_write_record, mark_complete
 from bop_cender.synth.resume_check import FolderShape, check_done_folder
 
 
@@ -210,6 +210,7 @@ def generate(
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
+    mark_complete(root, False)  # until the last file is written: a killed run leaves a dataset that says so
     jobs = impl.scene_jobs(spec)
     pending, folders = {}, 0
     for i, job in enumerate(jobs):
@@ -250,4 +251,5 @@ def generate(
                     bar.update(n)
         bar.close()
     targets = impl.finish(root, spec)
+    mark_complete(root, True)
     return GenerationReport(root, layout, len(jobs), written, folders - written, targets)

@@ -16,10 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from bop_cender.data.bop_io import check_output_dir, save_json
+from bop_cender.data.layout import SYNTH_RECORD
 from bop_cender.errors import ConfigError, DatasetError
 from bop_cender.synth.demo import DEMO_VERSION
 
-RECORD_FILE = "bop_cender_synth.json"
+RECORD_FILE = SYNTH_RECORD
 #: The fields a resumed run must match (the others, the generator version, only inform).
 CHECKED_FIELDS = ("layout", "seed", "catalogue_seed")
 #: Checked fields a record may lack, with the value their absence means: records written before the field
@@ -104,3 +105,14 @@ def check_or_write_record(root: str | Path, layout: str, spec: Any) -> Path:
                 field=field,
             )
     return path
+
+
+def mark_complete(root: str | Path, complete: bool) -> None:
+    """Set the record's ``complete`` field: False when a generation starts, True once its last file is written. A
+    generation killed midway left scene folders that the loaders read as the whole dataset; the field lets
+    :func:`~bop_cender.data.registry.open_dataset` say so (rerunning the same ``synth`` command completes it). The
+    record's other fields are kept as they are."""
+    path = Path(root) / RECORD_FILE
+    record = json.loads(path.read_text())
+    if record.get("complete") is not complete:
+        save_json(path, {**record, "complete": complete})

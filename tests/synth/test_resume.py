@@ -187,3 +187,34 @@ def test_a_folder_put_in_place_by_another_writer_during_the_rename_is_moved_asid
     assert not list(final.parent.glob(".*"))
     assert calls[0][1].endswith("-old0") and calls[2][1].endswith("-old1")  # the old folder, then theirs, aside
     assert calls[1] == calls[3] and calls[1][1] == "000002" and ".partial-" in calls[1][0]  # our rename, twice
+
+
+def test_a_killed_generation_says_so_when_its_dataset_is_opened(tmp_path: Path, monkeypatch):
+    """A synth killed after its first scene left a dataset that info and run read as complete (1 scene, no
+    problem found)."""
+    import warnings
+
+    from bop_cender.data.registry import DatasetRequest, open_dataset
+    from bop_cender.errors import DatasetWarning
+
+    root = tmp_path / "killed"
+    real = generate_module._run_job
+    jobs = []
+
+    def killed_after_one(*args):
+        if jobs:
+            raise KeyboardInterrupt
+        jobs.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(generate_module, "_run_job", killed_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        generate("tless", root, SPEC, progress=False)
+    with pytest.warns(DatasetWarning, match=r"bop_cender_synth.json: complete: bop-cender synth has not finished"):
+        dataset = open_dataset(DatasetRequest("tless", root, "test"))
+    assert len(dataset.scene_keys) >= 1
+    monkeypatch.setattr(generate_module, "_run_job", real)
+    generate("tless", root, SPEC, progress=False)  # the same command again completes it
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_dataset(DatasetRequest("tless", root, "test"))

@@ -61,6 +61,7 @@ def test_only_the_files_real_dimo_has(dimo_root):
         "layout": "dimo",
         "seed": 5,
         "catalogue_seed": DIMO_CATALOGUE_SEED,
+        "complete": True,
     }
 
 

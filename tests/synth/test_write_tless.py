@@ -171,6 +171,7 @@ def test_the_record_names_the_seeds_and_a_mismatched_resume_is_refused(tless_roo
         "layout": "tless",
         "seed": 3,
         "catalogue_seed": TLESS_CATALOGUE_SEED,
+        "complete": True,
     }
     root = tmp_path / "ds"
     generate("tless", root, models_only(SPEC), progress=False)
