@@ -191,7 +191,28 @@ def check_files(dataset: Dataset, scenes: Iterable[Scene], deep: bool = False, p
     models = [*dataset.models.values(), *dataset.eval_models.values()]
     result.meshes, mesh_problems = check_meshes(models)
     result.notes = unlisted_meshes(models)
+    scenes = list(scenes)
     images = [image for scene in scenes for image in scene_images(scene, dataset.image_size)]
     result.images = len({image.path for image in images})
-    result.problems = mesh_problems + check_images(images, deep, progress)
+    result.problems = mesh_problems + colourless_views(scenes) + check_images(images, deep, progress)
     return result
+
+
+def colourless_views(scenes: Iterable[Scene]) -> list[str]:
+    """One line per scene with views that have no colour image (no ``rgb/`` or ``gray/`` folder): the method runs on
+    colour images, so ``run`` fails on such a scene; ``info`` checked only the depth images it found there."""
+    lines = []
+    for scene in scenes:
+        missing = [v.im_id for v in scene.views if v.rgb_path is None]
+        if missing:
+            source = scene.views[0].source
+            folder = Path(source).parent if source else None
+            shown = ", ".join(map(str, missing[:5])) + (" ..." if len(missing) > 5 else "")
+            lines.append(
+                DatasetError(
+                    f"scene {scene.key}: no colour image of {len(missing)} view(s) (images {shown}): no rgb/ or gray/"
+                    " folder, and the method runs on colour images",
+                    file=folder,
+                ).format()
+            )
+    return lines

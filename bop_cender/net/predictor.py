@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -88,7 +89,10 @@ def scene_rgb(scene: Scene) -> np.ndarray:
     images = []
     for view in scene.views:
         if view.rgb_path is None:
-            raise DatasetError(f"scene {scene.key} image {view.im_id} has no colour image", file=view.source)
+            folder = Path(view.source).parent if view.source else None  # the scene folder, not its camera file
+            raise DatasetError(
+                f"scene {scene.key} image {view.im_id} has no colour image (no rgb/ or gray/ folder)", file=folder
+            )
         image = load_rgb(view.rgb_path)
         if image.shape[:2] != (view.height, view.width):
             raise DatasetError(

@@ -244,3 +244,15 @@ def test_a_broken_file_of_several_view_groups_is_one_problem() -> None:
         "test/000001/scene_gt.json: malformed JSON (scenes 000001/g00, 000001/g01, 000001/g02, 000001/g03, 000001/g04"
         " and 3 more: the same error)"
     ]
+
+
+def test_a_scene_without_colour_images_is_a_problem(tless: Path, capsys) -> None:
+    """With its rgb/ folder gone, info checked the depth images alone and found no problem; run then failed."""
+    import shutil
+
+    folder = tless / "test_primesense" / "000001"
+    shutil.rmtree(folder / "rgb")
+    code, lines, _ = info(capsys, tless)
+    found = problems(lines)
+    assert code == 2 and len(found) == 1, lines
+    assert found[0].startswith(f"{folder}: scene 000001") and "no colour image of 3 view(s)" in found[0]
