@@ -33,6 +33,7 @@ from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_f
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import BopCenderError, ConfigError, DatasetWarning, RunError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
+from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNet, CenDerNetConfig, network_curvature_choice
 from bop_cender.results.bop_csv import scene_estimates_to_rows, write_bop_results
@@ -625,11 +626,18 @@ def _check_request(request: RunRequest) -> None:
         check_output_dir(request.vis_dir, "--vis")
     if out.suffix != ".csv":
         raise ConfigError(f"expected a .csv file name, got {out.name!r}", field="--out")
-    contradiction = name_contradiction(parse_result_filename(out.name), request.dataset, request.split)
+    name = parse_result_filename(out.name)
+    contradiction = name_contradiction(name, request.dataset, request.split)
+    dataset_name = request.dataset
+    folder = Path(request.data_root).resolve().name if request.data_root else None
+    if request.dataset == "bop" and folder in TOOLKIT_TEST_WIDTHS:  # a BOP dataset's own folder: named by it
+        dataset_name = folder
+        if contradiction is None and name.dataset != folder:  # score takes the name's dataset's toolkit constants
+            contradiction = f"the file name says dataset {name.dataset!r}, the data is the BOP dataset {folder!r}"
     if contradiction is not None:
         raise ConfigError(
             f"{contradiction}; `score` reads the data from the name: name it"
-            f" {default_result_filename(parse_result_filename(out.name).method, request.dataset, request.split)}",
+            f" {default_result_filename(name.method, dataset_name, request.split)}",
             field="--out",
         )
 

@@ -165,6 +165,42 @@ def test_a_targets_file_score_would_refuse_stops_the_run_before_any_scene(tless_
     assert calls == [] and not work_dir(out).exists()
 
 
+def test_a_bop_datasets_own_folder_names_the_results(tless_root, tmp_path, monkeypatch, capsys):
+    """`--dataset bop` on a folder named lmo wrote cendernet-oracle_bop-test.csv, and took --out x_tless-test.csv:
+    score would have used T-LESS's toolkit constants on LM-O's data."""
+    import shutil
+
+    root = tmp_path / "lmo"
+    shutil.copytree(tless_root, root)
+    (root / "bop_cender_synth.json").unlink()  # a plain BOP layout
+    config = CenDerNetConfig.for_dataset("bop", **CHEAP)
+    with pytest.raises(ConfigError, match=r"--out: the file name says dataset 'tless', the data is the BOP dataset "
+                       r"'lmo'; `score` reads the data from the name: name it m_lmo-test.csv"):  # fmt: skip
+        run(RunRequest("bop", str(root), "test", tmp_path / "m_tless-test.csv", model_type="cad", config=config))
+    monkeypatch.chdir(tmp_path)
+    argv = [
+        "run",
+        "--dataset",
+        "bop",
+        "--data-root",
+        str(root),
+        "--model-type",
+        "cad",
+        "--heatmaps",
+        "oracle",
+        "--limit-scenes",
+        "1",
+        "--candidates",
+        "32",
+        "--top-k",
+        "1",
+        "--no-progress",
+        "--deterministic-time",
+    ]
+    assert main(argv) == 0, capsys.readouterr().err  # fmt: skip
+    assert (tmp_path / "cendernet-oracle_lmo-test.csv").is_file()
+
+
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     run(request(mini_root, out, workers=2))

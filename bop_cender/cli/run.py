@@ -142,7 +142,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
         "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
     )
-    out = Path(args.out or default_result_filename(f"cendernet-{args.heatmaps}", args.dataset, split))
+    out = Path(args.out or default_result_filename(f"cendernet-{args.heatmaps}", _named(args), split))
     if args.data_root is None:
         announce(f"no --data-root: using the embedded synthetic {args.dataset} demo")
     request = RunRequest(
@@ -198,3 +198,17 @@ def cmd_run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 1
     return 0
+
+
+def _named(args: argparse.Namespace) -> str:
+    """The dataset part of the default results name: a ``--dataset bop`` folder's own name where it is a BOP
+    dataset's (``lmo``: score then uses the toolkit's constants of LM-O; ``bop`` told it nothing), else the option."""
+    from pathlib import Path
+
+    from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS
+
+    if args.dataset == "bop" and args.data_root is not None:
+        folder = Path(args.data_root).resolve().name
+        if folder in TOOLKIT_TEST_WIDTHS:
+            return folder
+    return args.dataset
