@@ -19,6 +19,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="dataset root: check object ids against its models, the units of t against their diameters, and the"
         " scenes and images against the split the --out name says (where it opens there)",
     )
+    p.add_argument(
+        "--model-type",
+        default=None,
+        help="the models folder of a root with several (cad: models_cad/), for the scene and image check",
+    )
     # The name this option had before every command named the dataset root --data-root; kept, announced.
     p.add_argument("--dataset-root", type=Path, default=None, dest="old_dataset_root", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_convert_pvnet)
@@ -37,16 +42,18 @@ def cmd_convert_pvnet(args: argparse.Namespace) -> int:
         root = args.old_dataset_root
     check_output_file(args.out)
     known = diameters = check = None
+    if args.model_type is not None and root is None:
+        raise ConfigError("chooses the models folder of --data-root: give --data-root too", field="--model-type")
     if root is not None:
         diameters = _model_diameters(root)
         known = sorted(diameters)
-        check = _rows_in_split(args.out, root, args.input)
+        check = _rows_in_split(args.out, root, args.input, args.model_type)
     rows = convert_pvnet(args.input, args.out, known_obj_ids=known, diameters=diameters, check=check)
     print(f"wrote {len(rows)} estimates to {args.out}")
     return 0
 
 
-def _rows_in_split(out: Path, root: Path, source: Path):
+def _rows_in_split(out: Path, root: Path, source: Path, model_type: str | None = None):
     """With ``--data-root``: a check that every row's scene and image are in the split the output's BOP name says
     (``pvnet_tless-test.csv``: T-LESS ``test``), as ``score`` will check them. Where that split does not open at
     the root (a models-only root, another dataset's), a warning says why and the ids are left to ``score``."""
@@ -57,7 +64,7 @@ def _rows_in_split(out: Path, root: Path, source: Path):
     from bop_cender.results.files import parse_result_filename
 
     name = parse_result_filename(out)
-    request = DatasetRequest(name.dataset, root, name.split, split_type=name.split_type)
+    request = DatasetRequest(name.dataset, root, name.split, split_type=name.split_type, model_type=model_type)
 
     def check(rows) -> None:
         try:

@@ -217,6 +217,16 @@ def test_with_a_data_root_scenes_and_images_are_checked_against_the_named_split(
     other = ["convert-pvnet", str(doc), "--out", str(tmp_path / "pvnet_dimo-sim.csv"), "--data-root", str(root)]
     assert main(other) == 0  # not DIMO's layout at that root: said, and the ids left to score
     assert "warning: scenes and images not checked: " in capsys.readouterr().err
+    import shutil  # a BOP dataset of several models folders: its split opens with the one --model-type names
+
+    lmo = shutil.copytree(root, tmp_path / "lmo")
+    doc.write_text(json.dumps({"000001/000999": entry}))
+    named = ["convert-pvnet", str(doc), "--out", str(tmp_path / "pvnet_lmo-test.csv"), "--data-root", str(lmo)]
+    assert main(named) == 0 and "choose one with --model-type" in capsys.readouterr().err
+    assert main([*named, "--model-type", "cad"]) == 2
+    assert "im_id: scene 1 has no image 999" in capsys.readouterr().err
+    assert main(["convert-pvnet", str(doc), "--out", str(out), "--model-type", "cad"]) == 2
+    assert "--model-type: chooses the models folder of --data-root" in capsys.readouterr().err
 
 
 def test_a_split_whose_ground_truth_is_withheld_converts_with_a_warning(tmp_path: Path, capsys) -> None:
