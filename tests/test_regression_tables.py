@@ -36,3 +36,18 @@ def test_a_drift_is_reported_as_a_diff(run, tmp_path) -> None:
     (tmp_path / "scores.csv").write_text("\n".join(lines) + "\n")
     problems = compare_tables(run, tmp_path)
     assert problems == [f"scores.csv: {metric}//{th}: value: expected {float(value) + 0.01:.9f}, got {value}"]
+
+
+def test_the_scripts_folders_are_checked_before_the_fixture_is_scored(tmp_path, capsys) -> None:
+    """--tables of a typo read as four missing tables ("drift", exit 1); --anchor of a folder that is not the toolkit
+    ended in a traceback."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "regression.py"
+    spec = importlib.util.spec_from_file_location("regression_script", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--tables", str(tmp_path / "nowhere")]) == 2
+    assert capsys.readouterr().err == f"error: {tmp_path / 'nowhere'}: --tables: tables folder not found\n"
+    assert script.main(["--anchor", str(tmp_path / "no_toolkit")]) == 2
+    assert "--anchor: the official toolkit's folder not found" in capsys.readouterr().err
