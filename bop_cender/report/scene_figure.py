@@ -13,6 +13,7 @@ T-LESS-layout view, and one-pixel outlines of a whole 720 x 540 view shrunk into
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,10 @@ from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pose_errors import hull_vertices, mssd
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
+
+TITLE_CHARS_PER_INCH = 13
+"""How many characters of the 8-point title fit an inch of the figure: a narrow figure (one or two views) wraps its
+title instead of cutting it."""
 
 MSSD_FRACTION = 0.05
 """A pose is right when its MSSD is under this fraction of the object's diameter (the paper's AR_MSSD<5%)."""
@@ -178,15 +183,21 @@ def scene_figure(
     judged = ""
     if verdicts is not None:
         judged = f", {sum(verdicts.estimate_right)} right (MSSD < {MSSD_FRACTION:.0%} of the diameter)"
-    t = output.estimate.timings
-    fig.suptitle(f"scene {scene.key}: {len(est)} estimated, {len(gt)} GT{judged}; " +
-                 ", ".join(f"{k} {v:.1f} s" for k, v in t.items()), fontsize=8)  # fmt: skip
+    title = f"scene {scene.key}: {len(est)} estimated, {len(gt)} GT{judged}"
+    fig.suptitle(figure_title(title, output.estimate.timings, fig.get_figwidth()), fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
     return path
+
+
+def figure_title(head: str, timings: Mapping[str, float], width_in: float) -> str:
+    """``head`` and the stages' times, wrapped to a figure ``width_in`` inches wide (:data:`TITLE_CHARS_PER_INCH`;
+    a figure of one or two views cut its one-line title at both sides); a time and its unit stay on one line."""
+    times = ", ".join(f"{k}\u00a0{v:.1f}\u00a0s" for k, v in timings.items())
+    return textwrap.fill(f"{head}; {times}", width=max(20, int(TITLE_CHARS_PER_INCH * width_in)))
 
 
 def _project(view, point: np.ndarray) -> tuple[float, float]:

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.geometry.symmetry import ContinuousSymmetry
-from bop_cender.report.scene_figure import _outline, crop_box, judge_estimates
+from bop_cender.report.scene_figure import _outline, crop_box, figure_title, judge_estimates
 
 
 def _pose(rotvec=(0.0, 0.0, 0.0), t=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -100,3 +100,13 @@ def test_outline_is_the_mask_pixels_next_to_the_outside() -> None:
     assert not outline[2:4, 2:5].any() and not outline[~mask].any()
     full = np.ones((3, 3), dtype=bool)
     assert _outline(full).sum() == 8  # the image's border counts as outside
+
+
+def test_the_title_of_a_narrow_figure_wraps_and_keeps_each_time_whole() -> None:
+    """One- and two-view figures cut their one-line title at both sides."""
+    timings = {"heatmaps": 2.0, "centers": 0.04, "poses": 12.0}
+    head = "scene 000000_00: 4 estimated, 4 GT, 3 right (MSSD < 5% of the diameter)"
+    narrow = figure_title(head, timings, 2.2).splitlines()
+    assert len(narrow) > 2 and all(len(line) <= 28 for line in narrow)
+    assert "poses\u00a012.0\u00a0s" in narrow[-1]  # never "12.0" on one line and "s" on the next
+    assert figure_title(head, timings, 15.4).count("\n") == 0  # seven views: one line
