@@ -173,7 +173,10 @@ def open_dimo(root: str | Path, split: str, selection: DimoSelection = PAPER_SEL
         f"models: target ids {_fmt_ids(targets) or 'none'}; carrier/background ids (>= {CARRIER_MIN_ID})"
         f" {_fmt_ids(carriers) or 'none'}, loaded as occluders, never targets"
     )
-    notes.append("DIMO has no models_eval/: evaluation uses the models/ meshes")
+    if (root / "models_eval").is_dir():  # bop-cender synth writes one (a copy of models/); real DIMO has none
+        notes.append("models_eval/ is not part of DIMO's layout and is not read: evaluation uses the models/ meshes")
+    else:
+        notes.append("DIMO has no models_eval/: evaluation uses the models/ meshes")
     residuals: dict[str, float] = {}
     loader = _SceneLoader(split=split, folders={f.scene_id: f for f in folders}, models=models, residuals=residuals)
     return Dataset(

@@ -397,3 +397,13 @@ def test_registry_refuses_bop_only_options_on_dimo(option, value):
         open_dataset(DatasetRequest("dimo", HAND, "real", **{option: value}))
     assert exc.value.field == "--" + option.replace("_", "-")
     assert "DIMO" in str(exc.value)
+
+
+def test_a_models_eval_folder_is_said_to_be_unread(tmp_path):
+    """bop-cender synth writes one beside models/; the note said DIMO had none, and a different one went unnoticed."""
+    import shutil
+
+    root = shutil.copytree(HAND, tmp_path / "dimo")
+    shutil.copytree(root / "models", root / "models_eval")
+    notes = "\n".join(open_dimo(root, "real").selection)
+    assert "models_eval/ is not part of DIMO's layout and is not read: evaluation uses the models/ meshes" in notes
