@@ -197,6 +197,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
     print(
         f"{report.layout} dataset at {report.root}: {report.written} scene folders written, "
         f"{report.skipped} already complete"
+        + (f", {report.others} more of an earlier run kept (not asked for now)" if report.others else "")
         + (f", {report.targets} BOP'19 targets" if report.targets is not None else ""),
         file=sys.stderr,
     )

@@ -144,6 +144,8 @@ class GenerationReport:
     written: int
     skipped: int
     targets: int | None = None
+    others: int = 0
+    """Scene folders beside this run's that it did not ask for (an earlier run's, of more scenes): kept."""
 
 
 @dataclass
@@ -213,8 +215,10 @@ def generate(
     mark_complete(root, False)  # until the last file is written: a killed run leaves a dataset that says so
     jobs = impl.scene_jobs(spec)
     pending, folders = {}, 0
+    mine: set[Path] = set()
     for i, job in enumerate(jobs):
         job_folders = impl.job_folders(root, spec, job)
+        mine.update(job_folders)
         done = [p for p in job_folders if scene_done(p)]
         for folder in done:  # before anything is written, as the record's check
             check_done_folder(folder, impl.folder_shape(spec, job, folder))
@@ -252,4 +256,8 @@ def generate(
         bar.close()
     targets = impl.finish(root, spec)
     mark_complete(root, True)
-    return GenerationReport(root, layout, len(jobs), written, folders - written, targets)
+    splits = {folder.parent for folder in mine}
+    others = sum(
+        1 for split in splits for f in split.iterdir() if f.is_dir() and not f.name.startswith(".") and f not in mine
+    )
+    return GenerationReport(root, layout, len(jobs), written, folders - written, targets, others)

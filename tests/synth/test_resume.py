@@ -93,6 +93,9 @@ def test_the_cli_says_what_is_left_and_counts_only_that(tmp_path: Path, capsys):
     assert "synth tless: 1/1 scene (100%) done" in err
     assert "1 scene folders written, 2 already complete" in err
     assert "\r" not in err and "\x1b" not in err
+    fewer = [a if a != "3" else "2" for a in args]  # --scenes 2 into the folder of 3: the third is said, not hidden
+    assert main(fewer) == 0
+    assert "0 scene folders written, 2 already complete, 1 more of an earlier run kept" in capsys.readouterr().err
 
 
 def test_two_writers_of_one_scene_each_rename_a_complete_folder(tmp_path: Path):
