@@ -306,7 +306,8 @@ def _check_views(request: RunRequest, dataset: Dataset, keys: list[str]) -> None
     to score), a warning naming them otherwise. BOP-layout images without a camera pose are scenes of one view each,
     and a last group of a scene may hold fewer views than ``--n-views``. A scene that does not load is left to fail
     on its own, with its error."""
-    need = request.config.centers.min_views
+    centers = request.config.centers
+    need = centers.min_views if request.config.known_counts else max(centers.min_views, centers.min_views_unknown_count)
     short: dict[str, int] = {}
     for key in keys:
         try:
@@ -319,13 +320,17 @@ def _check_views(request: RunRequest, dataset: Dataset, keys: list[str]) -> None
     if not short:
         return
     listed = ", ".join(f"{k} ({v})" for k, v in list(short.items())[:5]) + (" ..." if len(short) > 5 else "")
-    why = (
-        f"fewer views than centers.min_views = {need}, the fewest a 3D centre is triangulated from: {listed}; group"
-        " more views per scene (--n-views), or give every image its camera pose (cam_R_w2c, cam_t_w2c in"
-        " scene_camera.json)"
-    )
+    if request.dataset == "dimo":  # a DIMO scene's views are its images of the selected viewpoints
+        advice, field = "DIMO reads viewpoints 0, 2, 4, ... of a scene: its scenes need more images", "--split"
+    else:
+        advice, field = (
+            "group more views per scene (--n-views), or give every image its camera pose (cam_R_w2c, cam_t_w2c in"
+            " scene_camera.json)",
+            "--n-views",
+        )
+    why = f"fewer views than the {need} a 3D centre is triangulated from (centers.min_views): {listed}; {advice}"
     if len(short) == len(keys):
-        raise ConfigError(f"every scene has {why}", field="--n-views")
+        raise ConfigError(f"every scene has {why}", field=field)
     warnings.warn(f"{len(short)} of {len(keys)} scenes have {why}: no object can be found in them", DatasetWarning,
                   stacklevel=3)  # fmt: skip
 
@@ -632,7 +637,7 @@ def _check_request(request: RunRequest) -> None:
     folder = Path(request.data_root).resolve().name if request.data_root else None
     if request.dataset == "bop" and folder in TOOLKIT_TEST_WIDTHS:  # a BOP dataset's own folder: named by it
         dataset_name = folder
-        if contradiction is None and name.dataset != folder:  # score takes the name's dataset's toolkit constants
+        if contradiction is None and name.dataset not in (folder, "bop"):  # score takes the named one's constants
             contradiction = f"the file name says dataset {name.dataset!r}, the data is the BOP dataset {folder!r}"
     if contradiction is not None:
         raise ConfigError(
@@ -695,6 +700,9 @@ def _init_worker(request: RunRequest) -> None:
 
     _exit_with_parent()
     torch.set_num_threads(1)
+    # the run's process has said every dataset warning already (it opens the data, reads every mesh and scene first):
+    # each worker repeating them, in Python's raw format, said each one N + 1 times
+    warnings.simplefilter("ignore", DatasetWarning)
     dataset = open_run_dataset(request)
     _STATE[:] = [_WorkerState(request, dataset, build_method(request, dataset))]
 

@@ -38,18 +38,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tables", type=Path, default=TABLES_DIR, help="tables folder (default results/regression)")
     parser.add_argument("--work", type=Path, default=None, help="keep the fixture here (default: a temporary folder)")
     args = parser.parse_args(argv)
-    if not args.update and not args.tables.is_dir():  # a typo read as four missing tables, exit 1 ("drift")
+    if not args.update and args.anchor is None and not args.tables.is_dir():  # a typo read as four drifted tables
         print(f"error: {args.tables}: --tables: tables folder not found", file=sys.stderr)
         return 2
-    if args.anchor is not None and not args.anchor.is_dir():  # checked before the fixture is scored (a minute)
-        print(f"error: {args.anchor}: --anchor: the official toolkit's folder not found", file=sys.stderr)
-        return 2
+    scripts = None
+    if args.anchor is not None:  # checked before the fixture is scored
+        if not args.anchor.is_dir():
+            print(f"error: {args.anchor}: --anchor: the official toolkit's folder not found", file=sys.stderr)
+            return 2
+        from bop_toolkit_adapters.runtime import ToolkitUnavailable, import_toolkit
+
+        try:
+            _, scripts = import_toolkit(args.anchor)
+        except ToolkitUnavailable as e:  # a folder that is not the toolkit, or one missing its dependencies
+            print(f"error: {args.anchor}: --anchor: {e}", file=sys.stderr)
+            return 2
 
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         run = run_regression(work)
         if args.anchor is not None:
-            return _anchor(run, work, args.anchor, args.tables)
+            return _anchor(run, work, scripts, args.tables)
     if args.update:
         for path in write_tables(run, args.tables):
             print(f"wrote {path}")
@@ -66,17 +75,12 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _anchor(run, work: Path, toolkit: Path, tables: Path) -> int:
+def _anchor(run, work: Path, scripts, tables: Path) -> int:
     from bop_cender.data.bop_io import write_text_atomic
     from bop_cender.data.registry import DatasetRequest, open_dataset
     from bop_toolkit_adapters.export import export_for_toolkit
-    from bop_toolkit_adapters.runtime import ToolkitUnavailable, evaluate, import_toolkit, vsd_renderer_available
+    from bop_toolkit_adapters.runtime import evaluate, vsd_renderer_available
 
-    try:
-        _, scripts = import_toolkit(toolkit)
-    except ToolkitUnavailable as e:  # a folder that is not the toolkit, or one missing its dependencies
-        print(f"error: {toolkit}: --anchor: {e}", file=sys.stderr)
-        return 2
     why = vsd_renderer_available()
     if why is not None:
         print(f"the toolkit's VSD renderer is not available ({why}): the anchor needs it", file=sys.stderr)

@@ -51,3 +51,6 @@ def test_the_scripts_folders_are_checked_before_the_fixture_is_scored(tmp_path, 
     assert capsys.readouterr().err == f"error: {tmp_path / 'nowhere'}: --tables: tables folder not found\n"
     assert script.main(["--anchor", str(tmp_path / "no_toolkit")]) == 2
     assert "--anchor: the official toolkit's folder not found" in capsys.readouterr().err
+    (tmp_path / "not_a_toolkit").mkdir()  # refused before the fixture is scored, not a traceback after it
+    assert script.main(["--anchor", str(tmp_path / "not_a_toolkit"), "--tables", str(tmp_path / "new")]) == 2
+    assert "--anchor: the BOP toolkit (bop_toolkit_lib) is not importable" in capsys.readouterr().err

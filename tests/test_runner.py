@@ -6,6 +6,7 @@ import dataclasses
 import json
 import re
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -137,13 +138,26 @@ def test_scenes_of_too_few_views_are_refused_or_named(tless_root, tmp_path):
     root = tless_root
     config = CenDerNetConfig.for_dataset("tless", **CHEAP)
     out = tmp_path / "cendernet-oracle_tless-test.csv"
-    with pytest.raises(ConfigError, match=r"--n-views: every scene has fewer views than centers.min_views = 2, .*"
-                       r"000001/g00 \(1\), 000001/g01 \(1\), 000001/g02 \(1\)"):  # fmt: skip
+    with pytest.raises(ConfigError, match=r"--n-views: every scene has fewer views than the 2 a 3D centre is "
+                       r"triangulated from .*000001/g00 \(1\), 000001/g01 \(1\), 000001/g02 \(1\); group more"):  # fmt: skip
         run(RunRequest("tless", str(root), "test", out, n_views=1, config=config, deterministic_time=True))
     assert not out.exists() and not work_dir(out).exists()
-    with pytest.warns(DatasetWarning, match=r"1 of 2 scenes have fewer views than centers.min_views = 2, .*g01 \(1\)"):
+    with pytest.warns(DatasetWarning, match=r"1 of 2 scenes have fewer views than the 2 .*g01 \(1\)"):
         summary = run(RunRequest("tless", str(root), "test", out, n_views=2, config=config, deterministic_time=True))
     assert summary.scenes == 2 and summary.rows > 0
+    unknown = replace(
+        config, known_counts=False
+    )  # without known counts a centre needs 3 views (min_views_unknown_count)
+    with pytest.raises(ConfigError, match=r"every scene has fewer views than the 3 a 3D centre"):
+        run(RunRequest("tless", str(root), "test", out, n_views=2, config=unknown, deterministic_time=True))
+
+
+def test_a_dimo_scene_of_too_few_views_is_said_in_dimos_terms(mini_root, tmp_path):
+    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    unknown = replace(config, known_counts=False, centers=replace(config.centers, min_views_unknown_count=9))
+    with pytest.raises(ConfigError, match=r"--split: every scene has fewer views than the 9 .*DIMO reads viewpoints"):
+        run(request(mini_root, out, config=unknown))
 
 
 def test_a_targets_file_score_would_refuse_stops_the_run_before_any_scene(tless_root, tmp_path):
@@ -177,27 +191,12 @@ def test_a_bop_datasets_own_folder_names_the_results(tless_root, tmp_path, monke
     with pytest.raises(ConfigError, match=r"--out: the file name says dataset 'tless', the data is the BOP dataset "
                        r"'lmo'; `score` reads the data from the name: name it m_lmo-test.csv"):  # fmt: skip
         run(RunRequest("bop", str(root), "test", tmp_path / "m_tless-test.csv", model_type="cad", config=config))
+    bop_named = tmp_path / "m_bop-test.csv"  # a bop name stays: score names such a dataset after its folder
+    run(RunRequest("bop", str(root), "test", bop_named, model_type="cad", config=config, limit_scenes=1))
     monkeypatch.chdir(tmp_path)
-    argv = [
-        "run",
-        "--dataset",
-        "bop",
-        "--data-root",
-        str(root),
-        "--model-type",
-        "cad",
-        "--heatmaps",
-        "oracle",
-        "--limit-scenes",
-        "1",
-        "--candidates",
-        "32",
-        "--top-k",
-        "1",
-        "--no-progress",
-        "--deterministic-time",
-    ]
-    assert main(argv) == 0, capsys.readouterr().err  # fmt: skip
+    argv = ["run", "--dataset", "bop", "--data-root", str(root), "--model-type", "cad", "--heatmaps", "oracle"]
+    argv += ["--limit-scenes", "1", "--candidates", "32", "--top-k", "1", "--no-progress", "--deterministic-time"]
+    assert main(argv) == 0, capsys.readouterr().err
     assert (tmp_path / "cendernet-oracle_lmo-test.csv").is_file()
 
 

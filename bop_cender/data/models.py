@@ -58,9 +58,11 @@ def check_diameter(diameter: float, size: np.ndarray, info_path: Path, where: st
 
 def check_extent(model: ObjectModel, vertices: np.ndarray) -> None:
     """A mesh's bounding box must be its ``models_info.json`` entry's (``min_*``, ``size_*``): within
-    :data:`EXTENT_TOLERANCE`, silently; its size within :data:`SCALE_LIMIT` of the entry's, with a warning; else
-    refused. A mesh in metres scored with a millimetre entry made every MSSD and MSPD tiny, so that wrong poses scored
-    AR 1.0 (and the renderer drew parts 1,000 times too small)."""
+    :data:`EXTENT_TOLERANCE`, silently; each side within :data:`SCALE_LIMIT` of the entry's and the box shifted by
+    at most its longest side, with a warning; else refused (other units, other axes, another origin: the entry's
+    box centre, the method's object centre, would be off the part). A mesh in metres scored with a millimetre entry
+    made every MSSD and MSPD tiny, so that wrong poses scored AR 1.0 (and the renderer drew parts 1,000 times too
+    small)."""
     vertices = np.asarray(vertices, dtype=np.float64)
     lo, hi = vertices.min(0), vertices.max(0)
     slack = _slack(model.bbox_size)
@@ -71,11 +73,14 @@ def check_extent(model: ObjectModel, vertices: np.ndarray) -> None:
     def box(low: np.ndarray, size: np.ndarray) -> str:
         return f"min {', '.join(f'{x:.4g}' for x in low)}, size {' x '.join(f'{x:.4g}' for x in size)}"
 
-    scale = float((hi - lo).max()) / float(model.bbox_size.max())
+    size = hi - lo
+    scales = size / model.bbox_size  # per side: other units, or other axes (20 x 40 x 100 for an entry's 100 x 40 x 20)
+    off_scale = (np.abs(size - model.bbox_size) > slack) & ((scales < 1.0 / SCALE_LIMIT) | (scales > SCALE_LIMIT))
+    shifted = float(np.abs(lo - model.bbox_min).max()) > float(model.bbox_size.max())  # its box centre off the part
     _refuse_or_warn(
-        not 1.0 / SCALE_LIMIT <= scale <= SCALE_LIMIT,
+        bool(off_scale.any()) or shifted,
         f"the mesh's bounding box ({box(lo, hi - lo)}) is not the one {info} gives object {model.obj_id}"
-        f" ({box(model.bbox_min, model.bbox_size)}, mm): a mesh in other units than its entry?",
+        f" ({box(model.bbox_min, model.bbox_size)}, mm): a mesh in other units, axes or origin than its entry?",
         model.path,
         f"{info} {model.obj_id}: min_x..size_z",
     )

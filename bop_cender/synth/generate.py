@@ -212,7 +212,6 @@ def generate(
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     check_or_write_record(root, layout, spec)  # before anything is written: a mismatched resume changes nothing
-    mark_complete(root, False)  # until the last file is written: a killed run leaves a dataset that says so
     jobs = impl.scene_jobs(spec)
     pending, folders = {}, 0
     mine: set[Path] = set()
@@ -225,6 +224,9 @@ def generate(
         pending[i] = len(job_folders) - len(done)
         folders += len(job_folders)
     todo = [jobs[i] for i, n in pending.items() if n]
+    # the last check passed: until the last file is written, a killed run leaves a dataset that says so (a run refused
+    # above leaves the record as it was). One flag for the folder: a second writer finishing first sets it early.
+    mark_complete(root, False)
     to_write = sum(pending.values())
     if announce is not None and to_write < folders:
         announce(f"resuming: {folders - to_write} of {folders} scene folders done, {to_write} to go")

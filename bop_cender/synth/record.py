@@ -75,7 +75,8 @@ def check_or_write_record(root: str | Path, layout: str, spec: Any) -> Path:
     """Write the record into ``root`` if it has none, else check that this run continues the same dataset.
 
     A folder written before the record existed gets one with this run's values (there is nothing to
-    check them against). An existing record is never rewritten.
+    check them against). An existing record's fields are never rewritten here (:func:`mark_complete` sets its
+    ``complete`` flag once a run's checks have passed).
 
     Returns:
         the record's path.

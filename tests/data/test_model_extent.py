@@ -46,7 +46,7 @@ def test_a_mesh_in_metres_is_refused_by_the_scorer_the_renderer_and_info(tmp_pat
     with pytest.raises(DatasetError, match=expected):
         MeshCache(models).arrays(1)
     checked, problems = check_meshes(models.values())
-    assert checked == 1 and len(problems) == 1 and "other units than its entry" in problems[0]
+    assert checked == 1 and len(problems) == 1 and "other units, axes or origin than its entry" in problems[0]
 
 
 def test_a_mesh_off_by_a_little_is_read_off_by_more_is_warned_of_and_in_other_units_refused(tmp_path: Path) -> None:
@@ -62,11 +62,21 @@ def test_a_mesh_off_by_a_little_is_read_off_by_more_is_warned_of_and_in_other_un
     with pytest.warns(DatasetWarning, match="is not the one models_info.json gives object 1"):
         assert eval_vertices(load_models(folder)[1]).shape == (8, 3)
     models = load_models(_models_folder(tmp_path / "cm", 0.1))  # centimetres: refused
-    with pytest.raises(DatasetError, match="a mesh in other units than its entry"):
+    with pytest.raises(DatasetError, match="a mesh in other units, axes or origin than its entry"):
         eval_vertices(models[1])
     models = load_models(_models_folder(tmp_path / "double", 2.5))
-    with pytest.raises(DatasetError, match="a mesh in other units than its entry"):
+    with pytest.raises(DatasetError, match="a mesh in other units, axes or origin than its entry"):
         MeshCache(models).arrays(1)
+    folder = _models_folder(tmp_path / "axes", 1.0)
+    for edit in (
+        {"size_x": 20, "size_z": 100, "min_x": -10, "min_z": -50},  # other axes: the longest sides agree
+        {"min_x": -250, "min_y": -220, "min_z": -210},
+    ):  # another origin: the entry's centre off the part
+        (folder / "models_info.json").write_text(
+            json.dumps({"1": {**info["1"], **edit, "min_y": edit.get("min_y", -20)}})
+        )
+        with pytest.raises(DatasetError, match="a mesh in other units, axes or origin than its entry"):
+            eval_vertices(load_models(folder)[1])
 
 
 def test_a_diameter_a_little_off_its_box_is_warned_of(tmp_path: Path) -> None:

@@ -160,12 +160,14 @@ def test_a_resume_that_would_write_the_done_folders_otherwise_is_refused(
     out = tmp_path / "ds"
     assert main(tiny(layout, out, *first)) == 0
     before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    record = (out / "bop_cender_synth.json").read_bytes()
     capsys.readouterr()
     assert main(tiny(layout, out, *resumed)) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert f"{file}.json: {field}: this done scene folder has" in err and "resuming would mix two datasets" in err
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+    assert (out / "bop_cender_synth.json").read_bytes() == record  # still complete: nothing was written
     assert main(tiny(layout, out, *first)) == 0  # the options it was made with resume it
 
 
