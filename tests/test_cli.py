@@ -40,6 +40,9 @@ def workdir(tmp_path: Path, monkeypatch) -> Path:
         (["train", "--dataset", "dimo", "--out", "r", "--batch-size", "0"], "--batch-size: must be >= 1, got 0"),
         (["heatmaps", "--dataset", "dimo", "--limit-scenes", "-4"], "--limit-scenes: must be >= 1, got -4"),
         (["train", "--dataset", "dimo", "--out", "r", "--crop", "0x16"], "--crop: expected a positive height and"),
+        (["run", "--dataset", "dimo", "--split", ""], "--split: expected a split name, got an empty one"),
+        (["score", "gt_dimo-real.csv", "--split", " "], "--split: expected a split name, got an empty one"),
+        (["train", "--dataset", "dimo", "--out", "r", "--val-split", ""], "--val-split: expected a split name"),
     ],
 )
 def test_numbers_that_make_no_sense_are_refused_as_they_are_read(workdir: Path, capsys, argv, message) -> None:

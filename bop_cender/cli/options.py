@@ -37,6 +37,23 @@ def count(option: str, minimum: int = 1) -> Callable[[str], int]:
     return parse
 
 
+def split_name(option: str) -> Callable[[str], str]:
+    """An argparse ``type`` for a split option: a name, not empty (``--split ""``, an unset shell variable, silently
+    meant the default split); see :func:`count`."""
+
+    def parse(text: str) -> str:
+        from bop_cender.errors import ConfigError
+
+        if not text.strip():
+            raise ConfigError(
+                "expected a split name, got an empty one (leave the option out for the default)", field=option
+            )
+        return text
+
+    parse.__name__ = "split"
+    return parse
+
+
 def positive_number(option: str) -> Callable[[str], float]:
     """An argparse ``type`` for a float option that must be finite and > 0 (a VSD delta, a learning rate);
     see :func:`count`."""
@@ -76,7 +93,9 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
             action="store_true",
             help="score against the embedded synthetic dimo / tless demo (generated once); never used unasked",
         )
-        p.add_argument("--split", default=None, help="split (default: from the file name or sidecar)")
+        p.add_argument(
+            "--split", type=split_name("--split"), default=None, help="split (default: from the file name or sidecar)"
+        )
         p.add_argument(
             "--n-views", type=count("--n-views"), default=None, help="views per multi-view group of BOP test splits"
         )
@@ -92,7 +111,12 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
     p.add_argument(
         "--data-root", default=None, help="dataset root folder (default: the embedded synthetic demo, generated once)"
     )
-    p.add_argument("--split", default=None, help="dimo: real | sim | train; tless/bop: test | train_pbr | <folder>")
+    p.add_argument(
+        "--split",
+        type=split_name("--split"),
+        default=None,
+        help="dimo: real | sim | train; tless/bop: test | train_pbr | <folder>",
+    )
     p.add_argument(
         "--n-views",
         type=count("--n-views"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from bop_cender.cli.options import announce, count, positive_number, resolve_device
+from bop_cender.cli.options import announce, count, positive_number, resolve_device, split_name
 
 EPILOG = """examples:
   bop-cender train --dataset dimo --epochs 1 --out runs/smoke          # one epoch on the embedded demo
@@ -26,8 +26,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True, help="dataset layout")
     p.add_argument("--data-root", default=None, help="dataset root (default: the embedded synthetic demo)")
-    p.add_argument("--split", default=None, help="training split (default: dimo train, tless/bop train_pbr)")
-    p.add_argument("--val-split", default=None, help="validation split, scored every epoch (default: none)")
+    p.add_argument(
+        "--split",
+        type=split_name("--split"),
+        default=None,
+        help="training split (default: dimo train, tless/bop train_pbr)",
+    )
+    p.add_argument(
+        "--val-split",
+        type=split_name("--val-split"),
+        default=None,
+        help="validation split, scored every epoch (default: none)",
+    )
     p.add_argument("--val-data-root", default=None, help="root of the validation split (default: --data-root)")
     p.add_argument(
         "--epochs", type=count("--epochs"), default=10, help="epochs in all (with --resume: up to this many)"
