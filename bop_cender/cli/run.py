@@ -122,7 +122,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
     from bop_cender.results.files import default_result_filename
-    from bop_cender.runner import RunRequest, run
+    from bop_cender.runner import RunRequest, results_dataset_name, run
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
     if args.heatmaps is None:
@@ -142,7 +142,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
         "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
     )
-    out = Path(args.out or default_result_filename(f"cendernet-{args.heatmaps}", _named(args), split))
+    out = Path(
+        args.out
+        or default_result_filename(
+            f"cendernet-{args.heatmaps}", results_dataset_name(args.dataset, args.data_root), split
+        )
+    )
     if args.data_root is None:
         announce(f"no --data-root: using the embedded synthetic {args.dataset} demo")
     request = RunRequest(
@@ -198,17 +203,3 @@ def cmd_run(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 1
     return 0
-
-
-def _named(args: argparse.Namespace) -> str:
-    """The dataset part of the default results name: a ``--dataset bop`` folder's own name where it is a BOP
-    dataset's (``lmo``: score then uses the toolkit's constants of LM-O; ``bop`` told it nothing), else the option."""
-    from pathlib import Path
-
-    from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS
-
-    if args.dataset == "bop" and args.data_root is not None:
-        folder = Path(args.data_root).resolve().name
-        if folder in TOOLKIT_TEST_WIDTHS:
-            return folder
-    return args.dataset
