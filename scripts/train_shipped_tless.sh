@@ -36,6 +36,14 @@ train_stage() {
 }
 # The flags every stage shares, for the train_pbr piles in ROOT and the network VARIANT, into the array FLAGS:
 # stage_flags ROOT VARIANT
+# A stage at 1e-3 from the weights INIT (none: a random start) and its 2-epoch fine-tune at 1e-4 into RUN_DIR-ft (seed
+# SEED + 1), both with FLAGS: train_pair RUN_DIR EPOCHS SEED [INIT]
+train_pair() {
+  local init=()
+  [ -n "${4:-}" ] && init=(--init-weights "$4")
+  train_stage "$1" "${FLAGS[@]}" --epochs "$2" --lr 1e-3 --seed "$3" ${init[@]+"${init[@]}"}
+  train_stage "$1-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed $(( $3 + 1 )) --init-weights "$1/weights.pt"
+}
 stage_flags() {
   FLAGS=(--dataset tless --data-root "$1" --split train_pbr --val-split test --val-data-root "$DATA/tless_val"
          --variant "$2" --crop 270x360 --batch-size 8 --center-loss focal --center-loss-weight 0.1 --class-loss-weight 0.1)
@@ -54,24 +62,19 @@ bop-cender synth --layout tless --out "$DATA/tless_train150" --scenes 0 --pbr-sc
 bop-cender synth --layout tless --out "$DATA/tless_val" --scenes 2 --views 10 --pbr-scenes 0 --seed 9103 --no-contact-sheets
 bop-cender synth --layout tless --out "$DATA/tless_eval4243" --scenes 3 --views 10 --pbr-scenes 0 --seed 4243 --no-contact-sheets
 stage_flags "$DATA/tless_train150" tless-factored
-train_stage "$RUN" "${FLAGS[@]}" --epochs "$EPOCHS" --lr 1e-3 --seed 1
-train_stage "$RUN-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 2 --init-weights "$RUN/weights.pt"
+train_pair "$RUN" "$EPOCHS" 1
 randomised_piles "$DATA/tless_train_dr" 9104
 stage_flags "$DATA/tless_train_dr" tless-factored
-train_stage "$RUN-dr" "${FLAGS[@]}" --epochs 8 --lr 1e-3 --seed 20 --init-weights "$RUN-ft/weights.pt"
-train_stage "$RUN-dr-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 21 --init-weights "$RUN-dr/weights.pt"
+train_pair "$RUN-dr" 8 20 "$RUN-ft/weights.pt"
 # Centre votes: every pixel of a part points at its centre (a bracket's lies in the air, where the head finds nothing).
 randomised_piles "$DATA/tless_train_dr9106" 9106
 stage_flags "$DATA/tless_train_dr9106" tless-votes
-train_stage "$RUN-votes" "${FLAGS[@]}" --epochs 8 --lr 1e-3 --seed 30 --init-weights "$RUN-dr-ft/weights.pt"
-train_stage "$RUN-votes-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 31 --init-weights "$RUN-votes/weights.pt"
-train_stage "$RUN-votes2" "${FLAGS[@]}" --epochs 6 --lr 1e-3 --seed 32 --init-weights "$RUN-votes-ft/weights.pt"
-train_stage "$RUN-votes2-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 33 --init-weights "$RUN-votes2/weights.pt"
+train_pair "$RUN-votes" 8 30 "$RUN-dr-ft/weights.pt"
+train_pair "$RUN-votes2" 6 32 "$RUN-votes-ft/weights.pt"
 # Fresh piles for the next 8 epochs (the loss on the last ones still fell, but they had been seen 18 times).
 randomised_piles "$DATA/tless_train_dr9107" 9107
 stage_flags "$DATA/tless_train_dr9107" tless-votes
-train_stage "$RUN-votes3" "${FLAGS[@]}" --epochs 6 --lr 1e-3 --seed 34 --init-weights "$RUN-votes2-ft/weights.pt"
-train_stage "$RUN-votes3-ft" "${FLAGS[@]}" --epochs 2 --lr 1e-4 --seed 35 --init-weights "$RUN-votes3/weights.pt"
+train_pair "$RUN-votes3" 6 34 "$RUN-votes2-ft/weights.pt"
 # The test figures: seed 4243's test views.
 bop-cender heatmaps --dataset tless --split test --data-root "$DATA/tless_eval4243" --weights "$RUN-votes3-ft/weights.pt" \
   --out "$RUN-votes3-ft/test"
