@@ -25,6 +25,8 @@ from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pose_errors import hull_vertices, mssd
+from bop_cender.geometry.camera import project_points
+from bop_cender.geometry.poses import transform_points
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
 
@@ -144,12 +146,12 @@ def scene_figure(
     verdicts = judge_estimates(est, gt, judge_models or models) if gt else None
     est_inst = _instances(est, scene, meshes, H, W)
     gt_inst = _instances(gt, scene, meshes, H, W)
-    centres = [c.position for c in output.centers]
-    gt_centres = [T[:3, :3] @ models[obj_id].center + T[:3, 3] for obj_id, T in gt]
+    Ks, T_cw = np.stack([v.K for v in views]), np.stack([v.T_cam_world for v in views])
+    detected = _projected([c.position for c in output.centers], Ks, T_cw)  # (V, N, 2)
+    gt_centres = _projected([T[:3, :3] @ models[obj_id].center + T[:3, 3] for obj_id, T in gt], Ks, T_cw)
     fig, axes = plt.subplots(4, V, figsize=(2.2 * V, 2.2 * 4 * H / W + 0.6), squeeze=False)
     for v, view in enumerate(views):
-        detected_xy = np.array([_project(view, p) for p in centres]).reshape(-1, 2)
-        gt_xy = np.array([_project(view, p) for p in gt_centres]).reshape(-1, 2)
+        detected_xy, gt_xy = detected[v], gt_centres[v]
         mask = (est_inst[v] >= 0) | (gt_inst[v] >= 0)
         top, left, h, w = crop_box(mask, np.concatenate([detected_xy, gt_xy]))
         window = (slice(top, top + h), slice(left, left + w))
@@ -157,11 +159,9 @@ def scene_figure(
         axes[0, v].imshow(rgb[window])
         axes[0, v].set_title(f"image {view.im_id}", fontsize=7)
         axes[1, v].imshow(center[v][window], cmap="magma", vmin=0, vmax=1)
-        for (x, y), style in [(p, ("x", "red", 5, 1.2)) for p in detected_xy] + [
-            (p, ("o", "lime", 6, 0.8)) for p in gt_xy
-        ]:
-            marker, colour, size, width = style
-            axes[1, v].plot(x - 0.5 - left, y - 0.5 - top, marker, mfc="none", color=colour, ms=size, mew=width)
+        for xy, marker, colour, size, width in ((detected_xy, "x", "red", 5, 1.2), (gt_xy, "o", "lime", 6, 0.8)):
+            x, y = xy[:, 0] - 0.5 - left, xy[:, 1] - 0.5 - top  # pixel centres at u + 0.5 (project_points)
+            axes[1, v].plot(x, y, marker, ls="none", mfc="none", color=colour, ms=size, mew=width)
         axes[1, v].set_xlim(-0.5, w - 0.5)
         axes[1, v].set_ylim(h - 0.5, -0.5)
         axes[2, v].imshow(curv[v][window], cmap="gray", vmin=0, vmax=1)
@@ -200,10 +200,13 @@ def figure_title(head: str, timings: Mapping[str, float], width_in: float) -> st
     return textwrap.fill(f"{head}; {times}", width=max(20, int(TITLE_CHARS_PER_INCH * width_in)))
 
 
-def _project(view, point: np.ndarray) -> tuple[float, float]:
-    p = view.T_cam_world[:3, :3] @ point + view.T_cam_world[:3, 3]
-    x, y = (view.K @ p)[:2] / max(p[2], 1e-6)
-    return float(x), float(y)
+def _projected(points: Sequence[np.ndarray], Ks: np.ndarray, T_cam_world: np.ndarray) -> np.ndarray:
+    """``(V, N, 2)`` continuous image points of world ``points`` in each view
+    (:func:`~bop_cender.geometry.camera.project_points`), NaN behind a camera (neither drawn nor counted in the crop)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    cam = transform_points(T_cam_world, points)  # (V, N, 3)
+    xy = np.stack([project_points(K, p) for K, p in zip(Ks, cam, strict=True)])
+    return np.where(cam[..., 2:3] > 1e-6, xy, np.nan)
 
 
 def _instances(objects, scene: Scene, meshes, H: int, W: int) -> np.ndarray:
