@@ -12,7 +12,8 @@
   resumed from its checkpoint after epoch ``e`` continues bit for bit as if it had never stopped.
 - ``RUN_DIR/checkpoint.pt`` (model, optimiser, epoch, history; atomic) and ``RUN_DIR/weights.pt`` (the
   latest weights alone, what ``run --weights`` takes) after every epoch; ``RUN_DIR/metrics.csv`` one row
-  per epoch; ``RUN_DIR/config.json`` the run's config.
+  per epoch; ``RUN_DIR/config.json`` the run's config. ``RUN_DIR`` and its files appear with the first finished
+  epoch: a run that stops before it leaves nothing in ``--out``.
 """
 
 from __future__ import annotations
@@ -334,8 +335,6 @@ def train(
         say(f"resuming {run_dir} after epoch {start_epoch}")
     elif resume:  # a resumable job's first start (scripts rerun the same command): go on, but say so
         say(f"--resume: {run_dir} holds no checkpoint yet; starting a new run")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(run_dir / CONFIG, json.dumps(config.as_dict(), indent=2) + "\n")
     only = (
         f", training only {','.join(config.train_only)} ({sum(p.numel() for p in trainable):,})"
         if config.train_only
@@ -357,6 +356,10 @@ def train(
         if threshold is not None and 0.0 < threshold < 1.0:  # this epoch's calibration (NetWeights.curvature_threshold)
             extra[CURVATURE_THRESHOLD] = float(threshold)
         payload = weights_payload(model, kind, train_set.channel_obj_ids, targets, **extra)
+        # RUN_DIR and its files appear with the first finished epoch: a run that stops before it (a diverged loss,
+        # Ctrl-C, a crash) leaves nothing in --out that was not there before
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(run_dir / CONFIG, json.dumps(config.as_dict(), indent=2) + "\n")
         save_weights(run_dir / WEIGHTS, payload)
         payload["optimiser"] = optimiser.state_dict()
         save_weights(checkpoint_path, payload)

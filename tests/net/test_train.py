@@ -247,7 +247,23 @@ def test_a_diverged_run_stops_with_one_error_and_keeps_the_last_good_checkpoint(
     monkeypatch.undo()
     with pytest.raises(ConfigError, match=r"training diverged: the (loss|weights) became"):
         train(_config(tiny_root, epochs=1, batch_size=2, val_split=None, lr=1e30), tmp_path / "huge", progress=False)
-    assert not (tmp_path / "huge" / WEIGHTS).exists()
+    assert not (tmp_path / "huge").exists()  # nothing of a run that stopped before its first checkpoint
+
+
+def test_a_run_stopped_in_its_first_epoch_leaves_out_as_it_was(tiny_root, tmp_path, monkeypatch) -> None:
+    """Ctrl-C (or a crash) in epoch 1: no config.json, no half run in --out, a folder given empty stays empty."""
+    from bop_cender.net import train as train_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "_center_loss", interrupted)
+    for run in (tmp_path / "new", tmp_path / "empty"):
+        if run.name == "empty":
+            run.mkdir()
+        with pytest.raises(KeyboardInterrupt):
+            train(_config(tiny_root, epochs=2, val_split=None), run, progress=False)
+    assert not (tmp_path / "new").exists() and list((tmp_path / "empty").iterdir()) == []
 
 
 def test_random_crops_cut_image_and_targets_alike() -> None:
