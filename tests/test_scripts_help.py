@@ -11,7 +11,7 @@ import pytest
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 # Helpers imported by the others, not commands.
-NOT_COMMANDS = {"bench_machine.py"}
+NOT_COMMANDS = {"bench_machine.py", "cycles_look.py", "cycles_scene.py"}
 
 
 @pytest.mark.parametrize("script", sorted(p.name for p in SCRIPTS.glob("*.py") if p.name not in NOT_COMMANDS))
