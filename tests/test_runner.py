@@ -201,13 +201,14 @@ def test_a_bop_datasets_own_folder_names_the_results(tless_root, tmp_path, monke
 
 
 def test_only_a_bop_datasets_own_folder_names_the_results(tmp_path):
-    from bop_cender.runner import _check_request, results_dataset_name
+    from bop_cender.runner import results_dataset_name
+    from bop_cender.runner.request import check_request
 
     assert results_dataset_name("bop", f"{tmp_path}/lmo/") == "lmo"
     assert results_dataset_name("bop", tmp_path / "mydata") == "bop"  # a folder of no BOP dataset's name
     assert results_dataset_name("tless", tmp_path / "lmo") == "tless" and results_dataset_name("bop", None) == "bop"
     for out in ("m_tless-test.csv", "m_mydata-test.csv"):  # any name on such a folder: the user names the dataset
-        _check_request(RunRequest("bop", str(tmp_path / "mydata"), "test", tmp_path / out))
+        check_request(RunRequest("bop", str(tmp_path / "mydata"), "test", tmp_path / out))
 
 
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
