@@ -1,7 +1,9 @@
 """The method of a request: its dataset opened, its network weights read and checked, its heatmap source built.
 
 Every process that runs scenes (the run's own, or each worker of ``--workers``) builds its method from the request
-alone, with these functions: the run's process first, as a check before any scene, then to estimate the scenes.
+with these functions, and reads the weights file once: the run's process reads it for its checks before any scene
+(:func:`read_weights`) and builds its method, and the shards' fingerprint, from the same object; a worker reads it
+once for all its scenes.
 """
 
 from __future__ import annotations
@@ -29,8 +31,13 @@ def open_run_dataset(request: RunRequest) -> Dataset:
     return open_with_demo(data)  # no data root: the embedded demo, silently
 
 
-def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -> CenDerNet:
-    """The method for a request: oracle heatmaps, the network (given or shipped weights), or one head of each."""
+def build_method(
+    request: RunRequest, dataset: Dataset, cost_threads: int = 1, weights: NetWeights | None = None
+) -> CenDerNet:
+    """The method for a request: oracle heatmaps, the network (given or shipped weights), or one head of each.
+
+    ``weights``: the request's network weights as :func:`read_weights` gave them (None: read here where a network
+    is used), so that a process that has read them for its checks does not read the file again."""
     from bop_cender.net.mixed import MixedPredictor
     from bop_cender.net.oracle import OraclePredictor
 
@@ -39,7 +46,7 @@ def build_method(request: RunRequest, dataset: Dataset, cost_threads: int = 1) -
     if request.heatmaps == "oracle":
         predictor = OraclePredictor(dataset.models, meshes, request.config.targets, device=request.device)
     else:
-        predictor = net = net_predictor(request, dataset)
+        predictor = net = net_predictor(request, dataset, weights)
         if request.heatmaps != "net":  # one head of each; the oracle's centre channels follow the network's
             oracle = OraclePredictor(
                 dataset.models, meshes, request.config.targets, net.channel_obj_ids, device=request.device
@@ -59,14 +66,14 @@ def method_for(request: RunRequest) -> tuple[RunRequest, Dataset, CenDerNet]:
     return request, dataset, build_method(request, dataset)
 
 
-def net_predictor(request: RunRequest, dataset: Dataset):
-    """The network predictor of ``request`` (weights resolved), checked against the dataset and the config.
+def read_weights(request: RunRequest, dataset: Dataset) -> NetWeights:
+    """The network weights of ``request`` (given or shipped), read from their file and checked against the dataset and
+    the config: what a process reads once and builds its method with (:func:`build_method`).
 
     Raises:
-        ConfigError: weights for another dataset kind, center channels that miss a target object of the
-            dataset, or targets (curvature scale) other than the config's.
+        ConfigError: an unreadable file, weights for another dataset kind, center channels that miss a target
+            object of the dataset, or targets (curvature scale) other than the config's.
     """
-    from bop_cender.net.predictor import NetPredictor
     from bop_cender.net.weights import check_covers_targets, load_weights
 
     weights = load_weights(resolve_weights(request).weights, dataset=request.dataset)
@@ -77,6 +84,20 @@ def net_predictor(request: RunRequest, dataset: Dataset):
             f" / {request.config.targets.curvature_scale:g} (--set targets.curvature_scale=...)",
             file=weights.path,
         )
+    return weights
+
+
+def net_predictor(request: RunRequest, dataset: Dataset, weights: NetWeights | None = None):
+    """The network predictor of ``request`` (weights resolved), checked against the dataset and the config.
+
+    ``weights``: as :func:`read_weights` gave them for this request and dataset (None: read here).
+
+    Raises:
+        ConfigError: see :func:`read_weights`.
+    """
+    from bop_cender.net.predictor import NetPredictor
+
+    weights = read_weights(request, dataset) if weights is None else weights
     return NetPredictor(
         weights,
         device=request.device,
@@ -92,14 +113,12 @@ def network_threshold(request: RunRequest, weights: NetWeights) -> tuple[float |
     return network_curvature_choice(request.config, *weights.curvature_threshold_for(request.split))
 
 
-def curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, str]:
+def curvature_threshold(request: RunRequest, weights: NetWeights | None) -> tuple[float, str]:
     """Where stage 3 binarises the curvature of ``request``'s heatmaps, and which setting says so (for the sidecar
     and the summary): a network's curvature at ``poses.t_b_network`` or the weights' calibration, else ``t_b``.
-    Loads the network's weights (when one is used): a bad file fails here, before any scene."""
-    if not uses_network(request.heatmaps):
+    ``weights``: the request's, from :func:`read_weights` (None where no network is used)."""
+    if not uses_network(request.heatmaps) or request.heatmaps == "oracle-curvature":
         return request.config.poses.t_b, "poses.t_b"
-    net = net_predictor(request, dataset)
-    if request.heatmaps == "oracle-curvature":
-        return request.config.poses.t_b, "poses.t_b"
-    value, source = network_threshold(request, net.weights)
+    assert weights is not None, "a network's curvature needs its weights"
+    value, source = network_threshold(request, weights)
     return (request.config.poses.t_b if value is None else value), source

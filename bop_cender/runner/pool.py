@@ -16,6 +16,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import BopCenderError, DatasetWarning
@@ -24,9 +25,18 @@ from bop_cender.runner.build import build_method, open_run_dataset
 from bop_cender.runner.request import RunRequest
 from bop_cender.runner.shards import SceneOutcome, shard_path
 
+if TYPE_CHECKING:  # the network code loads only where a run uses a network
+    from bop_cender.net.weights import NetWeights
 
-def execute_scenes(request: RunRequest, dataset: Dataset, keys: list[str]) -> Iterator[SceneOutcome]:
-    """Yield a :class:`SceneOutcome` per key as scenes finish (in order with one worker)."""
+
+def execute_scenes(
+    request: RunRequest, dataset: Dataset, keys: list[str], weights: NetWeights | None = None
+) -> Iterator[SceneOutcome]:
+    """Yield a :class:`SceneOutcome` per key as scenes finish (in order with one worker).
+
+    ``weights``: the request's network weights, already read by this process
+    (:func:`~bop_cender.runner.build.read_weights`; None: read here where a network is used); each worker process
+    reads them once itself."""
     if not keys:
         return
     if request.workers == 1 or len(keys) == 1:
@@ -42,7 +52,7 @@ def execute_scenes(request: RunRequest, dataset: Dataset, keys: list[str]) -> It
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
-            method = build_method(request, dataset, cost_threads=max(1, min(2, os.cpu_count() or 1)))
+            method = build_method(request, dataset, max(1, min(2, os.cpu_count() or 1)), weights)
             with compiled_threads(request.threads):
                 for key in keys:
                     yield estimate_scene(
@@ -51,7 +61,7 @@ def execute_scenes(request: RunRequest, dataset: Dataset, keys: list[str]) -> It
         finally:
             torch.set_num_threads(threads)
         return
-    build_method(request, dataset)  # a bad request fails here, once, before any process starts
+    build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")
     workers = min(request.workers, len(keys))
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(request,)) as pool:
@@ -93,15 +103,26 @@ def estimate_scene(
 
 
 @dataclass
-class _WorkerState:
-    """What a worker process builds once (in :func:`_init_worker`) and uses for each of its scenes."""
+class WorkerState:
+    """What a worker process builds once (in its initializer) and uses for each of its scenes."""
 
     request: RunRequest
     dataset: Dataset
     method: CenDerNet
 
+    @classmethod
+    def build(cls, request: RunRequest) -> WorkerState:
+        """The dataset opened and the method built, its weights read: once per worker, not once per scene."""
+        dataset = open_run_dataset(request)
+        return cls(request, dataset, build_method(request, dataset))
 
-_STATE: list[_WorkerState] = []  # one entry in a worker process, set by its initializer
+    def estimate(self, key: str) -> SceneOutcome:
+        """Scene ``key`` of the dataset, as :func:`estimate_scene` gives it."""
+        request, dataset = self.request, self.dataset
+        return estimate_scene(self.method, dataset.scene(key), request.vis_dir, request.max_views, dataset.eval_models)
+
+
+_STATE: list[WorkerState] = []  # one entry in a worker process, set by its initializer
 
 
 def _init_worker(request: RunRequest) -> None:
@@ -113,8 +134,7 @@ def _init_worker(request: RunRequest) -> None:
     # the run's process has said every dataset warning already (it opens the data, reads every mesh and scene first):
     # each worker repeating them, in Python's raw format, said each one N + 1 times
     warnings.simplefilter("ignore", DatasetWarning)
-    dataset = open_run_dataset(request)
-    _STATE[:] = [_WorkerState(request, dataset, build_method(request, dataset))]
+    _STATE[:] = [WorkerState.build(request)]
 
 
 def _exit_with_parent() -> None:
@@ -131,8 +151,4 @@ def _exit_with_parent() -> None:
 
 def _worker_scene(key: str) -> SceneOutcome:
     """One scene in a worker process."""
-    state = _STATE[0]
-    return estimate_scene(
-        state.method, state.dataset.scene(key), state.request.vis_dir, state.request.max_views,
-        state.dataset.eval_models,
-    )  # fmt: skip
+    return _STATE[0].estimate(key)

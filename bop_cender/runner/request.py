@@ -13,6 +13,7 @@ import json
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bop_cender.data.bop_io import check_output_dir, check_output_file
 from bop_cender.data.types import Dataset, Scene
@@ -21,6 +22,9 @@ from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS
 from bop_cender.meshes import MeshCache
 from bop_cender.method import CenDerNetConfig
 from bop_cender.progress import progress_bar
+
+if TYPE_CHECKING:  # the network code loads only where a run uses a network
+    from bop_cender.net.weights import NetWeights
 
 HEATMAP_SOURCES = ("oracle", "net", "oracle-centers", "oracle-curvature")
 """Heatmap sources of ``run``: the oracle, the network, or the two mixed (ablations): ``oracle-centers`` takes
@@ -79,8 +83,12 @@ class RunRequest:
         if self.config is None:
             object.__setattr__(self, "config", CenDerNetConfig.for_dataset(self.dataset))
 
-    def fingerprint(self) -> str:
-        """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume)."""
+    def fingerprint(self, weights: NetWeights | None = None) -> str:
+        """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume).
+
+        ``weights``: the request's weights as read for the run (their file's digest is taken from them: the file is
+        not read again); None: the file named by ``self.weights`` is read for it."""
+        known = weights.sha256 if weights is not None else None
         key = {
             "dataset": self.dataset,
             "data_root": str(Path(self.data_root).resolve()) if self.data_root else None,
@@ -88,7 +96,7 @@ class RunRequest:
             "n_views": self.n_views,
             "model_type": self.model_type,
             "heatmaps": self.heatmaps,
-            "weights": _file_digest(self.weights),
+            "weights": known if known is not None else _file_digest(self.weights),
             "seed": self.seed,
             "config": self.config.as_dict(),
             "max_views": self.max_views,

@@ -12,10 +12,11 @@ import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, RunError
-from bop_cender.runner.build import curvature_threshold, open_run_dataset
+from bop_cender.runner.build import curvature_threshold, open_run_dataset, read_weights
 from bop_cender.runner.merge import RunSummary, merge
 from bop_cender.runner.pool import execute_scenes
 from bop_cender.runner.request import (
@@ -26,6 +27,7 @@ from bop_cender.runner.request import (
     check_views,
     loadable_scenes,
     resolve_weights,
+    uses_network,
 )
 from bop_cender.runner.shards import (
     SceneOutcome,
@@ -36,6 +38,9 @@ from bop_cender.runner.shards import (
     work_dir,
     write_shard,
 )
+
+if TYPE_CHECKING:  # the network code loads only where a run uses a network
+    from bop_cender.net.weights import NetWeights
 
 
 def run(
@@ -58,7 +63,9 @@ def run(
     check_request(request)
     request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
-    threshold = curvature_threshold(request, dataset)  # bad weights fail here, once, before any scene
+    # read once, here: bad weights fail before any scene, and the checks, the fingerprint and the method share them
+    weights = read_weights(request, dataset) if uses_network(request.heatmaps) else None
+    threshold = curvature_threshold(request, weights)
     check_meshes(dataset)  # and a bad mesh
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
@@ -67,12 +74,12 @@ def run(
     check_views(request, keys, scenes)
     check_targets(dataset, scenes)
     work = work_dir(request.out)
-    fingerprint = request.fingerprint()
+    fingerprint = request.fingerprint(weights)
     if work.exists() and not request.resume:
         shutil.rmtree(work)
     created = make_dirs(work)
     try:
-        outcomes, resumed = _run_scenes(request, dataset, keys, work, fingerprint, progress)
+        outcomes, resumed = _run_scenes(request, dataset, keys, work, fingerprint, progress, weights)
     except BaseException:
         if not any(work.iterdir()):
             remove_empty(created)  # nothing done: leave nothing behind, --out's new folders included
@@ -97,9 +104,10 @@ def _run_scenes(
     work: Path,
     fingerprint: str,
     progress: Callable[[int, int, str], None] | None,
+    weights: NetWeights | None,
 ) -> tuple[dict[str, SceneOutcome], int]:
-    """Shards of the same settings kept, the other scenes estimated and written as they finish; the outcomes by scene
-    key and how many were kept."""
+    """Shards of the same settings kept, the other scenes estimated (with the ``weights`` already read) and written as
+    they finish; the outcomes by scene key and how many were kept."""
     targets = {i for i, m in dataset.models.items() if m.is_target}
     outcomes = resumable_outcomes(work, keys, fingerprint, targets)
     resumed = len(outcomes)
@@ -107,7 +115,7 @@ def _run_scenes(
     done = resumed
     if progress is not None:
         progress(done, len(keys), "")
-    for outcome in execute_scenes(request, dataset, todo):
+    for outcome in execute_scenes(request, dataset, todo, weights):
         write_shard(shard_path(work, outcome.scene_key), outcome, fingerprint)
         outcomes[outcome.scene_key] = outcome
         done += 1
