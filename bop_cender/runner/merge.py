@@ -48,7 +48,15 @@ def merge(
     start: float,
     threshold: tuple[float, str],
 ) -> RunSummary:
-    """All shards into one BOP CSV and its sidecar (atomic writes), then the work folder goes."""
+    """All shards into one BOP CSV and its sidecar (atomic writes), then the work folder goes.
+
+    Args:
+        keys: the run's scenes, in the order of their rows; ``outcomes`` holds one for each.
+        resumed: how many outcomes came from the shards of an earlier run.
+        work: the work folder of shards (removed when no scene failed).
+        start: ``time.perf_counter()`` at the run's start (for the summary's wall time).
+        threshold: where stage 3 binarised the curvature and which setting said so (for the sidecar).
+    """
     rows = []
     stage_seconds: dict[str, float] = {}
     failed, empty = {}, []

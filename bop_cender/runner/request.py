@@ -120,6 +120,7 @@ def uses_network(heatmaps: str) -> bool:
 
 
 def check_source(heatmaps: str) -> None:
+    """Refuse a heatmap source other than :data:`HEATMAP_SOURCES` (an API caller's: the CLI offers only those)."""
     if heatmaps not in HEATMAP_SOURCES:
         raise ConfigError(
             f"unknown heatmap source {heatmaps!r}; expected one of {', '.join(HEATMAP_SOURCES)}", field="--heatmaps"

@@ -63,10 +63,11 @@ def run(
     check_request(request)
     request = resolve_weights(request)
     dataset = dataset or open_run_dataset(request)
-    # read once, here: bad weights fail before any scene, and the checks, the fingerprint and the method share them
+    # the weights read once, here: a bad file fails before any scene; the threshold, the fingerprint and the method
+    # are made from what was read
     weights = read_weights(request, dataset) if uses_network(request.heatmaps) else None
     threshold = curvature_threshold(request, weights)
-    check_meshes(dataset)  # and a bad mesh
+    check_meshes(dataset)  # a bad mesh fails here too
     keys = list(dataset.scene_keys)[: request.limit_scenes] if request.limit_scenes else list(dataset.scene_keys)
     if not keys:
         raise ConfigError(f"the split {request.split!r} of {dataset.root} has no scenes", field="--split")
