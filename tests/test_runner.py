@@ -201,13 +201,14 @@ def test_a_bop_datasets_own_folder_names_the_results(tless_root, tmp_path, monke
 
 
 def test_only_a_bop_datasets_own_folder_names_the_results(tmp_path):
-    from bop_cender.runner import _check_request, results_dataset_name
+    from bop_cender.runner import results_dataset_name
+    from bop_cender.runner.request import check_request
 
     assert results_dataset_name("bop", f"{tmp_path}/lmo/") == "lmo"
     assert results_dataset_name("bop", tmp_path / "mydata") == "bop"  # a folder of no BOP dataset's name
     assert results_dataset_name("tless", tmp_path / "lmo") == "tless" and results_dataset_name("bop", None) == "bop"
     for out in ("m_tless-test.csv", "m_mydata-test.csv"):  # any name on such a folder: the user names the dataset
-        _check_request(RunRequest("bop", str(tmp_path / "mydata"), "test", tmp_path / out))
+        check_request(RunRequest("bop", str(tmp_path / "mydata"), "test", tmp_path / out))
 
 
 def test_two_workers_give_the_same_rows(mini_root, reference_csv, tmp_path):
@@ -680,3 +681,46 @@ def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
                 "poses.scene_polish_passes=0", "poses.scene_polish_passes_network=0"):  # fmt: skip
         with pytest.raises(ConfigError):
             config.with_settings([bad])
+
+
+def test_a_process_reads_the_weights_file_once(mini_root, tmp_path, monkeypatch):
+    """The run's process reads its weights once (its checks, the shards' fingerprint and its method share what it read;
+    it read them twice, and the file three times), and a worker once for all its scenes, with either ``--workers``."""
+    import builtins
+    import io
+
+    import torch
+
+    import bop_cender.net.weights as weights_module
+    from bop_cender.net.targets import TargetConfig
+    from bop_cender.net.unet import UNet, UNetSpec
+    from bop_cender.runner.pool import WorkerState
+
+    torch.manual_seed(0)
+    path = tmp_path / "w.pt"
+    weights_module.save_weights(
+        path, weights_module.weights_payload(UNet(UNetSpec.dimo_lean(width=0.25)), "dimo", None, TargetConfig())
+    )
+    loads, opens = [], []
+    real_load, real_open = weights_module.load_weights, io.open
+    monkeypatch.setattr(weights_module, "load_weights", lambda *a, **k: loads.append(a) or real_load(*a, **k))
+
+    def counting_open(file, *args, **kwargs):
+        if str(file) == str(path):
+            opens.append(file)
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", counting_open)  # torch.load's
+    monkeypatch.setattr(io, "open", counting_open)  # pathlib's
+    for workers in (1, 2):
+        loads.clear(), opens.clear()
+        given = request(mini_root, tmp_path / f"{workers}" / "cendernet_dimo-real.csv", heatmaps="net",
+                        weights=str(path), workers=workers)  # fmt: skip
+        assert run(given).scenes == 2
+        assert (len(loads), len(opens)) == (1, 1), workers
+    loads.clear(), opens.clear()
+    worker = WorkerState.build(given)
+    assert [worker.estimate(key).error for key in worker.dataset.scene_keys] == [None, None]
+    assert (len(loads), len(opens)) == (1, 1)
+    # the shards' fingerprint of the weights read is the one of the file (shards of an earlier run stay resumable)
+    assert given.fingerprint(worker.method.predictor.weights) == given.fingerprint()

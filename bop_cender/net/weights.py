@@ -9,6 +9,7 @@ Beside shipped weights lies a JSON card (data, seed, command, epochs, wall time,
 
 from __future__ import annotations
 
+import hashlib
 import io
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
@@ -54,6 +55,8 @@ class NetWeights:
             (``scripts/calibrate_curvature.py --for-split``): a network's best binarisation moves with the camera
             (the shipped DIMO network: 0.616 on `sim` views, 0.555 on `real` ones; end to end on `real` 0.693 ->
             0.742 AR_MSSD<5%, ``results/accuracy/README.md``). :meth:`curvature_threshold_for` picks.
+        sha256: hex digest of the file's bytes as they were read: what a run's shards are fingerprinted with, so that
+            a run reads its weights file once (None for weights built in memory).
     """
 
     model: UNet
@@ -64,6 +67,7 @@ class NetWeights:
     extra: dict[str, Any]
     curvature_threshold: float | None = None
     curvature_threshold_by_split: Mapping[str, float] = field(default_factory=dict)
+    sha256: str | None = None
 
     def curvature_threshold_for(self, split: str | None) -> tuple[float | None, str | None]:
         """The calibrated threshold for views of ``split`` and the split it was calibrated for: that split's own
@@ -155,7 +159,8 @@ def load_weights(path: str | Path, dataset: str | None = None, field: str = "--w
     if not path.is_file():
         raise ConfigError("weights file not found", file=path, field=field)
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        data = path.read_bytes()  # once: the digest and the payload come from the same bytes
+        payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: torch raises many types
         # torch's own text (a paragraph on weights_only, "[Errno 22]") helps nobody: say what the file is
         raise ConfigError(
@@ -212,7 +217,7 @@ def load_weights(path: str | Path, dataset: str | None = None, field: str = "--w
     extra = {k: v for k, v in payload.items() if k not in reserved}
     return NetWeights(
         model, kind, channel_obj_ids, targets, path, extra, None if threshold is None else float(threshold),
-        {str(k): float(v) for k, v in by_split.items()},
+        {str(k): float(v) for k, v in by_split.items()}, hashlib.sha256(data).hexdigest(),
     )  # fmt: skip
 
 
