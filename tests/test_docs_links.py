@@ -90,3 +90,25 @@ def test_the_helpers_see_what_they_check():
     assert github_anchor("Stage 1: heatmaps") == "stage-1-heatmaps"
     assert expand_braces("v15/scores_{a,b}.json") == ["v15/scores_a.json", "v15/scores_b.json"]
     assert LINK.findall("see [x](docs/a.md#b) and ![i](img/f.png)") == ["docs/a.md#b", "img/f.png"]
+
+
+#: A citation of a file outside the repository: the first design brief and the references beside the project's root.
+OUTSIDE = re.compile(
+    r"(?<![\w/])(?:design|rendering|datasets|bop_metrics)\.md|shared/(?!reference/bop_results_samples)"
+)
+#: Where citations live: code, tests, scripts, CI and the committed results.
+CITING = ("bop_cender", "tests", "scripts", "bop_toolkit_adapters", ".ci", "results")
+
+
+def test_code_tests_and_results_cite_only_files_in_the_repository():
+    """What a reader cannot open is no reference: facts from outside live in docs/ (``shared/reference``'s sample
+    results file is test data, read where it exists, not a citation)."""
+    found = []
+    for base in CITING:
+        for path in sorted((ROOT / base).rglob("*")):
+            if not path.is_file() or path.suffix not in ("", ".py", ".md", ".sh", ".txt") or path == Path(__file__):
+                continue
+            for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+                if OUTSIDE.search(line):
+                    found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
+    assert not found, "\n".join(found)
