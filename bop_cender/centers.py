@@ -2,7 +2,7 @@
 
 1. Peaks: ``skimage.feature.peak_local_max`` above ``peak_threshold`` in each view's center channel.
 2. One ray per peak from ``K`` and ``T_cam_world``, through the peak pixel's centre ``(u + 0.5, v + 0.5)``
-   (design.md's pixel convention).
+   (the pixel convention of docs/design.md).
 3. For every pair of rays from different views, their closest points (Szeliski): the distance between
    them and the midpoint, all pairs at once. Midpoints of pairs closer than ``d_t`` and in front of both
    cameras are candidates.

@@ -1,7 +1,7 @@
 """The method's output: object poses in the scene's world frame, one ``SceneEstimate`` per scene.
 
 A multi-view method estimates each object once per scene, in the world frame shared by all of the
-scene's views (design.md: ``SceneEstimate = [ObjectEstimate(obj_id, T_world_model, score)] +
+scene's views (docs/design.md, "The data flow": ``SceneEstimate = [ObjectEstimate(obj_id, T_world_model, score)] +
 timings``). Turning these into BOP's per-image camera-frame rows is :mod:`bop_cender.results.bop_csv`'
 job, so nothing here knows about cameras or CSV files.
 

@@ -2,7 +2,7 @@
 
 Why: on CPU the batched renderer allocates and frees large temporaries on every call; with glibc
 malloc they are mmapped and unmapped each time and about 40 % of the time goes to page faults
-(shared/reference/rendering.md). Preloading tcmalloc (Debian ``libtcmalloc-minimal4``) keeps them
+(docs/performance.md). Preloading tcmalloc (Debian ``libtcmalloc-minimal4``) keeps them
 mapped. The launcher re-executes the command once with ``LD_PRELOAD`` set; it does nothing when
 the library is absent, when tcmalloc is already loaded, or when ``BOP_CENDER_ALLOCATOR=system``.
 """

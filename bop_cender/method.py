@@ -122,7 +122,7 @@ class SceneOutput:
 
 
 class CenDerNet:
-    """The three stages composed (design.md: ``CenDerNet.estimate(scene) -> SceneEstimate``)."""
+    """The three stages composed (docs/design.md, "The data flow": ``CenDerNet.estimate(scene) -> SceneEstimate``)."""
 
     def __init__(
         self,

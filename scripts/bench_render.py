@@ -1,6 +1,6 @@
 """Benchmark the render-and-compare cost function: poses/s of render + curvature + cost.
 
-The workload of shared/reference/rendering.md: six 320x256 views on a ring 500 mm from the origin at
+The workload of the renderer study (docs/performance.md): six 320x256 views on a ring 500 mm from the origin at
 25 and 55 degrees elevation (fx = fy = 600, principal point at the image centre), pose candidates with
 uniformly random rotations and +-15 mm translations, costs against distance maps rendered at the true
 pose. Two parts made with trimesh + manifold3d: an L-bracket (80 x 50 x 56 mm, 4 holes, ~700 faces)

@@ -31,7 +31,7 @@ import bench_machine
 ROOT = Path(__file__).resolve().parents[1]
 #: 5 scenes x 40 images of 7 objects as T-LESS mixes them (6 ids, one repeated; ids 1 and 4 are cylinders with a
 #: continuous symmetry and a half-turn, 2 and 5 boxes with 3 half-turns, 3 and 6 asymmetric wedges), meshes of
-#: 1,000-3,000 vertices (T-LESS models_eval: ~2,000; shared/reference/bop_metrics.md section 9).
+#: 1,000-3,000 vertices (T-LESS models_eval: about 2,000).
 BENCH_SPEC_ARGS = dict(seed=11, n_scenes=5, n_images=40, objects=(1, 2, 3, 4, 5, 6, 1), min_vertices=1000,
                        target_fraction=1.0)  # fmt: skip
 

@@ -1,4 +1,4 @@
-"""No package imports one above it (design.md, "Packages and their jobs"), and there is no import cycle.
+"""No package imports one above it (docs/design.md, "The rule of the layers"), and there is no import cycle.
 
 Every ``import`` of every module is read with :mod:`ast`, those inside functions included (a lazy import is
 still a dependency), and mapped to its unit: a subpackage (``bop_cender.data``) or a top-level module

@@ -92,7 +92,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--center-loss",
         choices=("bce", "focal"),
         default="bce",
-        help="center heatmap loss: the paper's BCE (default) or CenterNet's focal loss (sharp peaks; see README)",
+        help="center heatmap loss: the paper's BCE (default) or CenterNet's focal loss (sharp peaks; see docs/method.md)",
     )
     p.add_argument(
         "--center-loss-weight",

@@ -1,6 +1,6 @@
 """The DIMO loader: splits, the paper's image selection, and typed scenes with checked poses.
 
-Layout (``shared/reference/datasets.md`` section 1): ``<root>/models/`` (BOP models, ids >= 100
+Layout (docs/datasets.md, "DIMO"): ``<root>/models/`` (BOP models, ids >= 100
 are carriers/background), ``<root>/real_<camera>/<NNNNNN>/`` real scenes and
 ``<root>/sim_<camera>/<NNNNNN_VV>/`` synthetic variants of them. DIMO stores camera-to-world
 poses; they are inverted here, once, so every :class:`CameraView` holds ``T_cam_world``.

@@ -1,4 +1,4 @@
-"""BOP file names and constants: the one place that spells them (shared/reference/datasets.md).
+"""BOP file names and constants: the one place that spells them (docs/datasets.md).
 
 A BOP split folder holds one folder per scene, ``{scene:06d}/`` (DIMO synthetic: ``{scene:06d}_{variant:02d}/``),
 each with the files below; the dataset root holds the BOP'19 targets file and the models folders.

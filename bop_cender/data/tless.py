@@ -1,7 +1,7 @@
 """T-LESS in the BOP layout: the generic BOP loader with T-LESS's folders, camera files and sizes.
 
 T-LESS specifics, all as data below (``bop_toolkit_lib/dataset_params.py`` and
-``shared/reference/datasets.md`` section 2):
+docs/datasets.md, "T-LESS and other BOP datasets"):
 
 - split ``test`` is ``test_primesense/``, ``train`` is ``train_primesense/`` (400x400 crops),
   ``train_pbr`` is ``train_pbr/`` (JPEG); literal folder names are accepted too;

@@ -178,7 +178,7 @@ class ObjectModel:
 
     @property
     def center(self) -> np.ndarray:
-        """3D object centre ``(3,)`` in model coordinates: bounding-box centre (design.md)."""
+        """3D object centre ``(3,)`` in model coordinates: bounding-box centre (docs/design.md, "Frames and units")."""
         return self.bbox_min + self.bbox_size / 2.0
 
     @property

@@ -1,6 +1,6 @@
 """BOP'19 localisation scoring on plain typed inputs: top-n cut, valid GTs, greedy matching, recall, AR.
 
-Follows ``shared/reference/bop_metrics.md`` sections 3-4 (toolkit ``eval_calc_errors.py``,
+Follows the toolkit (docs/evaluation.md; ``eval_calc_errors.py``,
 ``eval_calc_scores.py``, ``pose_matching.match_poses``, ``score.calc_localization_scores``,
 ``eval_bop19_pose.py``). Nothing here loads files: a scorer loads the dataset and the results CSV,
 calls :func:`select_top_n`, computes errors (``pose_errors.py``, ``vsd.py``) for the kept estimates

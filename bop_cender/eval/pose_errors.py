@@ -1,6 +1,6 @@
 """BOP pose errors (MSSD, MSPD, ADD, ADI, RE, TE), vectorised over estimates and symmetries.
 
-Definitions follow ``shared/reference/bop_metrics.md`` sections 1 and 4 (toolkit ``pose_error.py``
+Definitions follow the toolkit (docs/evaluation.md; ``pose_error.py``
 and ``scripts/eval_calc_errors.py``), reimplemented in float64:
 
 - MSSD ``e = min_s max_i ||(R_e x_i + t_e) - (R_g' x_i + t_g')||`` (mm), with the symmetric GT pose

@@ -1,7 +1,7 @@
 """BOP'19 localisation scoring end to end: results rows + a dataset split -> :class:`ScoreReport`.
 
-The official pipeline (``scripts/eval_bop19_pose.py`` and the scripts it starts, see
-``shared/reference/bop_metrics.md``) in one process:
+The official pipeline (the toolkit's ``scripts/eval_bop19_pose.py`` and the scripts it starts; see
+docs/evaluation.md) in one process:
 
 1. ground truth per image from the Dataset (:mod:`bop_cender.eval.ground_truth`);
 2. every row checked against the split: an unknown object, scene or image is an error naming the

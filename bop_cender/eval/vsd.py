@@ -1,6 +1,6 @@
 """Visible Surface Discrepancy (VSD) on already-rendered depth images, as BOP'19 computes it.
 
-Follows ``shared/reference/bop_metrics.md`` section 1 (toolkit ``pose_error.vsd`` with
+Follows the toolkit (docs/evaluation.md; ``pose_error.vsd`` with
 ``visibility.estimate_visib_mask_gt/est`` in ``"bop19"`` mode and cost ``"step"``), to the bit:
 
 1. depth -> distance images with :func:`depth_to_distance` (float64, integer pixel indices);

@@ -1,9 +1,9 @@
 """Pinhole projection and pixel rays under the one pixel convention of bop-cender.
 
-Convention (design.md): camera x right, y down, z forward; the centre of pixel (row v, column u)
-is the continuous image point (u + 0.5, v + 0.5), as in the BOP toolkit's renderer. A continuous
-image point is ``K @ p / p_z``; its pixel is ``floor`` of it. Projection itself is the plain
-pinhole model (BOP's ``misc.project_pts``): the +0.5 only enters where pixels meet geometry.
+Convention (docs/design.md, "The pixel convention"): camera x right, y down, z forward; the centre of
+pixel (row v, column u) is the continuous image point (u + 0.5, v + 0.5), as in the BOP toolkit's
+renderer. A continuous image point is ``K @ p / p_z``; its pixel is ``floor`` of it. Projection itself
+is the plain pinhole model (BOP's ``misc.project_pts``): the +0.5 only enters where pixels meet geometry.
 """
 
 from __future__ import annotations

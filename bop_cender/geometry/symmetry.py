@@ -1,14 +1,12 @@
 """BOP symmetry transformations of an object model, exactly as the official toolkit builds them.
 
-Reimplemented from the definition in ``shared/reference/bop_metrics.md`` section 2 (toolkit
-``misc.get_symmetry_transformations``): the discrete set is the identity followed by every entry
-of ``symmetries_discrete`` (flattened row-major 4x4, mm). Each continuous symmetry
-``{axis, offset}`` becomes ``n = ceil(pi / max_sym_disc_step)`` rotations by ``k * 2 pi / n``
-(k = 0..n-1, so the identity is included) about ``axis`` through ``offset``, with
-``t_k = -R_k offset + offset``. If any continuous symmetry exists the result is every pair
-(discrete outer, continuous inner) composed as ``R = R_c R_d``, ``t = R_c t_d + t_c``;
-otherwise the discrete set. A symmetry ``(R_s, t_s)`` acts on the GT pose:
-``R_g' = R_g R_s``, ``t_g' = R_g t_s + t_g``.
+Reimplemented from the toolkit's definition (``misc.get_symmetry_transformations``; docs/evaluation.md): the
+discrete set is the identity followed by every entry of ``symmetries_discrete`` (flattened row-major 4x4, mm).
+Each continuous symmetry ``{axis, offset}`` becomes ``n = ceil(pi / max_sym_disc_step)`` rotations by
+``k * 2 pi / n`` (k = 0..n-1, so the identity is included) about ``axis`` through ``offset``, with
+``t_k = -R_k offset + offset``. If any continuous symmetry exists the result is every pair (discrete outer,
+continuous inner) composed as ``R = R_c R_d``, ``t = R_c t_d + t_c``; otherwise the discrete set. A symmetry
+``(R_s, t_s)`` acts on the GT pose: ``R_g' = R_g R_s``, ``t_g' = R_g t_s + t_g``.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
   included, so that they occlude), then every pixel that does not show a target object is set to
   background before the Prewitt gradients, so target silhouettes (also where a carrier or an
   occluder cuts them) are edges and nothing of a carrier is. Mapped to [0, 1] as
-  ``clip(curvature / curvature_scale, 0, 1)`` (design.md).
+  ``clip(curvature / curvature_scale, 0, 1)`` (docs/design.md, "The renderer").
 - **Centers**: a Gaussian blob per object at the projection of its 3D centre (bounding-box centre of
   ``models_info.json``), ``sigma = s_e * mean bbox extent * 100 / distance(centre, camera)`` (pixels,
   extents and distance in mm), peak 1, overlapping blobs combined by max, evaluated at pixel centres

@@ -39,7 +39,7 @@ ArrayLike = np.ndarray | torch.Tensor
 def distance_map(binary_edges: ArrayLike) -> ArrayLike:
     """Distance ``(H, W)`` float32 from each pixel to the nearest true pixel of ``binary_edges (H, W)``.
 
-    Exact Euclidean distance (``cv2.distanceTransform`` with ``DIST_L2, DIST_MASK_PRECISE``; rendering.md:
+    Exact Euclidean distance (``cv2.distanceTransform`` with ``DIST_L2, DIST_MASK_PRECISE``; docs/performance.md:
     0.5 ms per 320x256 map, 3x faster than scipy's EDT), 0 on the true pixels, the same bits on every
     call. With no true pixel at all, every pixel gets the image diagonal. Returns the input's type
     (NumPy, or torch on the input's device).

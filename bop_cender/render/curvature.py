@@ -1,6 +1,6 @@
 """View-space curvature maps: the per-pixel 2-norm of the Prewitt gradients of rendered normals.
 
-The paper's definition (Section 2.1) as design.md pins it, stated here once:
+The paper's definition (Section 2.1) as docs/design.md states it, stated here once:
 
 - input: camera-space unit normals, 0 on background, channel-last ``(..., H, W, 3)``;
 - Prewitt gradients of each of the 3 channels along x and along y with the UNNORMALISED kernels:
@@ -10,8 +10,8 @@ The paper's definition (Section 2.1) as design.md pins it, stated here once:
 - borders as ``scipy.ndimage.prewitt``'s default mode ``'reflect'`` (``d c b a | a b c d``), which for a
   3-tap kernel is the same as repeating the edge pixel.
 
-Implemented as separable shifted adds over the whole batch at once (rendering.md: about 10x faster than
-``conv2d`` on CPU; the same code runs on CUDA).
+Implemented as separable shifted adds over the whole batch at once (docs/performance.md: 7-10x faster than
+``conv2d`` on the CPU; this torch code runs on CUDA tensors too).
 """
 
 from __future__ import annotations

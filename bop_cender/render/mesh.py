@@ -2,7 +2,7 @@
 
 Why per-corner normals: a CAD tessellation of a curved surface (a shaft, a tube, a hole wall) must shade
 smoothly, or its facets become false edges in the curvature map, while flat faces and sharp creases must
-stay sharp (design.md, "The renderer"). Each face corner gets the angle-weighted mean of the normals of
+stay sharp (docs/design.md, "The renderer"). Each face corner gets the angle-weighted mean of the normals of
 the faces around its vertex whose normal is within ``crease_angle_deg`` of the corner's own face normal.
 Storing the normal per corner ``(F, 3, 3)`` is the same as splitting vertices at creases, without
 re-indexing: the rasterizer interpolates corner normals perspective-correctly across each face.

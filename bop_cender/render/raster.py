@@ -6,10 +6,10 @@ A *canvas* is one (pose, camera) pair. Each canvas is rendered only inside its o
 size. Window pixels beyond the image border are rendered like any other pixel (as if the image went
 on).
 
-Conventions (design.md): camera x right, y down, z forward; pixel (u, v) is covered iff the continuous
-point (u + 0.5, v + 0.5) is inside the projected triangle; its depth is the z of the ray through that
-point. Ties follow the top-left rule (see :mod:`bop_cender.render.scanline`), so faces that share an
-edge split its pixels with no holes and no double coverage.
+Conventions (docs/design.md, "The pixel convention"): camera x right, y down, z forward; pixel (u, v) is
+covered iff the continuous point (u + 0.5, v + 0.5) is inside the projected triangle; its depth is the z
+of the ray through that point. Ties follow the top-left rule (see :mod:`bop_cender.render.scanline`), so
+faces that share an edge split its pixels with no holes and no double coverage.
 
 The pipeline, vectorised, with no Python loop over faces or pixels:
 

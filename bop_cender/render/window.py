@@ -4,9 +4,9 @@ A pose candidate is rendered only in an ``S x S`` window per (candidate, view), 
 projection of the model origin. ``S`` bounds the projection of the mesh's bounding sphere (radius ``r``
 about the origin): a point of the sphere with centre ``(X, Y, Z)`` projects within
 ``f r sqrt(1 + (X/Z)^2) / (Z - r)`` pixels of the centre's projection along x (likewise y), which is
-rendering.md's ``2 f r / z_min`` with the off-axis factor that perspective adds. Two pixels of margin
-on each side keep the curvature ring around the silhouette inside the window, and ``S`` is rounded up
-to a multiple of 8.
+the renderer study's ``2 f r / z_min`` (docs/performance.md) with the off-axis factor that perspective
+adds. Two pixels of margin on each side keep the curvature ring around the silhouette inside the window,
+and ``S`` is rounded up to a multiple of 8.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Convert PVNet-style pose outputs (3x4 ``[R | t]``, t in METRES) into a BOP results CSV (t in mm).
 
 clean-pvnet (zju3dv) writes nothing in BOP form: its evaluator keeps, per image, a list of 3x4 camera-frame
-poses from ``cv2.solvePnP`` with t in metres and no score (``shared/reference/datasets.md`` 4.2). Two
+poses from ``cv2.solvePnP`` with t in metres and no score (docs/datasets.md, "BOP results files"). Two
 input forms are accepted:
 
 1. A folder of ``.npy`` files, each holding one pose ``(3, 4)`` or several ``(N, 3, 4)`` of one object in

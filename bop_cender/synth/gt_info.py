@@ -1,13 +1,12 @@
 """BOP ``scene_gt_info.json`` entries, full and visible masks, computed with the batched renderer.
 
-Definitions follow the BOP toolkit's ``calc_gt_info.py`` (shared/reference/bop_metrics.md, section
-5): ``px_count_all`` counts the object's silhouette rendered alone on a canvas 3x larger than the
-image (the image in its centre), so truncated parts count too; ``bbox_obj`` is that silhouette's
-box in image coordinates (it may start outside the image); ``px_count_visib`` counts the pixels
-where the object is the front-most surface (our renders are exact, so visibility is the instance
-map instead of a depth test with a tolerance); ``px_count_valid`` counts silhouette pixels inside
-the image with non-zero test depth; ``visib_fract = px_count_visib / px_count_all``; boxes are
-``[x, y, w, h]`` and ``[-1, -1, -1, -1]`` when empty.
+Definitions follow the BOP toolkit's ``calc_gt_info.py`` (docs/datasets.md): ``px_count_all`` counts the
+object's silhouette rendered alone on a canvas 3x larger than the image (the image in its centre), so
+truncated parts count too; ``bbox_obj`` is that silhouette's box in image coordinates (it may start outside
+the image); ``px_count_visib`` counts the pixels where the object is the front-most surface (our renders are
+exact, so visibility is the instance map instead of a depth test with a tolerance); ``px_count_valid`` counts
+silhouette pixels inside the image with non-zero test depth; ``visib_fract = px_count_visib / px_count_all``;
+boxes are ``[x, y, w, h]`` and ``[-1, -1, -1, -1]`` when empty.
 """
 
 from __future__ import annotations

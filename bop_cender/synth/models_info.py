@@ -110,7 +110,7 @@ def write_model_folders(
     The evaluation copy is identical to the main folder for now (no resampling); the same bytes
     are written to both. A folder whose ``models_info.json`` exists (written last) is complete and
     kept, so a run cut off between the folders is finished by the next one. For DIMO the (in real data undocumented) ``models/construction/`` folder
-    is created empty, as datasets.md section 6.1 lists it.
+    is created empty, as docs/datasets.md lists it.
 
     Returns:
         ``{"models": path, "models_eval": path}`` (the first key is ``models_cad`` for T-LESS).

@@ -1,6 +1,6 @@
 """Fixed meshes that benchmarks and tests share, so their figures refer to one geometry.
 
-``reference_bracket`` is the L-bracket of ``shared/reference/rendering.md`` (80 x 50 x 56 mm, 6 mm
+``reference_bracket`` is the L-bracket of the renderer study (docs/performance.md) (80 x 50 x 56 mm, 6 mm
 plates, four 10 mm holes; 684 faces with 40 segments per hole), the part the renderer's speed
 target is stated for.
 """
@@ -15,7 +15,7 @@ def reference_bracket(sections: int = 40) -> trimesh.Trimesh:
     """The reference L-bracket (manifold3d booleans), centred at its centroid.
 
     Args:
-        sections: segments per hole (40 gives rendering.md's 684 faces; tests use fewer).
+        sections: segments per hole (40 gives the study's 684 faces; tests use fewer).
     """
     base = trimesh.creation.box((80, 50, 6))
     base.apply_translation((0, 0, 3))

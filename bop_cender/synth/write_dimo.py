@@ -1,4 +1,4 @@
-"""Write a synthetic dataset in exactly the DIMO layout (shared/reference/datasets.md section 1).
+"""Write a synthetic dataset in exactly the DIMO layout (docs/datasets.md, "DIMO").
 
 Per scene number ``s``: ``real_jaigo/{s:06d}`` (the "real" camera model: other light, material and
 noise, so there is a sim-to-real gap to measure) and ``sim_jaigo/{s:06d}_{v:02d}`` variants:

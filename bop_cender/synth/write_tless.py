@@ -1,4 +1,4 @@
-"""Write a synthetic dataset in exactly the T-LESS BOP layout (shared/reference/datasets.md section 2).
+"""Write a synthetic dataset in exactly the T-LESS BOP layout (docs/datasets.md, "T-LESS and other BOP datasets").
 
 The full BOP set: ``models_cad/`` + ``models_eval/``, ``camera_primesense.json``,
 ``test_primesense/{scene:06d}/`` (PNG 720x540, 16-bit depth with depth_scale 0.1, ``mask/``,

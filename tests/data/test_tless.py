@@ -1,7 +1,7 @@
 """The T-LESS loader on the hand-written fixture ``tests/fixtures/tless_hand``.
 
-The fixture's numbers were typed by hand (datasets.md section 2): scene 1 has images 0, 1, 2 and 42
-(42 is the quoted T-LESS entry, verbatim), three static objects (world poses below), and
+The fixture's numbers were typed by hand (the layout of docs/datasets.md): scene 1 has images 0, 1, 2 and 42
+(42 is a T-LESS test entry as third-party code quotes it, verbatim), three static objects (world poses below), and
 ``cam_R_m2c``/``cam_t_m2c`` derived by hand as ``T_cam_world @ T_world_model``; image 42's are
 rounded as T-LESS rounds them (R to 6 digits, t to 0.01 mm). Image 1 lists the objects in another
 order. Targets: images 0, 1 and 42 (not 2).

@@ -36,7 +36,7 @@ def test_make_pose_layout():
 
 
 def test_pose_from_bop_is_row_major():
-    # 30 degrees about z, BOP example in datasets.md section 3.
+    # 30 degrees about z, the BOP results row of docs/datasets.md ("BOP results files").
     T = pose_from_bop([0.866025, -0.5, 0.0, 0.5, 0.866025, 0.0, 0.0, 0.0, 1.0], [12.3, -45.6, 720.1])
     np.testing.assert_allclose(transform_points(T, [[1.0, 0, 0]])[0], [12.3 + 0.866025, -45.6 + 0.5, 720.1])
 

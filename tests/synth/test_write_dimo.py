@@ -1,4 +1,4 @@
-"""A tiny DIMO-layout dataset generated and loaded back, with the invariants of datasets.md 6.1."""
+"""A tiny DIMO-layout dataset generated and loaded back, with the invariants docs/datasets.md lists ("DIMO")."""
 
 import hashlib
 import json
@@ -65,7 +65,7 @@ def test_only_the_files_real_dimo_has(dimo_root):
     }
 
 
-def test_invariants_of_datasets_md_6_1(dimo_root):
+def test_the_writers_invariants(dimo_root):
     rigs = {}
     for scene in sorted((dimo_root / "real_jaigo").iterdir()) + sorted((dimo_root / "sim_jaigo").iterdir()):
         cam, gt, world, info = (

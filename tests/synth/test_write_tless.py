@@ -1,4 +1,4 @@
-"""A tiny T-LESS-layout dataset generated and loaded back, with the invariants of datasets.md 6.2."""
+"""A tiny T-LESS-layout dataset generated and loaded back, with the invariants docs/datasets.md lists."""
 
 import dataclasses
 import json
