@@ -1,7 +1,7 @@
 """Run a method over a dataset split: per-scene shards, resume, worker processes, one BOP CSV at the end.
 
-Scenes are independent: each is estimated on its own and written as a small JSON shard into a work folder next to
-the output (``<out>.parts/``), atomically, so a run killed at any point leaves only whole shards. ``resume`` keeps the
+Scenes are independent (docs/design.md, "The data flow"): each is estimated on its own and written as a small JSON
+shard into a work folder next to the output (``<out>.parts/``), atomically, so a run killed at any point leaves only whole shards. ``resume`` keeps the
 shards made with the same settings and runs the rest; when every scene has a shard, they are merged into the BOP
 results CSV (atomically) with its run sidecar, and the work folder is removed. Worker processes (``workers > 1``)
 each open the dataset and build the method themselves, with one torch thread each; every random draw is seeded per
