@@ -131,7 +131,7 @@ class PoseConfig:
             (4x fewer pixels for the 2,000 candidates; 1 = the paper's single resolution). Render search
             only: the edge search's proxy costs little per pixel and uses the full-resolution maps.
         refiner: ``lockstep`` (the top-k Nelder-Mead runs step together, each step one batched cost call:
-            :mod:`bop_cender.pose.simplex`) or ``scipy`` (one ``scipy.optimize.minimize`` per start, the
+            :mod:`bop_cender.optim.simplex`) or ``scipy`` (one ``scipy.optimize.minimize`` per start, the
             paper's). The same algorithm; lockstep is several times faster on the CPU. The edge search
             always steps in lockstep; this chooses for ``search_cost="render"``.
         occlusion: render the objects already placed as occluders of the next ones (the paper's method).
@@ -977,12 +977,12 @@ def _bounds_and_starts(starts: np.ndarray, center3d: np.ndarray, center_model: n
 def _refine_lockstep(
     starts: np.ndarray, problem: Refinement, cost: Callable[[np.ndarray], np.ndarray] | None = None
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """All starts ``(k, 4, 4)`` refined together (:func:`bop_cender.pose.simplex.batched_nelder_mead`) on
+    """All starts ``(k, 4, 4)`` refined together (:func:`bop_cender.optim.simplex.batched_nelder_mead`) on
     ``cost`` (poses ``(m, 4, 4)`` -> ``(m,)``; default the render cost, ``problem.cost``).
 
     Returns the refined poses ``(k, 4, 4)``, their costs ``(k,)`` and the evaluations spent."""
     cost = problem.cost if cost is None else cost
-    from bop_cender.pose.simplex import batched_nelder_mead
+    from bop_cender.optim.simplex import batched_nelder_mead
 
     config = problem.config
     x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config)
