@@ -26,7 +26,7 @@ from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
 
 #: Cheap settings: the rows are not precise, but every run with them must give the same rows.
-CHEAP = {"n_candidates": 48, "top_k": 2, "nm_maxfev": 40, "polish_maxfev": 40}
+CHEAP = {"n_candidates": 48, "top_k": 2, "nm_maxfev": 40}
 
 
 @pytest.fixture(scope="module")

@@ -55,13 +55,12 @@ from functools import cached_property, partial
 
 import numpy as np
 import torch
-from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
 from bop_cender.errors import ConfigError
 from bop_cender.geometry.sampling import sample_scores
 from bop_cender.pose.cost import candidate_costs, distance_maps
-from bop_cender.pose.coverage import TwoSidedCost, scene_cost, two_sided_costs
+from bop_cender.pose.coverage import scene_cost
 from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_model_of, edge_occluder
 from bop_cender.pose.scene_polish import SceneWindow, scene_window
 from bop_cender.render.candidate_curvature import occluded
@@ -76,9 +75,6 @@ ROTATION_SCALE_MM = 50.0
 
 
 SEARCH_COSTS = ("edges", "render")
-REFINERS = ("lockstep", "scipy")
-VIEW_WEIGHTS = ("center", "uniform")
-ACCEPTANCES = ("object", "scene", "finalists")
 
 
 @dataclass(frozen=True)
@@ -263,19 +259,14 @@ class PoseConfig:
     nm_fatol: float = 1e-3
     nm_maxfev: int = 150
     candidate_downscale: int = 2
-    refiner: str = "lockstep"
     occlusion: bool = True
-    view_weights: str = "center"
     seed: int = 0
     search_cost: str = "edges"
     edge_segment_mm: float = 3.0
     candidate_segments: int = 600
     rerank: int = 100
     start_separation_rad: float = 0.35
-    polish_maxfev: int = 0
-    coverage_weight: float = 0.0
     passes: int = 3
-    acceptance: str = "finalists"
     scene_polish_maxfev: int = 100
     scene_polish_passes: int = 2
     scene_polish_passes_network: int | None = 1
@@ -317,12 +308,10 @@ class PoseConfig:
     def __post_init__(self) -> None:
         """Every setting is checked here (named choices, types and ranges), so that a bad ``--set`` is one error
         before any scene runs."""
-        for name, allowed in (("search_cost", SEARCH_COSTS), ("refiner", REFINERS), ("view_weights", VIEW_WEIGHTS),
-                              ("acceptance", ACCEPTANCES)):  # fmt: skip
-            if getattr(self, name) not in allowed:
-                raise ConfigError(
-                    f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
-                )
+        if self.search_cost not in SEARCH_COSTS:
+            raise ConfigError(
+                f"poses.search_cost: expected one of {', '.join(SEARCH_COSTS)}, got {self.search_cost!r}", field="--set"
+            )
         check_settings("poses", self, _POSE_BOUNDS, flags=("occlusion",))
 
 
@@ -348,8 +337,6 @@ _POSE_BOUNDS = {
     "candidate_segments": COUNT,
     "rerank": COUNT_OR_ZERO,
     "start_separation_rad": NON_NEGATIVE,
-    "polish_maxfev": COUNT_OR_ZERO,
-    "coverage_weight": NON_NEGATIVE,
     "passes": COUNT,
     "scene_polish_maxfev": COUNT_OR_ZERO,
     "scene_polish_passes": COUNT,
@@ -505,16 +492,11 @@ def optimise_scene(
             occ = _occluder_depth(others, fine.cameras, meshes) if config.occlusion and others else None
             # where nothing hides it differently from when it was fitted, the same search would be repeated
             if _hidden_pixels_differ(placed[idx], contexts[idx], occ, fine.cameras, meshes):
-                pool: list[PlacedObject] | None = [] if config.acceptance == "finalists" else None
+                pool: list[PlacedObject] = []
                 moved = fit(i, others, occ, sweep, placed[idx], pool)
-                if config.acceptance != "object":
-                    if scene_now is None:
-                        scene_now = judge.cost(placed)
-                    polish = None
-                    if config.polish_maxfev > 0:
-                        polish = partial(polish_placed, target=targets[i], maps=fine, occluder_depth=occ, meshes=meshes,
-                                         model_centers=model_centers, config=config, edge_threshold=edge_threshold)  # fmt: skip
-                    moved, scene_now = _choose_by_scene(placed, idx, moved, pool, scene_now, judge.cost, polish)
+                if scene_now is None:
+                    scene_now = judge.cost(placed)
+                moved, scene_now = _choose_by_scene(placed, idx, moved, pool, scene_now, judge.cost)
                 placed[idx] = moved
                 contexts[idx] = occ  # searched under these occluders, kept or not: a third sweep skips alike
             if progress is not None:
@@ -570,7 +552,7 @@ def polish_on_scene(
         if cost < scene_now:
             if config.occlusion and others:
                 problem = replace(problem, occluder_depth=_occluder_depth(others, maps.cameras, meshes))
-            final = problem.judge(T_new) + problem.center_term(T_new)
+            final = problem.cost(T_new) + problem.center_term(T_new)
             placed[idx] = PlacedObject(obj.obj_id, T_new[0], float(final[0]), spent + 1)
             scene_now = cost
         else:
@@ -582,29 +564,20 @@ def _choose_by_scene(
     placed: list[PlacedObject],
     idx: int,
     moved: PlacedObject,
-    pool: list[PlacedObject] | None,
+    pool: list[PlacedObject],
     scene_now: float,
     scene: Callable[[list[PlacedObject]], float],
-    polish: Callable[[PlacedObject], PlacedObject] | None,
 ) -> tuple[PlacedObject, float]:
-    """A further sweep's choice for object ``idx``: of its current pose and the new search's poses (its best
-    ``moved``, or with ``acceptance="finalists"`` all its refined finalists ``pool``, the best among them),
-    the one whose placement has the lowest scene cost (``scene``); ties keep the current pose. A finalist
-    other than the search's best was not polished by the search: it is polished when chosen (``polish``),
-    the polished pose kept where the scene does not lose by it.
+    """A further sweep's choice for object ``idx``: of its current pose and the new search's refined finalists
+    ``pool`` (its best ``moved`` where the pool is empty), the one whose placement has the lowest scene cost
+    (``scene``); ties keep the current pose.
 
-    Returns the chosen object (its evaluations: all the new search and polish spent) and the scene cost."""
+    Returns the chosen object (its evaluations: all the new search spent) and the scene cost."""
     best, best_cost, spent = placed[idx], scene_now, moved.evaluations
     for option in pool or [moved]:
         cost = scene(_with(placed, idx, option))
         if cost < best_cost:
             best, best_cost = option, cost
-    if polish is not None and best is not placed[idx] and not np.array_equal(best.T_world_model, moved.T_world_model):
-        polished = polish(best)
-        spent += polished.evaluations - best.evaluations
-        cost = scene(_with(placed, idx, polished))
-        if cost <= best_cost:
-            best, best_cost = polished, cost
     return replace(best, evaluations=spent), best_cost
 
 
@@ -613,13 +586,11 @@ def _with(placed: list[PlacedObject], idx: int, obj: PlacedObject) -> list[Place
     return placed[:idx] + [obj] + placed[idx + 1 :]
 
 
-def view_weights(view_scores: np.ndarray, mode: str) -> np.ndarray:
-    """``(V,)`` weights summing to 1: the per-view center scores (``center``) or equal (``uniform``)."""
+def view_weights(view_scores: np.ndarray) -> np.ndarray:
+    """``(V,)`` weights summing to 1: the per-view center scores (the paper's), equal where they sum to 0."""
     s = np.clip(np.asarray(view_scores, dtype=np.float64), 0.0, None)
-    if mode == "uniform" or s.sum() <= 0:
+    if s.sum() <= 0:
         return np.full(len(s), 1.0 / len(s))
-    if mode != "center":
-        raise ValueError(f"unknown view weighting {mode!r}; expected center or uniform")
     return s / s.sum()
 
 
@@ -664,11 +635,8 @@ def optimise_object(
             costs = _cost(mesh, T, coarse[0].cameras, coarse[0].dist, problem.weights, coarse[1], cost_threads)
             starts = T[np.argsort(costs, kind="stable")[: max(1, config.top_k)]]
             starts = starts if extra is None else np.concatenate([starts, extra])
-            refine = _refine_lockstep if config.refiner == "lockstep" else _refine_scipy
-            T_ref, c_ref, fev = refine(starts, problem)
+            T_ref, c_ref, fev = _refine_lockstep(starts, problem)
             fev += n
-            if config.coverage_weight > 0:
-                c_ref = problem.judge(T_ref)
         evaluations += fev
         if finalists is not None:
             finalists += [PlacedObject(obj_id, T_ref[j], float(c_ref[j]), 0) for j in range(len(T_ref))]
@@ -709,64 +677,9 @@ def _search_on_edges(
         starts = np.concatenate([starts, extra])
     T_ref, _, fev = _refine_lockstep(starts, problem, search_cost)
     evaluations += fev
-    judged = problem.two_sided(T_ref) if config.coverage_weight > 0 else None
-    render = problem.cost(T_ref) if judged is None else judged.forward
-    final = (render if judged is None else judged.total) + problem.center_term(T_ref)
+    final = problem.cost(T_ref) + problem.center_term(T_ref)
     evaluations += len(T_ref)
-    if config.polish_maxfev > 0:
-        k = int(np.argmin(final))
-        T_pol, c_pol, fev = _polish_one(T_ref[k], float(render[k]), problem)
-        evaluations += fev
-        if c_pol is not None:
-            T_ref, final = T_ref.copy(), final.copy()
-            T_ref[k], final[k] = T_pol, c_pol
     return T_ref, final, evaluations
-
-
-def _polish(T: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray, int]:
-    """The final polish of poses ``T (m, 4, 4)``: Nelder-Mead on the render cost from a simplex a quarter of
-    ``nm_initial_*``, ``polish_maxfev`` evaluations. Returns poses, render costs ``(m,)`` and evaluations."""
-    config = problem.config
-    polish = replace(
-        config,
-        nm_initial_rotation_rad=config.nm_initial_rotation_rad / 4,
-        nm_initial_translation_mm=config.nm_initial_translation_mm / 4,
-        nm_maxfev=config.polish_maxfev,
-    )
-    return _refine_lockstep(T, replace(problem, config=polish))
-
-
-def _polish_one(T: np.ndarray, render_cost: float, problem: Refinement) -> tuple[np.ndarray, float | None, int]:
-    """Pose ``T (4, 4)`` of render cost ``render_cost`` polished (:func:`_polish`): the polished pose and its final
-    cost (the render cost, or judged again with ``coverage_weight`` > 0, plus the centre term) where the
-    polish lowered the render cost plus the centre term, else ``T`` and None; and the evaluations spent."""
-    T_pol, c_pol, fev = _polish(T[None], problem)
-    center_pol = float(problem.center_term(T_pol)[0])
-    if not c_pol[0] + center_pol < render_cost + float(problem.center_term(T[None])[0]):
-        return T, None, fev
-    final = float(c_pol[0]) if problem.config.coverage_weight <= 0 else float(problem.judge(T_pol)[0])
-    return T_pol[0], final + center_pol, fev
-
-
-def polish_placed(
-    obj: PlacedObject,
-    target: PoseTarget,
-    maps: CostMaps,
-    occluder_depth: torch.Tensor | None,
-    meshes: Callable[[int], RenderMesh],
-    model_centers: Callable[[int], np.ndarray],
-    config: PoseConfig,
-    edge_threshold: float | None = None,
-) -> PlacedObject:
-    """``obj`` polished (:func:`_polish_one`) against the full-resolution ``maps`` under ``occluder_depth``
-    where that lowers its render cost, else ``obj`` (its evaluations counted either way). For a finalist
-    that was not its search's best, so not polished there (``acceptance="finalists"``)."""
-    problem = _refinement(target, obj.obj_id, maps, occluder_depth, meshes, model_centers, config, edge_threshold)
-    T, cost, fev = _polish_one(obj.T_world_model, float(problem.cost(obj.T_world_model[None])[0]), problem)
-    evaluations = obj.evaluations + fev + 1
-    if cost is None:
-        return replace(obj, evaluations=evaluations)
-    return PlacedObject(obj.obj_id, T, cost, evaluations)
 
 
 def _polish_cost(window: SceneWindow, problem: Refinement, T_world_model: np.ndarray) -> np.ndarray:
@@ -785,9 +698,7 @@ def _refinement(
     edge_threshold: float | None,
 ) -> Refinement:
     """What object ``obj_id`` at ``target`` is refined against: ``maps`` (full resolution) under the occluders."""
-    weights = torch.as_tensor(
-        view_weights(target.view_scores, config.view_weights), dtype=torch.float32, device=maps.dist.device
-    )
+    weights = torch.as_tensor(view_weights(target.view_scores), dtype=torch.float32, device=maps.dist.device)
     return Refinement(
         target.center, model_centers(obj_id), meshes(obj_id), maps.cameras, maps.dist, weights, occluder_depth,
         config, maps.edges, edge_threshold, np.asarray(target.view_scores, dtype=np.float64), target.center_map,
@@ -909,27 +820,6 @@ class Refinement:
         """``(n,)`` render costs of poses ``(n, 4, 4)``."""
         return _cost(self.mesh, T_world_model, self.cameras, self.dist, self.weights, self.occluder_depth)
 
-    def two_sided(self, T_world_model: np.ndarray) -> TwoSidedCost:
-        """The two-sided costs (:func:`~bop_cender.pose.coverage.two_sided_costs`) of poses ``(n, 4, 4)``."""
-        if self.target_edges is None or self.edge_threshold is None:
-            raise ValueError("the two-sided cost needs the target's binarised curvature and the edge threshold")
-        T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
-        return two_sided_costs(
-            self.mesh,
-            torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device),
-            torch.as_tensor(self.cameras.Ks, dtype=torch.float32, device=self.dist.device),
-            self.target_edges,
-            self.dist,
-            self.weights,
-            self.edge_threshold,
-            self.config.coverage_weight,
-            self.occluder_depth,
-        )
-
-    def judge(self, T_world_model: np.ndarray) -> np.ndarray:
-        """``(n,)`` final costs of poses ``(n, 4, 4)``: two-sided where ``coverage_weight > 0``, else the render cost."""
-        return self.two_sided(T_world_model).total if self.config.coverage_weight > 0 else self.cost(T_world_model)
-
     def search_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
         """``(n,)`` what the edge search ranks and refines poses ``(n, 4, 4)`` by: the edge cost plus the centre term."""
         return self.edge_cost(T_world_model, model) + self.center_term(T_world_model)
@@ -999,33 +889,6 @@ def _refine_lockstep(
 
     x_best, f_best, nfev = batched_nelder_mead(f, x0, step, lo, hi, config.nm_xatol, config.nm_fatol, config.nm_maxfev)
     return param.poses(x_best[:, :-1], np.arange(k)), f_best, int(nfev.sum())
-
-
-def _refine_scipy(starts: np.ndarray, problem: Refinement) -> tuple[np.ndarray, np.ndarray, int]:
-    """Each start refined by its own ``scipy.optimize.minimize(method="Nelder-Mead", bounds=...)`` (the paper's)."""
-    config = problem.config
-    x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config)
-    param = _Perturbation(starts[:, :3, :3], problem.center3d, problem.center_model)
-    poses, costs, total = [], [], 0
-    for i in range(len(starts)):
-        which = np.array([i])
-
-        def f(x: np.ndarray, which=which) -> float:
-            return float(problem.cost(param.poses(x[None], which))[0])
-
-        simplex = np.clip(np.vstack([x0[i], x0[i] + np.diag(step)]), lo, hi)
-        res = minimize(
-            f,
-            x0[i],
-            method="Nelder-Mead",
-            bounds=list(zip(lo, hi, strict=True)),
-            options={"initial_simplex": simplex, "xatol": config.nm_xatol, "fatol": config.nm_fatol,
-                     "maxfev": config.nm_maxfev},
-        )  # fmt: skip
-        poses.append(param.poses(res.x[None], which)[0])
-        costs.append(float(res.fun))
-        total += int(res.nfev)
-    return np.stack(poses), np.array(costs), total
 
 
 def _hidden_pixels_differ(
@@ -1117,7 +980,7 @@ class SceneJudge:
         cost = _scene_cost(placed, self.maps, self.meshes, self.edge_threshold)
         if self.config.center_weight > 0:
             for obj, target in zip(placed, self.targets, strict=True):
-                w = view_weights(target.view_scores, self.config.view_weights)
+                w = view_weights(target.view_scores)
                 cost += float(center_term(obj.T_world_model[None], self.model_centers(obj.obj_id), target.view_scores,
                                           target.center_map, w, self.maps.cameras, self.config.center_weight)[0])  # fmt: skip
         return cost
