@@ -107,3 +107,15 @@ def mini_scene(root: Path):
                         HEIGHT, WIDTH)  # fmt: skip
     dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > BOX_T_B))
     return ds, scene, meshes, maps, cams, dist
+
+
+def pose_config(*settings: str, t_b: float | None = None):
+    """A stage-3 config at this fixture's :data:`BOX_T_B` (or ``t_b``) with ``path=value`` settings below ``poses``
+    applied (``"sweeps.passes=2"``, ``"refine.nelder_mead.maxfev=40"``), as ``run --set`` applies them."""
+    from bop_cender.pose.config import PoseConfig
+    from bop_cender.settings import apply_setting
+
+    config = PoseConfig(t_b=BOX_T_B if t_b is None else t_b)
+    for item in settings:
+        config = apply_setting(config, item)
+    return config

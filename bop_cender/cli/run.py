@@ -88,10 +88,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="estimate from the first K views of each scene (ablation; at least centers.min_views, 2 by default)",
     )
     p.add_argument(
+        "--preset",
+        choices=("ours", "paper"),
+        default="ours",
+        help="the method's settings to start from (default ours; paper: the paper's stage 3, one sweep, no scene"
+        " polish, no centre term, no screen; bop_cender/pose/config.py PRESETS); recorded in the run's sidecar",
+    )
+    p.add_argument(
         "--set",
         action="append",
         metavar="SECTION.FIELD=VALUE",
-        help="override a method setting (repeatable): centers.d_c=30, poses.t_b_network=0.5 (a network's curvature; default: the weights' calibration), poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
+        help="override a method setting after --preset (repeatable, any depth): centers.d_c=30, poses.candidates.n=500,"
+        " poses.sweeps.passes=1, poses.network.t_b=0.5 (a network's curvature; default: the weights' calibration),"
+        " poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
     )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -131,14 +140,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
     device = str(resolve_device(args.device))
     pose_device = device if args.pose_device == "same" else str(resolve_device(args.pose_device, "--pose-device"))
-    overrides = {}
-    for name, value in (("n_candidates", args.candidates), ("top_k", args.top_k)):  # count() refused < 1
+    options = [f"poses.seed={args.seed}"]  # the options before --set, which may override them
+    for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1
         if value is not None:
-            overrides[name] = value
+            options.append(f"poses.{name}={value}")
     if args.no_occlusion:
-        overrides["occlusion"] = False
-    overrides["seed"] = args.seed
-    config = CenDerNetConfig.for_dataset(args.dataset, **overrides).with_settings(args.set or [])
+        options.append("poses.occlusion=false")
+    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).with_settings([*options, *(args.set or [])])
     config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
         "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
     )

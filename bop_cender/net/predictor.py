@@ -132,7 +132,7 @@ class NetPredictor:
     channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
-    ``PoseConfig.t_b_network`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
+    ``poses.network.t_b`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
     """
 
     name = "net"

@@ -57,8 +57,8 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from bop_cender.errors import ConfigError
 from bop_cender.geometry.sampling import sample_scores
+from bop_cender.pose.config import NelderMead, PoseConfig
 from bop_cender.pose.cost import candidate_costs, distance_maps
 from bop_cender.pose.coverage import scene_cost
 from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_model_of, edge_occluder
@@ -67,288 +67,10 @@ from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
-from bop_cender.settings_checks import COUNT, COUNT_OR_ZERO, NON_NEGATIVE, POSITIVE, Bound, check_settings
 
 #: Nelder-Mead works on rotation-vector perturbations scaled by this (mm per radian, about a part's
 #: radius), so that one unit of either parameter moves a surface point by about a millimetre.
 ROTATION_SCALE_MM = 50.0
-
-
-SEARCH_COSTS = ("edges", "render")
-
-
-@dataclass(frozen=True)
-class PoseConfig:
-    """Stage-3 settings. The paper gives 2,000 candidates and bounded Nelder-Mead; every other value is ours.
-
-    Attributes:
-        t_b: binarisation threshold of the predicted curvature (in [0, 1]); ours: 0.75, with the
-            targets' scale c = 4 a raw curvature of 3: silhouettes and sharp creases (3 to 4.2) pass,
-            the curved surfaces of thin parts (1.3 to 2.9) do not (see ``TargetConfig.curvature_scale``).
-        t_b_network: binarisation threshold of a network's predicted curvature (the target side only: a rendered
-            pose's edges stay those above ``t_b``, the edges the network was trained to predict). None (ours): the
-            threshold calibrated for the weights (:attr:`~bop_cender.net.weights.NetWeights.curvature_threshold`:
-            the best-F1 threshold on their validation views), or ``t_b`` for weights without one. Why: a network's
-            curvature is softer than the renderer's; at ``t_b`` its edges break up (shipped DIMO network, seed
-            9002 ``sim``: curvature F1 0.444 at 0.75, 0.622 at 0.62), and the pose stage then fits fragments.
-            Measured end to end with the shipped weights' calibrations (DIMO 0.629, T-LESS 0.424, from their
-            validation sets; ``results/accuracy/README.md``, fifth session): AR_MSSD<5% DIMO seed 9002 ``sim``
-            0.682 -> 0.777, ``real`` 0.252 -> 0.640, seed 4242 ``sim`` 0.447 -> 0.576; T-LESS seed 4243 AR
-            0.355 -> 0.486. A fixed threshold for both sides (``t_b`` 0.4 / 0.5 / 0.6) gave 0.797 / 0.792 / 0.786
-            on 9002 ``sim``: a plateau that the calibrated value sits on.
-        n_candidates: random pose candidates per object (paper: 2,000).
-        translation_sigma_mm: standard deviation of the candidates' centre around the 3D centre (ours:
-            5 mm, the triangulation error of stage 2 is a few mm on oracle heatmaps).
-        top_k: candidates refined by Nelder-Mead (ours: 3; with ``screen_starts``, the 3 best of the screened starts).
-        rotation_bound_rad: bound on each rotation-vector component of the refinement's perturbation
-            (ours: 0.6 rad, about the spacing of 2,000 random rotations (~0.35 rad) plus margin).
-        translation_bound_mm: the refined centre stays within this box around the 3D centre (ours: 20 mm).
-        translation_sigma_mm_network, translation_bound_mm_network: the two above where the centres come from a
-            network (:attr:`~bop_cender.net.heatmaps.Heatmaps.centers_from_network`; None: the same as above).
-            Ours: 10 and 30 mm. A network's 3D centres are often 5-15 mm off (brackets and shafts, whose
-            bounding-box centre is not on the metal; 31 of 69 within 5 mm on a fresh seed-5151 set), where the
-            oracle's are within 1-2 mm. Measured on six unseen or test sets with the shipped networks
-            (2-core AMD EPYC, 2026-12-06, ``results/accuracy/v15``): DIMO AR_MSSD<5% seed 5151 ``sim`` 0.734 ->
-            0.767, ``real`` 0.720 -> 0.736, seed 9002 ``sim`` 0.812 -> 0.806, ``real`` 0.724 -> 0.759; T-LESS AR
-            seed 4243 0.456 -> 0.477, seed 6161 0.583 -> 0.584; sigma 10 with the bound 20 gained nothing (5151
-            ``sim`` 0.736), the bound 30 with sigma 5 half (0.749). On the oracle the wider search loses (5151
-            ``sim`` 0.939 -> 0.926): hence a setting of its own.
-        nm_initial_rotation_rad, nm_initial_translation_mm: size of the initial simplex (ours: 0.15 rad, 4 mm).
-        nm_xatol: Nelder-Mead ``xatol`` in scaled units (~mm at the part's surface; ours: 0.05).
-        nm_fatol: Nelder-Mead ``fatol`` in cost units (pixels; ours: 1e-3).
-        nm_maxfev: cost evaluations per Nelder-Mead run (ours: 150; on the test scene 120 and 200 gave the same
-            poses to 0.05 mm and 0.1 degree). With the scene polish after the sweeps, oracle AR_MSSD<5% for 300,
-            200, 200 with the polish's looser tolerances (``scene_polish_xatol``), and 150: 0.947, 0.949, 0.943,
-            0.936 (DIMO seed 9002), 0.958, 0.962, 0.962, 0.976 (seed 4242); AR_MSPD<5px 0.925, 0.925, 0.918,
-            0.936 and 0.965, 0.970, 0.970, 0.977: nothing beyond these figures' float-level noise (about 0.01;
-            ``results/accuracy/README.md``), for less pose time (``scripts/bench_run.py``).
-        candidate_downscale: the random candidates are costed at 1/this resolution (intrinsics scaled,
-            distance maps of the max-pooled binary curvature), Nelder-Mead at full resolution; ours: 2
-            (4x fewer pixels for the 2,000 candidates; 1 = the paper's single resolution). Render search
-            only: the edge search's proxy costs little per pixel and uses the full-resolution maps.
-        refiner: ``lockstep`` (the top-k Nelder-Mead runs step together, each step one batched cost call:
-            :mod:`bop_cender.optim.simplex`) or ``scipy`` (one ``scipy.optimize.minimize`` per start, the
-            paper's). The same algorithm; lockstep is several times faster on the CPU. The edge search
-            always steps in lockstep; this chooses for ``search_cost="render"``.
-        occlusion: render the objects already placed as occluders of the next ones (the paper's method).
-        search_cost: ``edges`` (ours: candidates and most of the refinement on the edge-point proxy, the
-            finalists judged and polished on the render cost; see the module docstring) or ``render``
-            (the paper's: every evaluation renders).
-        edge_segment_mm: edges are cut into segments of at most this length (ours: 3 mm, about 2 pixels
-            at DIMO's 320 x 256; see :func:`~bop_cender.pose.edge_cost.edge_model`).
-        candidate_segments: size of the sparse edge model that ranks the candidates (ours: 600 segments:
-            0.2-0.3 ms per candidate in 7 views on one CPU thread, and the 10 best by the render cost
-            were all among its 100 best in our measurements).
-        rerank: candidates re-ranked by the full edge model before the best ``top_k`` are refined (ours: 100).
-        start_separation_rad: the ``top_k`` starts of the edge search are taken best first, each at
-            least this far in rotation from the ones before (ours: 0.35 rad, the spacing of 2,000 random
-            rotations: without it the starts are often one basin three times); 0: the best ``top_k``. With the
-            screen it spreads the screened starts, and again the ``top_k`` that go on (best refined first).
-        polish_maxfev: render-cost evaluations of a final polish of the judged best (``edges`` only, from
-            a simplex of a quarter of ``nm_initial_*``; ours: 0, none). With one sweep and the paper's
-            judge it helped (seed 4242, oracle: AR_MSSD<5% 0.758 with 60, 0.783 with 200). With three sweeps
-            judged by the scene it costs accuracy where it is finest and half the pose time: the render
-            cost is quantised to the pixel grid, the edge proxy that the search converged on is not
-            (bilinear in the distance maps). Measured (``results/accuracy/README.md``), 200 -> 0:
-            oracle AR_MSSD<5% 0.835 -> 0.870 (DIMO seed 4242), 0.868 -> 0.843 (seed 9002), T-LESS AR
-            0.892 -> 0.891; shipped network 0.397 -> 0.417 (sim, seed 9002), 0.102 -> 0.141 (real), 0.444 -> 0.419 (sim, seed 4242); pose time 0.4-0.5x.
-        view_weights: ``center`` (per-view center scores, the paper) or ``uniform``.
-        coverage_weight: weight of the coverage term in the two-sided cost that judges the refined poses
-            (:mod:`bop_cender.pose.coverage`: the target edges inside a pose's silhouette that it leaves
-            unexplained); its total is then also the final cost. 0 (the default): the paper's cost judges.
-            1 is the weight that ranked the true pose first most often in the module's diagnosis; as a
-            judge alone it changed nothing measurable (see ``passes``), so it is off.
-        passes: sweeps over the objects. The first is the paper's sequential placement (each object
-            occluded by those placed before it); each further sweep searches every object again, in the
-            same order, occluded by all the others as last placed, with its previous pose as one more
-            start, and keeps a new pose where ``acceptance`` prefers it; an object that the others hide
-            exactly as when it was fitted is skipped (the same search again). Why: an object placed early
-            was fitted without the parts lying on it, and a wrong early pose hid the right one of a later
-            object. Ours: 3; the paper's is 1. Measured with oracle heatmaps (``results/accuracy/README.md``,
-            BOP AR_MSSD<5%, the same 2-core AMD EPYC): with ``acceptance="scene"``, 1 -> 2 passes DIMO-layout
-            seed 9002 0.799 -> 0.826, seed 4242 0.791 -> 0.823, T-LESS-layout seed 4243 0.822 -> 0.893 (AR
-            0.856 -> 0.891), for 1.2x (DIMO) to 2x (T-LESS) the pose time, and a third pass lost (0.810 on
-            seed 9002); with ``acceptance="finalists"``, 2 -> 3 passes 0.841 -> 0.868 (9002), 0.827 -> 0.835
-            (4242), 0.893 both (T-LESS), for about 10 % more pose time (a sweep skips the objects whose
-            occluders did not change). With ``acceptance="object"`` a second sweep lost on seed 4242 (0.751),
-            so that stays an ablation.
-        acceptance: what decides whether a further sweep's new pose replaces the old: ``finalists`` (ours,
-            the default: every refined finalist of the new search, each start of each candidate id, is
-            judged by the scene cost, the symmetric edge distance of all objects rendered together against
-            the target, :func:`~bop_cender.pose.coverage.scene_cost`; the lowest wins if it is below the
-            current placement's; with ``polish_maxfev`` > 0 a chosen finalist the search did not polish is
-            polished then), ``scene``
-            (the same judge for the search's own best only) or ``object`` (the judge's cost of that object
-            alone, lower wins). Why the scene: a part moved onto a neighbour's edges costs itself no more,
-            but leaves the edges of its true place unexplained and hides the neighbour's; only the scene
-            sees that. Why all finalists: where the neighbours are misplaced the object's own cost ranks
-            a wrong finalist first, while the scene cost prefers the true pose (DIMO-layout seed 9002,
-            scene 000005_00, 9 brackets: each of 5 wrong parts put at its true pose lowers the scene cost,
-            though by its own cost its wrong pose wins). Measured with oracle heatmaps
-            (``results/accuracy/README.md``), ``scene`` -> ``finalists``: AR_MSSD<5% 0.826 -> 0.841 (seed
-            9002), 0.823 -> 0.827 (seed 4242), AR_MSSD 0.875 -> 0.895 and 0.915 -> 0.926, for about 12 %
-            more pose time. Only with ``passes`` > 1.
-        scene_polish_maxfev: evaluations of the final scene polish of each placed object (ours: 100; see
-            :mod:`bop_cender.pose.scene_polish`; 0: none): after the sweeps, each object in order is refined
-            by Nelder-Mead (a simplex a quarter of ``nm_initial_*``, within the search's bounds) on the
-            scene cost in windows around it, the others fixed, and kept where the full scene cost falls.
-            Why: the sweeps choose between poses refined on the edge proxy; where the proxy's minimum and
-            the scene's differ by a little (a disc tilted 6 degrees: 5.5 % of its diameter, a miss at the
-            strictest threshold), nothing else moves the part to the scene's. Measured with oracle heatmaps
-            (``results/accuracy/README.md``), 0 -> 100: AR_MSSD<5% 0.843 -> 0.890 (DIMO seed 9002), 0.870 ->
-            0.926 (seed 4242); 200 gave the same as 100 (0.890).
-        scene_polish_passes, scene_polish_passes_network: how many times the scene polish goes over the placed
-            objects (it stops early where a pass kept no new pose); the second where the centres come from a
-            network (None: the first). Ours: 2, and 1 for a network's. Why: stacked parts pull on each other's
-            edges, so a part settles only once its neighbour has. Measured (``results/accuracy/README.md``,
-            seventeenth session), passes 1 -> 2 -> 3, AR_MSSD<5%: oracle DIMO seed 5151 ``sim`` 0.939 -> 0.977 ->
-            0.977 (the pose stage's CPU time 99 -> 139 -> 178 s for the 12 scenes), seed 9002 0.965 at 3 (one pass:
-            0.962-0.971); with the shipped network 1 -> 3: 5151 ``sim`` 0.767 -> 0.783 (2: 0.767), ``real`` 0.736 ->
-            0.736, 9002 ``sim`` 0.806 -> 0.806, ``real`` 0.759 -> 0.744, T-LESS AR 0.584 -> 0.583 and 0.477 ->
-            0.477: no gain for 40-80 % more pose time, so one pass for a network's centres.
-        scene_polish_xatol, scene_polish_fatol: the scene polish's Nelder-Mead tolerances (as ``nm_xatol`` and
-            ``nm_fatol``; ours: 0.2 and 0.005, looser than the search's 0.05 and 0.001, which the polish never
-            reached in its 100 evaluations; with these the 8 parts of the bench's third scene stop after 57-101,
-            the scene 22.7 -> 19.1 s under the profiler; the scene cost reached 3.034, against 3.030 with the tight
-            tolerances and 300 search evaluations).
-        scene_polish_margin_px: the scene polish's window around the projection of an object's bounding
-            sphere, in pixels (ours: 12, several times the polish's usual moves).
-        center_weight: weight (pixels) of the centre term (ours: 1; 0: the paper's cost alone): every cost
-            of the search, the judge of the sweeps and the scene polish adds, per object, how far the
-            center heatmap at the projection of the pose's centre falls below its value at the detected 3D
-            centre (:func:`center_term`, in [0, 1]). Why: stage 2's centres are more accurate than the
-            poses the edges alone give in piles (oracle: 0.3 mm median); without the term parts drifted
-            up to the 20 mm translation bound onto a neighbour's edges (DIMO seed 4242, scene 000022_00:
-            discs 5-10 mm off their centres). A fixed tighter bound (8 mm) helped the oracle (AR_MSSD<5%
-            0.890 -> 0.905, seed 9002) but would hold a network's centres, 10-20 mm off, too tight; the
-            heatmap scales the term by how sure the centre is. Measured with the scene polish (oracle):
-            0 -> 1 -> 3: 0.890 -> 0.940 -> 0.929 (seed 9002), 0.926 -> 0.967 with 1 (seed 4242). The term is
-            part of each object's final cost, so of its BOP score. With ``search_cost="render"`` (the
-            paper's search, an ablation) the candidates and their refinement do not see it; the sweeps'
-            judge and the scene polish do.
-        seed: seed of the candidates (combined with the object's index in the scene).
-        screen_starts, screen_maxfev: the edge search's screen (ours: 8 starts, 30 evaluations; 0 starts or at most
-            ``top_k``: none, the best ``top_k`` candidates are refined directly): the best ``screen_starts`` diverse
-            candidates are refined by a short lockstep Nelder-Mead first, and the ``top_k`` with the lowest refined
-            cost, kept ``start_separation_rad`` apart, go on for ``nm_maxfev``. Why: a candidate 10-20 degrees from the
-            true pose costs more than the best candidate of a wrong basin, though refined it lands lower (DIMO seed
-            9002, scene 000005_00: a fully visible part placed 100 degrees off with the right centre; six starts
-            10-20 degrees from its true pose all converge there, at cost 1.82 against the wrong pose's 2.51, but
-            none ranked in the top 3). Measured with oracle heatmaps (``results/accuracy/README.md``), screen 0 ->
-            8 -> 8 with the continuing starts kept apart (ours) -> 12 (not kept apart): AR_MSSD<5% 0.936 -> 0.949
-            -> 0.965 -> 0.965 (DIMO seed 9002), 0.976 -> 0.977 -> 0.969 -> 0.977 (seed 4242); the shipped network
-            on seed 9002 ``sim`` 0.627 -> 0.651 -> 0.682; the 8-part bench scene 18.6 -> 17.9 -> 17.4 -> 23.7 s (the
-            sets' summed pose time 148 and 281 s with ours, against 164-172 and 287-298 s for the
-            unscreened variants measured on the idle machine that day). A screened start may already have moved
-            up to the rotation bound, and the continued run is bounded about it again. ``screen_maxfev`` counts
-            the initial simplex's 7 evaluations per start, so any screen costs at least those.
-    """
-
-    t_b: float = 0.75
-    t_b_network: float | None = None
-    n_candidates: int = 2000
-    translation_sigma_mm: float = 5.0
-    top_k: int = 3
-    rotation_bound_rad: float = 0.6
-    translation_bound_mm: float = 20.0
-    translation_sigma_mm_network: float | None = 10.0
-    translation_bound_mm_network: float | None = 30.0
-    nm_initial_rotation_rad: float = 0.15
-    nm_initial_translation_mm: float = 4.0
-    nm_xatol: float = 0.05
-    nm_fatol: float = 1e-3
-    nm_maxfev: int = 150
-    candidate_downscale: int = 2
-    occlusion: bool = True
-    seed: int = 0
-    search_cost: str = "edges"
-    edge_segment_mm: float = 3.0
-    candidate_segments: int = 600
-    rerank: int = 100
-    start_separation_rad: float = 0.35
-    passes: int = 3
-    scene_polish_maxfev: int = 100
-    scene_polish_passes: int = 2
-    scene_polish_passes_network: int | None = 1
-    scene_polish_margin_px: int = 12
-    scene_polish_xatol: float = 0.2
-    scene_polish_fatol: float = 0.005
-    center_weight: float = 1.0
-    screen_starts: int = 8
-    screen_maxfev: int = 30
-
-    def for_network_centers(self) -> PoseConfig:
-        """This config with the candidates' spread, the refinement's box and the scene polish's passes of a
-        network's centres (``translation_*_network``, ``scene_polish_passes_network`` where set): what stage 3 uses
-        when the 3D centres come from a network."""
-        sigma, bound = self.translation_sigma_mm_network, self.translation_bound_mm_network
-        passes = self.scene_polish_passes_network
-        return replace(
-            self,
-            translation_sigma_mm=self.translation_sigma_mm if sigma is None else sigma,
-            translation_bound_mm=self.translation_bound_mm if bound is None else bound,
-            scene_polish_passes=self.scene_polish_passes if passes is None else passes,
-        )
-
-    def check_refinable(self, field: str) -> None:
-        """Refuse more starts to refine than candidates (``top_k`` > ``n_candidates``): the refinement would run fewer
-        than asked. Not in :meth:`__post_init__`: ``--set`` applies one setting at a time, and the two may come in
-        either order; checked once all are in, by ``run`` (``field``: the option to name).
-
-        Raises:
-            ConfigError: naming ``field``.
-        """
-        if self.top_k > self.n_candidates:
-            raise ConfigError(
-                f"refines the best {self.top_k} (poses.top_k) of {self.n_candidates} candidates (poses.n_candidates):"
-                " give at least as many candidates as starts to refine",
-                field=field,
-            )
-
-    def __post_init__(self) -> None:
-        """Every setting is checked here (named choices, types and ranges), so that a bad ``--set`` is one error
-        before any scene runs."""
-        if self.search_cost not in SEARCH_COSTS:
-            raise ConfigError(
-                f"poses.search_cost: expected one of {', '.join(SEARCH_COSTS)}, got {self.search_cost!r}", field="--set"
-            )
-        check_settings("poses", self, _POSE_BOUNDS, flags=("occlusion",))
-
-
-_UNIT_INTERVAL = Bound(0.0, 1.0, high_open=True)
-_POSE_BOUNDS = {
-    "t_b": _UNIT_INTERVAL,
-    "t_b_network": replace(_UNIT_INTERVAL, optional=True),
-    "n_candidates": COUNT,
-    "translation_sigma_mm": NON_NEGATIVE,
-    "top_k": COUNT,
-    "rotation_bound_rad": POSITIVE,
-    "translation_bound_mm": POSITIVE,
-    "translation_sigma_mm_network": replace(NON_NEGATIVE, optional=True),
-    "translation_bound_mm_network": replace(POSITIVE, optional=True),
-    "nm_initial_rotation_rad": POSITIVE,
-    "nm_initial_translation_mm": POSITIVE,
-    "nm_xatol": POSITIVE,
-    "nm_fatol": POSITIVE,
-    "nm_maxfev": COUNT,
-    "candidate_downscale": COUNT,
-    "seed": Bound(0, integer=True),
-    "edge_segment_mm": POSITIVE,
-    "candidate_segments": COUNT,
-    "rerank": COUNT_OR_ZERO,
-    "start_separation_rad": NON_NEGATIVE,
-    "passes": COUNT,
-    "scene_polish_maxfev": COUNT_OR_ZERO,
-    "scene_polish_passes": COUNT,
-    "scene_polish_passes_network": replace(COUNT, optional=True),
-    "scene_polish_margin_px": COUNT_OR_ZERO,
-    "scene_polish_xatol": NON_NEGATIVE,
-    "scene_polish_fatol": NON_NEGATIVE,
-    "center_weight": NON_NEGATIVE,
-    "screen_starts": COUNT_OR_ZERO,
-    "screen_maxfev": COUNT_OR_ZERO,
-}
-"""What each stage-3 setting may be (:func:`~bop_cender.settings_checks.check_settings`)."""
 
 
 @dataclass(frozen=True)
@@ -447,13 +169,13 @@ def optimise_scene(
     curv = torch.as_tensor(curvature).detach().to("cpu", torch.float32)
     binary = curv > (config.t_b if target_threshold is None else target_threshold)
     fine = CostMaps(cameras, torch.as_tensor(distance_maps(binary.numpy())).to(device), binary.to(device))
-    f = max(1, int(config.candidate_downscale))
+    f = max(1, int(config.candidates.downscale))
     coarse = fine
     if f > 1 and config.search_cost == "render":  # the edge search costs everything on the fine maps
         pooled = torch.nn.functional.max_pool2d(binary[:, None].float(), f, ceil_mode=True)[:, 0] > 0
         coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())).to(device))
     order = sorted(range(len(targets)), key=lambda i: -float(np.sum(targets[i].view_scores)))
-    total = len(targets) * config.passes
+    total = len(targets) * config.sweeps.passes
     edge_threshold = config.t_b * curvature_scale
 
     def fit(
@@ -486,7 +208,7 @@ def optimise_scene(
     # the target of placed[k] is targets[order[k]]
     judge = SceneJudge([targets[i] for i in order], fine, meshes, model_centers, config, edge_threshold)
 
-    for sweep in range(1, config.passes):
+    for sweep in range(1, config.sweeps.passes):
         for idx, i in enumerate(order):
             others = placed[:idx] + placed[idx + 1 :]
             occ = _occluder_depth(others, fine.cameras, meshes) if config.occlusion and others else None
@@ -501,8 +223,8 @@ def optimise_scene(
                 contexts[idx] = occ  # searched under these occluders, kept or not: a third sweep skips alike
             if progress is not None:
                 progress(sweep * len(targets) + idx + 1, total)
-    if config.scene_polish_maxfev > 0 and placed:
-        for polish_pass in range(config.scene_polish_passes):
+    if config.scene_polish.nelder_mead.maxfev > 0 and placed:
+        for polish_pass in range(config.scene_polish.passes):
             before = [p.T_world_model for p in placed]
             placed = polish_on_scene(placed, judge, scene_now if polish_pass == 0 else None)
             if all(np.array_equal(p.T_world_model, T) for p, T in zip(placed, before, strict=True)):
@@ -525,14 +247,6 @@ def polish_on_scene(
     if not placed:
         return placed
     maps, meshes, config = judge.maps, judge.meshes, judge.config
-    polish = replace(
-        config,
-        nm_initial_rotation_rad=config.nm_initial_rotation_rad / 4,
-        nm_initial_translation_mm=config.nm_initial_translation_mm / 4,
-        nm_maxfev=config.scene_polish_maxfev,
-        nm_xatol=config.scene_polish_xatol,
-        nm_fatol=config.scene_polish_fatol,
-    )
     if scene_now is None:
         scene_now = judge.cost(placed)
     for idx, obj in enumerate(placed):
@@ -540,12 +254,14 @@ def polish_on_scene(
         window = scene_window(
             meshes(obj.obj_id), obj.T_world_model, [(meshes(o.obj_id), o.T_world_model) for o in others],
             maps.cameras.Ks, maps.cameras.T_cam_world, maps.edges, maps.dist, judge.edge_threshold,
-            config.scene_polish_margin_px,
+            config.scene_polish.margin_px,
         )  # fmt: skip
         # the occluders only matter for the final cost of a kept pose: rendered then, not for every part
-        problem = _refinement(judge.targets[idx], obj.obj_id, maps, None, meshes, judge.model_centers, polish,
+        problem = _refinement(judge.targets[idx], obj.obj_id, maps, None, meshes, judge.model_centers, config,
                               judge.edge_threshold)  # fmt: skip
-        T_new, _, fev = _refine_lockstep(obj.T_world_model[None], problem, partial(_polish_cost, window, problem))
+        T_new, _, fev = _refine_lockstep(
+            obj.T_world_model[None], problem, partial(_polish_cost, window, problem), config.scene_polish.nelder_mead
+        )
         trial = _with(placed, idx, replace(obj, T_world_model=T_new[0]))
         cost = judge.cost(trial)
         spent = obj.evaluations + fev + 1
@@ -617,9 +333,9 @@ def optimise_object(
     earlier sweep, refined as one more start (its evaluations are added to the result's). ``finalists``: where
     given, every refined pose of every candidate id is appended to it (final cost each, 0 evaluations), so
     that a caller can judge them otherwise (``acceptance="finalists"``)."""
-    n = config.n_candidates
+    n = config.candidates.n
     R = Rotation.random(n, random_state=rng).as_matrix()
-    centers = target.center[None] + rng.normal(0.0, config.translation_sigma_mm, size=(n, 3))
+    centers = target.center[None] + rng.normal(0.0, config.candidates.translation_sigma_mm, size=(n, 3))
     best: PlacedObject | None = None
     evaluations = 0 if incumbent is None else incumbent.evaluations
     maps, occ = fine
@@ -633,7 +349,7 @@ def optimise_object(
             T_ref, c_ref, fev = _search_on_edges(T, model, problem, extra)
         else:
             costs = _cost(mesh, T, coarse[0].cameras, coarse[0].dist, problem.weights, coarse[1], cost_threads)
-            starts = T[np.argsort(costs, kind="stable")[: max(1, config.top_k)]]
+            starts = T[np.argsort(costs, kind="stable")[: max(1, config.candidates.top_k)]]
             starts = starts if extra is None else np.concatenate([starts, extra])
             T_ref, c_ref, fev = _refine_lockstep(starts, problem)
             fev += n
@@ -654,25 +370,24 @@ def _search_on_edges(
     or the render cost with ``coverage_weight`` 0) and, with ``polish_maxfev`` > 0, the best polished on the
     render cost. ``extra (e, 4, 4)``: poses refined as starts beside the best candidates (an earlier sweep's
     pose). Returns the finalists' poses ``(k, 4, 4)``, their final costs ``(k,)`` and the evaluations."""
-    config = problem.config
-    sparse = model.sparse(config.candidate_segments)
+    config, cand = problem.config, problem.config.candidates
+    sparse = model.sparse(cand.segments)
     coarse_costs = problem.search_cost(T, sparse)
-    pool = np.argsort(coarse_costs, kind="stable")[: max(1, config.rerank, config.top_k, config.screen_starts)]
+    pool = np.argsort(coarse_costs, kind="stable")[: max(1, cand.rerank, cand.top_k, config.screen.starts)]
     pool = pool[np.argsort(problem.search_cost(T[pool], model), kind="stable")]
     search_cost = partial(problem.search_cost, model=model)
     evaluations = len(T) + len(pool)
-    if min(config.screen_starts, len(pool)) > max(1, config.top_k):
+    if min(config.screen.starts, len(pool)) > max(1, cand.top_k):
         # a short Nelder-Mead from more starts first; the best top_k after it go on (a start 10-20 degrees from
         # the true pose costs more than a wrong basin's best candidate, and only refining shows which is which);
         # those that go on are kept apart in rotation again (screened starts often meet in one basin)
-        screened = T[pool[_diverse(T[pool], config.screen_starts, config.start_separation_rad)]]
-        short = replace(problem, config=replace(config, nm_maxfev=config.screen_maxfev))
-        T_s, f_s, fev = _refine_lockstep(screened, short, search_cost)
+        screened = T[pool[_diverse(T[pool], config.screen.starts, cand.start_separation_rad)]]
+        T_s, f_s, fev = _refine_lockstep(screened, problem, search_cost, config.screen.nelder_mead)
         ranked = T_s[np.argsort(f_s, kind="stable")]
-        starts = ranked[_diverse(ranked, max(1, config.top_k), config.start_separation_rad)]
+        starts = ranked[_diverse(ranked, max(1, cand.top_k), cand.start_separation_rad)]
         evaluations += fev
     else:
-        starts = T[pool[_diverse(T[pool], max(1, config.top_k), config.start_separation_rad)]]
+        starts = T[pool[_diverse(T[pool], max(1, cand.top_k), cand.start_separation_rad)]]
     if extra is not None:
         starts = np.concatenate([starts, extra])
     T_ref, _, fev = _refine_lockstep(starts, problem, search_cost)
@@ -852,20 +567,28 @@ class _Perturbation:
         return _poses(R, self.center3d[None] + x[:, 3:], self.center_model)
 
 
-def _bounds_and_starts(starts: np.ndarray, center3d: np.ndarray, center_model: np.ndarray, config: PoseConfig):
-    rb = config.rotation_bound_rad * ROTATION_SCALE_MM
-    tb = config.translation_bound_mm
+def _bounds_and_starts(
+    starts: np.ndarray, center3d: np.ndarray, center_model: np.ndarray, config: PoseConfig, nelder_mead: NelderMead
+):
+    rb = config.refine.rotation_bound_rad * ROTATION_SCALE_MM
+    tb = config.refine.translation_bound_mm
     lo = np.concatenate([np.full(3, -rb), np.full(3, -tb)])
     c0 = np.einsum("kij,j->ki", starts[:, :3, :3], center_model) + starts[:, :3, 3]
     x0 = np.concatenate([np.zeros((len(starts), 3)), np.clip(c0 - center3d, -tb, tb)], axis=1)
     step = np.concatenate(
-        [np.full(3, config.nm_initial_rotation_rad * ROTATION_SCALE_MM), np.full(3, config.nm_initial_translation_mm)]
+        [
+            np.full(3, nelder_mead.initial_rotation_rad * ROTATION_SCALE_MM),
+            np.full(3, nelder_mead.initial_translation_mm),
+        ]
     )
     return x0, step, lo, -lo
 
 
 def _refine_lockstep(
-    starts: np.ndarray, problem: Refinement, cost: Callable[[np.ndarray], np.ndarray] | None = None
+    starts: np.ndarray,
+    problem: Refinement,
+    cost: Callable[[np.ndarray], np.ndarray] | None = None,
+    nelder_mead: NelderMead | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """All starts ``(k, 4, 4)`` refined together (:func:`bop_cender.optim.simplex.batched_nelder_mead`) on
     ``cost`` (poses ``(m, 4, 4)`` -> ``(m,)``; default the render cost, ``problem.cost``).
@@ -875,7 +598,8 @@ def _refine_lockstep(
     from bop_cender.optim.simplex import batched_nelder_mead
 
     config = problem.config
-    x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config)
+    nm = config.refine.nelder_mead if nelder_mead is None else nelder_mead
+    x0, step, lo, hi = _bounds_and_starts(starts, problem.center3d, problem.center_model, config, nm)
     param = _Perturbation(starts[:, :3, :3], problem.center3d, problem.center_model)
     k = len(starts)
     # Each point carries the index of its start as a 7th coordinate that never moves (step 0, bounds
@@ -887,7 +611,7 @@ def _refine_lockstep(
         owner = np.rint(x[:, -1]).astype(np.int64)
         return cost(param.poses(x[:, :-1], owner))
 
-    x_best, f_best, nfev = batched_nelder_mead(f, x0, step, lo, hi, config.nm_xatol, config.nm_fatol, config.nm_maxfev)
+    x_best, f_best, nfev = batched_nelder_mead(f, x0, step, lo, hi, nm.xatol, nm.fatol, nm.maxfev)
     return param.poses(x_best[:, :-1], np.arange(k)), f_best, int(nfev.sum())
 
 

@@ -304,7 +304,7 @@ def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
 
 
 def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heatmaps(tmp_path) -> None:
-    """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.t_b_network`` overrides it,
+    """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.network.t_b`` overrides it,
     and a value outside (0, 1) is one error naming the file."""
     from bop_cender.method import CenDerNetConfig, network_curvature_choice
 
@@ -323,7 +323,7 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
     assert NetPredictor(calibrated).predict(scene).centers_from_network  # stage 3 searches its centres wider
     with pytest.raises(ValueError, match="curvature_threshold must be in"):
         replace(NetPredictor(calibrated).predict(scene), curvature_threshold=float("nan"))
-    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.network.t_b=0.4"])
     assert net_predictor(replace(request, config=given), dataset).predict(scene).curvature_threshold == 0.4
     assert (
         network_curvature_choice(CenDerNetConfig(), load_weights(tmp_path / "plain.pt").curvature_threshold)[0] is None

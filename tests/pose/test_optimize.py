@@ -11,7 +11,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
+from method_data import BOX_T_B, gt_of, perturb, pose_config  # noqa: E402
 
 from bop_cender.pose.cost import candidate_costs  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
@@ -75,7 +75,7 @@ def test_refinement_recovers_a_perturbed_gt_pose(mini):
     center_model = ds.models[3].center
     center3d = g.T_world_model[:3, :3] @ center_model + g.T_world_model[:3, 3]
     start = perturb(g.T_world_model, 6.0, 3.0)
-    config = PoseConfig(nm_maxfev=300, t_b=BOX_T_B)
+    config = pose_config("refine.nelder_mead.maxfev=300")
     w = torch.full((len(cams.Ks),), 0.25)
     problem = Refinement(center3d + 1.0, center_model, meshes(3), cams, dist, w, None, config)
     T, c, fev = _refine_lockstep(start[None], problem)
@@ -100,7 +100,7 @@ def test_scene_optimisation_places_every_object(mini):
     targets = _targets(ds, scene, cams, [1.5, -1.0, 0.5])
     done = []
     placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
-                            PoseConfig(n_candidates=400, nm_maxfev=250, t_b=BOX_T_B, passes=2),
+                            pose_config("candidates.n=400", "refine.nelder_mead.maxfev=250", "sweeps.passes=2"),
                             progress=lambda a, b: done.append((a, b)),
                             curvature_scale=1.0)  # fmt: skip
     assert done == [(1, 4), (2, 4), (3, 4), (4, 4)]  # two sweeps over the two objects
@@ -117,7 +117,7 @@ def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkey
 
     ds, scene, meshes, maps, cams, dist = mini
     targets = _targets(ds, scene, cams, [1.0, -0.5, 0.5])
-    config = PoseConfig(n_candidates=300, nm_maxfev=150, t_b=BOX_T_B, passes=2, scene_polish_maxfev=20)
+    config = pose_config("candidates.n=300", "sweeps.passes=2", "scene_polish.nelder_mead.maxfev=20")
     seen: set[str] = set()
 
     def spy(module, name):
@@ -170,7 +170,7 @@ def test_a_later_sweep_keeps_a_move_only_where_the_whole_placement_gains(mini, m
     monkeypatch.setattr(optimize, "optimise_object", known_answer)
     monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
-    config = PoseConfig(t_b=BOX_T_B, passes=2, scene_polish_maxfev=0)  # the sweeps alone
+    config = pose_config("sweeps.passes=2", "scene_polish.nelder_mead.maxfev=0")  # the sweeps alone
     proposals.update({i: perturb(T, 25.0, 10.0) for i, T in parts.items()})  # worse for the scene
     refused = optimise_scene(*args, config, curvature_scale=1.0)
     for p in refused:
@@ -178,7 +178,7 @@ def test_a_later_sweep_keeps_a_move_only_where_the_whole_placement_gains(mini, m
     proposals.update(parts)  # the true poses: better for the scene
     taken = optimise_scene(*args, config, curvature_scale=1.0)
     assert all(np.array_equal(p.T_world_model, parts[p.obj_id]) for p in taken)
-    assert PoseConfig().passes == 3  # ours; the paper's is one pass
+    assert PoseConfig().sweeps.passes == 3  # ours; the paper's is one pass
 
 
 def test_every_refined_finalist_is_judged_by_the_scene(mini, monkeypatch):
@@ -202,7 +202,8 @@ def test_every_refined_finalist_is_judged_by_the_scene(mini, monkeypatch):
     monkeypatch.setattr(optimize, "optimise_object", search)
     monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
     args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
-    chosen = optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=2, scene_polish_maxfev=0), curvature_scale=1.0)
+    config = pose_config("sweeps.passes=2", "scene_polish.nelder_mead.maxfev=0")
+    chosen = optimise_scene(*args, config, curvature_scale=1.0)
     for p in chosen:
         assert np.array_equal(p.T_world_model, parts[p.obj_id]) and p.cost == 0.5 and p.evaluations == 15
 
@@ -253,8 +254,8 @@ def test_an_unknown_named_setting_is_one_config_error_before_any_scene():
         CenDerNetConfig.for_dataset("dimo").with_settings(["poses.search_cost=bogus"])
     with pytest.raises(ConfigError, match="poses.search_cost"):
         PoseConfig(search_cost="median")
-    with pytest.raises(ConfigError, match="passes"):
-        PoseConfig(passes=0)
+    with pytest.raises(ConfigError, match="poses.sweeps.passes: expected an integer >= 1"):
+        pose_config("sweeps.passes=0")
 
 
 def test_a_later_sweep_keeps_the_incumbent_pose_when_no_candidate_is_better(mini):
@@ -268,7 +269,7 @@ def test_a_later_sweep_keeps_the_incumbent_pose_when_no_candidate_is_better(mini
     target = PoseTarget(center3d, np.ones(len(cams.Ks)), (3,))
     edges = maps.curvature > BOX_T_B
     fine = (CostMaps(cams, dist, edges), None)
-    config = PoseConfig(n_candidates=3, rerank=3, top_k=1, t_b=BOX_T_B)
+    config = pose_config("candidates.n=3", "candidates.rerank=3", "candidates.top_k=1")
     incumbent = PlacedObject(3, perturb(g.T_world_model, 4.0, 1.5), 9.0, 123)
     found = optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config,
                             np.random.default_rng(5), edge_threshold=BOX_T_B, incumbent=incumbent)  # fmt: skip
@@ -302,22 +303,24 @@ def test_screening_refines_more_starts_briefly_and_continues_the_best(mini, monk
     calls = []
     original = optimize._refine_lockstep
 
-    def recording(starts, problem, cost=None):
-        out = original(starts, problem, cost)
-        calls.append((len(starts), problem.config.nm_maxfev, starts.copy(), out[0], out[1]))
+    def recording(starts, problem, cost=None, nelder_mead=None):
+        out = original(starts, problem, cost, nelder_mead)
+        maxfev = (nelder_mead or problem.config.refine.nelder_mead).maxfev
+        calls.append((len(starts), maxfev, starts.copy(), out[0], out[1]))
         return out
 
     monkeypatch.setattr(optimize, "_refine_lockstep", recording)
-    common = dict(n_candidates=64, rerank=32, top_k=2, t_b=BOX_T_B, nm_maxfev=40, start_separation_rad=0.0)
+    common = ("candidates.n=64", "candidates.rerank=32", "candidates.top_k=2", "refine.nelder_mead.maxfev=40",
+              "candidates.start_separation_rad=0")  # fmt: skip
     optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center,
-                    PoseConfig(**common, screen_starts=6, screen_maxfev=10), np.random.default_rng(1),
+                    pose_config(*common, "screen.starts=6", "screen.nelder_mead.maxfev=10"), np.random.default_rng(1),
                     edge_threshold=BOX_T_B)  # fmt: skip
     (n1, fev1, _, screened, screened_costs), (n2, fev2, continued, _, _) = calls
     assert (n1, fev1, n2, fev2) == (6, 10, 2, 40)
     # the continued starts are the screen's two best refined poses
     np.testing.assert_array_equal(continued, screened[np.argsort(screened_costs, kind="stable")[:2]])
     calls.clear()
-    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, PoseConfig(**common, screen_starts=0),
+    optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, pose_config(*common, "screen.starts=0"),
                     np.random.default_rng(1), edge_threshold=BOX_T_B)  # fmt: skip
     assert [(n, fev) for n, fev, *_ in calls] == [(2, 40)]
 
@@ -327,13 +330,13 @@ def test_the_search_screen_is_on_for_dimo_and_off_for_tless_layouts_unless_set()
 
     from bop_cender.method import CenDerNetConfig
 
-    assert CenDerNetConfig.for_dataset("dimo").poses.screen_starts == PoseConfig().screen_starts == 8
-    assert CenDerNetConfig.for_dataset("tless").poses.screen_starts == 0
-    assert CenDerNetConfig.for_dataset("bop").poses.screen_starts == 0
-    assert CenDerNetConfig.for_dataset("tless", screen_starts=5).poses.screen_starts == 5
-    assert CenDerNetConfig.for_dataset("tless").with_settings(["poses.screen_starts=6"]).poses.screen_starts == 6
+    assert CenDerNetConfig.for_dataset("dimo").poses.screen.starts == PoseConfig().screen.starts == 8
+    assert CenDerNetConfig.for_dataset("tless").poses.screen.starts == 0
+    assert CenDerNetConfig.for_dataset("bop").poses.screen.starts == 0
+    assert CenDerNetConfig.for_dataset("tless").with_settings(["poses.screen.starts=6"]).poses.screen.starts == 6
     tless, dimo = asdict(CenDerNetConfig.for_dataset("tless").poses), asdict(PoseConfig())
-    assert {k: v for k, v in tless.items() if dimo[k] != v} == {"screen_starts": 0}  # nothing else differs
+    assert {k: v for k, v in tless.items() if dimo[k] != v} == {"screen": {**dimo["screen"], "starts": 0}}
+    assert tless["screen"]["nelder_mead"] == dimo["screen"]["nelder_mead"]  # nothing else differs
 
 
 def test_the_screen_takes_its_starts_even_where_rerank_is_smaller(mini, monkeypatch):
@@ -344,8 +347,11 @@ def test_the_screen_takes_its_starts_even_where_rerank_is_smaller(mini, monkeypa
     ds, meshes, target, fine = _search_setup(mini)
     sizes = []
     original = optimize._refine_lockstep
-    monkeypatch.setattr(optimize, "_refine_lockstep", lambda s, p, c=None: sizes.append(len(s)) or original(s, p, c))
-    config = PoseConfig(n_candidates=64, rerank=4, top_k=2, t_b=BOX_T_B, nm_maxfev=20, screen_starts=6, screen_maxfev=8)
+    monkeypatch.setattr(
+        optimize, "_refine_lockstep", lambda s, p, c=None, n=None: sizes.append(len(s)) or original(s, p, c, n)
+    )
+    config = pose_config("candidates.n=64", "candidates.rerank=4", "candidates.top_k=2", "refine.nelder_mead.maxfev=20",
+                         "screen.starts=6", "screen.nelder_mead.maxfev=8")  # fmt: skip
     optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
                     edge_threshold=BOX_T_B)  # fmt: skip
     assert sizes == [6, 2]
@@ -367,8 +373,8 @@ def test_the_screened_starts_that_go_on_are_kept_apart_in_rotation(mini, monkeyp
         return out
 
     monkeypatch.setattr(optimize, "_diverse", recording)
-    config = PoseConfig(n_candidates=64, rerank=16, top_k=2, t_b=BOX_T_B, nm_maxfev=20, screen_starts=6, screen_maxfev=8,
-                        start_separation_rad=0.3)  # fmt: skip
+    config = pose_config("candidates.n=64", "candidates.rerank=16", "candidates.top_k=2", "refine.nelder_mead.maxfev=20",
+                         "screen.starts=6", "screen.nelder_mead.maxfev=8", "candidates.start_separation_rad=0.3")  # fmt: skip
     optimise_object(target, fine, fine, meshes, lambda i: ds.models[i].center, config, np.random.default_rng(1),
                     edge_threshold=BOX_T_B)  # fmt: skip
     assert [(n, k, sep) for n, k, sep, _ in chosen] == [(16, 6, 0.3), (6, 2, 0.3)]
@@ -400,8 +406,11 @@ def test_a_networks_curvature_is_binarised_at_its_own_threshold(monkeypatch):
 
 def test_the_curvature_thresholds_are_checked():
     from bop_cender.errors import ConfigError
+    from bop_cender.pose.config import NetworkSettings
 
-    for bad in ({"t_b": 1.0}, {"t_b_network": -0.1}, {"t_b_network": float("nan")}):
-        with pytest.raises(ConfigError, match="expected a number in"):
-            PoseConfig(**bad)
-    assert PoseConfig(t_b_network=0.5).t_b_network == 0.5 and PoseConfig().t_b_network is None
+    with pytest.raises(ConfigError, match="poses.t_b: expected a number in"):
+        PoseConfig(t_b=1.0)
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ConfigError, match="poses.network.t_b: expected a number in"):
+            PoseConfig(network=NetworkSettings(t_b=bad))
+    assert pose_config("network.t_b=0.5").network.t_b == 0.5 and PoseConfig().network.t_b is None
