@@ -27,7 +27,9 @@ from bop_cender.net.predictor import check_flips
 from bop_cender.net.targets import TargetConfig
 from bop_cender.pose.config import PRESETS, PoseConfig
 from bop_cender.pose.config_names import FIGURES, REMOVED, RENAMED
-from bop_cender.pose.optimize import PlacedObject, PoseTarget, SceneCameras, optimise_scene
+from bop_cender.pose.context import scene_context
+from bop_cender.pose.sweeps import optimise_scene
+from bop_cender.pose.types import PlacedObject, PoseTarget, SceneCameras
 from bop_cender.settings import apply_setting
 
 
@@ -143,7 +145,7 @@ class CenDerNet:
         cost_threads: int = 1,
         pose_device: str | torch.device | None = "cpu",
     ) -> None:
-        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`).
+        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.context.scene_context`).
 
         ``pose_device``: where stage 3 renders and costs (None: the device of the heatmaps). The CPU by default,
         whatever device the heatmaps come from: on an H200 machine the pose stage of three DIMO scenes took 14.0,
@@ -186,9 +188,9 @@ class CenDerNet:
             for c in centers
         ]
         H, W = heatmaps.size
-        placed = (
-            optimise_scene(
-                targets,
+        placed = []
+        if targets and candidate_ids:
+            context = scene_context(
                 heatmaps.curvature,
                 SceneCameras(Ks, T_cw, H, W),
                 self.meshes,
@@ -199,9 +201,7 @@ class CenDerNet:
                 target_threshold=self._curvature_threshold(heatmaps),
                 device=self.pose_device,
             )
-            if targets and candidate_ids
-            else []
-        )
+            placed = optimise_scene(context, targets)
         t3 = time.perf_counter()
         objects = tuple(
             ObjectEstimate(p.obj_id, p.T_world_model, 1.0 / (1.0 + p.cost), self._image_scores(p, heatmaps, Ks, T_cw))

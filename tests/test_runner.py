@@ -656,7 +656,8 @@ def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
     network's (also through a mixed source), the general ones for the oracle's; None falls back to the general."""
     seen = []
 
-    def fake_optimise(targets, curvature, cameras, meshes, centers, config, **kw):
+    def fake_optimise(context, targets, **kw):
+        config = context.config
         seen.append((config.candidates.translation_sigma_mm, config.refine.translation_bound_mm,
                      config.scene_polish.passes))  # fmt: skip
         return []

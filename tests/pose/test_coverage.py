@@ -14,7 +14,8 @@ from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
 from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
 from bop_cender.pose.coverage import two_sided_costs  # noqa: E402
-from bop_cender.pose.optimize import PlacedObject, _occluder_depth  # noqa: E402
+from bop_cender.pose.occluders import occluder_depth  # noqa: E402
+from bop_cender.pose.types import PlacedObject  # noqa: E402
 
 
 def _inputs(mini, T_world_model, edges=None):
@@ -89,7 +90,7 @@ def test_an_occluder_hides_the_target_edges_behind_it_from_the_coverage(mini):
     T_gt = gt_of(scene, 3).T_world_model
     # the part itself as the occluder, 2 mm nearer the cameras: it hides all of the candidate
     nearer = T_gt.copy()
-    occluder = _occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes)
+    occluder = occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes)
     occluder = torch.where(occluder > 0, occluder - 2.0, occluder)
     c = _costs(mini, T_gt[None], occ=occluder)
     assert c.coverage[0] == 0.0  # no pixel of the pose is visible: no edge inside it to explain
