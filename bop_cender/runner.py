@@ -239,7 +239,6 @@ def net_predictor(request: RunRequest, dataset: Dataset):
         weights,
         device=request.device,
         known_object_ids=request.config.known_object_ids,
-        flips=request.config.test_flips,
         curvature_threshold=_network_threshold(request, weights)[0],
     )
 
