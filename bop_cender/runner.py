@@ -413,7 +413,7 @@ def _run_scenes(request, dataset, keys, work, fingerprint, progress) -> tuple[di
 
 def _curvature_threshold(request: RunRequest, dataset: Dataset) -> tuple[float, str]:
     """Where stage 3 binarises the curvature of ``request``'s heatmaps, and which setting says so (for the sidecar
-    and the summary): a network's curvature at ``poses.t_b_network`` or the weights' calibration, else ``t_b``.
+    and the summary): a network's curvature at ``poses.network.t_b`` or the weights' calibration, else ``t_b``.
     Loads the network's weights (when one is used): a bad file fails here, before any scene."""
     if not uses_network(request.heatmaps):
         return request.config.poses.t_b, "poses.t_b"

@@ -131,3 +131,23 @@ def test_the_network_section_overrides_only_where_set():
     same = apply_setting(apply_setting(config, "network.translation_sigma_mm=none"), "network.scene_polish_passes=none")
     net = same.for_network_centers()
     assert (net.candidates.translation_sigma_mm, net.refine.translation_bound_mm, net.scene_polish.passes) == (5, 30, 2)
+
+
+def test_run_builds_its_config_from_the_preset_then_its_options_then_set():
+    from bop_cender.cli.app import build_parser
+    from bop_cender.cli.run import run_config
+
+    def config_of(*argv: str) -> CenDerNetConfig:
+        return run_config(build_parser().parse_args(["run", "--dataset", "dimo", *argv]))
+
+    assert config_of() == CenDerNetConfig.for_dataset("dimo")
+    paper = config_of("--preset", "paper", "--candidates", "500", "--set", "poses.sweeps.passes=2", "--seed", "3")
+    assert paper.preset == "paper" and paper.poses.center_weight == 0.0 and paper.poses.screen.starts == 0
+    assert (paper.poses.candidates.n, paper.poses.sweeps.passes, paper.poses.seed) == (500, 2, 3)
+    assert config_of("--no-occlusion", "--set", "poses.occlusion=true").poses.occlusion is True  # --set last
+    with pytest.raises(ConfigError, match="--top-k: refines the best 9"):
+        config_of("--top-k", "9", "--candidates", "5")
+    with pytest.raises(ConfigError, match="poses.passes was renamed poses.sweeps.passes"):
+        config_of("--set", "poses.passes=1")
+    with pytest.raises(SystemExit):
+        config_of("--preset", "best")

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from bop_cender.cli.options import add_data_options, announce, count, resolve_device
+
+if TYPE_CHECKING:
+    from bop_cender.method import CenDerNetConfig
 
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, the shipped network
@@ -124,11 +128,32 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
     return "net"
 
 
+def run_config(args: argparse.Namespace) -> CenDerNetConfig:
+    """The method's settings of a ``run`` command line: ``--preset`` for ``--dataset``, then ``--seed``,
+    ``--candidates``, ``--top-k`` and ``--no-occlusion``, then every ``--set`` in order (which may override them).
+
+    Raises:
+        ConfigError: a bad setting, or more starts to refine than candidates (naming the option that gave them).
+    """
+    from bop_cender.method import CenDerNetConfig
+
+    options = [f"poses.seed={args.seed}"]
+    for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1
+        if value is not None:
+            options.append(f"poses.{name}={value}")
+    if args.no_occlusion:
+        options.append("poses.occlusion=false")
+    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).with_settings([*options, *(args.set or [])])
+    config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
+        "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
+    )
+    return config
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bop_cender.data.registry import DEFAULT_SPLIT
-    from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
     from bop_cender.results.files import default_result_filename
     from bop_cender.runner import RunRequest, results_dataset_name, run
@@ -140,16 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
     device = str(resolve_device(args.device))
     pose_device = device if args.pose_device == "same" else str(resolve_device(args.pose_device, "--pose-device"))
-    options = [f"poses.seed={args.seed}"]  # the options before --set, which may override them
-    for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1
-        if value is not None:
-            options.append(f"poses.{name}={value}")
-    if args.no_occlusion:
-        options.append("poses.occlusion=false")
-    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).with_settings([*options, *(args.set or [])])
-    config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
-        "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
-    )
+    config = run_config(args)
     out = Path(
         args.out
         or default_result_filename(

@@ -13,7 +13,7 @@ the later stages see of a prediction, with the same detector and the same thresh
   negatives; a peak in the wrong channel is therefore one false positive and one false negative.
   Counts are summed over every view and channel seen; precision, recall and F1 come from the sums.
 - **Curvature**: a pixel is positive where the GT curvature exceeds ``curvature_threshold`` (stage 3's
-  ``t_b``, with its strict ``>``: :func:`bop_cender.pose.optimize.place_objects` binarises
+  ``t_b``, with its strict ``>``: :func:`bop_cender.pose.context.scene_context` binarises
   ``curv > t_b``). The average precision of the predicted curvature as a score over all pixels seen,
   from a fixed histogram of ``curvature_bins`` score bins (memory does not grow with the pixels seen),
   and precision, recall and F1 of the prediction binarised as stage 3 does (exact counts, not binned).
