@@ -107,9 +107,8 @@ class ScreenSettings:
     """The edge search's screen: more starts refined briefly, the best ``candidates.top_k`` of them go on.
 
     Attributes:
-        starts: diverse candidates refined briefly (count; 8 on DIMO layouts, 0 on T-LESS / BOP; at most
-            ``candidates.top_k``: no screen; 2026-12-03 third session).
-        nelder_mead: their short runs (:class:`NelderMead`; ``maxfev`` 30, 2026-12-03 third session).
+        starts: diverse candidates refined briefly, <= ``top_k``: no screen (count; 8, T-LESS / BOP 0; 2026-12-03 third).
+        nelder_mead: their short runs (:class:`NelderMead`; ``maxfev`` 30; 2026-12-03 third session).
     """
 
     starts: int = 8
@@ -121,8 +120,7 @@ class SweepSettings:
     """The sweeps over the objects (the first the paper's sequential placement).
 
     Attributes:
-        passes: sweeps; a further one searches each object again among all the others and keeps a refined finalist
-            where the whole scene gains (count; 3, the paper's 1; 2026-12-02 third session and 2026-12-03).
+        passes: sweeps, each further one judged by the scene (count; 3, the paper's 1; 2026-12-02 third, 2026-12-03).
     """
 
     passes: int = 3
@@ -133,11 +131,9 @@ class ScenePolishSettings:
     """The scene polish after the sweeps (:mod:`bop_cender.pose.scene_polish`).
 
     Attributes:
-        passes: times it goes over the placed objects, stopping where a pass keeps nothing (count; 2; 2026-12-06
-            seventeenth session).
+        passes: passes over the placed objects, until one keeps nothing (count; 2; 2026-12-06 seventeenth session).
         margin_px: its windows around an object's bounding sphere (pixels; 12).
-        nelder_mead: its runs on the windowed scene cost (:class:`NelderMead`; a quarter of the refinement's simplex,
-            ``xatol`` 0.2, ``fatol`` 0.005, ``maxfev`` 100 and 0: no polish; 2026-12-03 second and third sessions).
+        nelder_mead: its runs (:class:`NelderMead`; simplex /4, xatol 0.2, fatol 0.005, maxfev 100, 0 off; 2026-12-03).
     """
 
     passes: int = 2
@@ -158,8 +154,7 @@ class NetworkSettings:
     same as for the oracle, except ``t_b``).
 
     Attributes:
-        t_b: binarisation threshold of a network's curvature (in [0, 1); None: the weights' calibrated threshold,
-            else ``poses.t_b``; 2026-12-03 fifth session).
+        t_b: a network's curvature threshold in [0, 1) (None: the weights' calibration, else t_b; 2026-12-03 fifth).
         translation_sigma_mm: ``candidates.translation_sigma_mm`` for a network's centres (mm; 10; 2026-12-06).
         translation_bound_mm: ``refine.translation_bound_mm`` for a network's centres (mm; 30; 2026-12-06).
         scene_polish_passes: ``scene_polish.passes`` for a network's centres (count; 1; 2026-12-06 seventeenth).
@@ -185,8 +180,7 @@ class PoseConfig:
     """Stage-3 settings (figures: ``results/accuracy/README.md``, "Stage-3 settings: how each default was measured").
 
     Attributes:
-        t_b: binarisation threshold of the curvature in [0, 1) (fraction; 0.75: raw curvature 3 at the targets'
-            scale 4; 2026-12-01).
+        t_b: curvature binarisation threshold in [0, 1) (fraction; 0.75: raw 3 at the targets' scale 4; 2026-12-01).
         occlusion: the objects already placed hide the next ones (flag; true, the paper's; 2026-12-06 eighteenth).
         search_cost: ``edges`` (the edge-point proxy; ours) or ``render`` (the paper's render cost; 2026-12-02).
         edge_segment_mm: longest segment of the edge models (mm; 3; 2026-12-04 eighth session).
