@@ -107,7 +107,7 @@ class ScreenSettings:
     """The edge search's screen: more starts refined briefly, the best ``candidates.top_k`` of them go on.
 
     Attributes:
-        starts: diverse candidates refined briefly, <= ``top_k``: no screen (count; 8, T-LESS / BOP 0; 2026-12-03 third).
+        starts: diverse candidates refined briefly, <= ``top_k``: no screen (count; 8, T-LESS / BOP 0; 2026-12-03).
         nelder_mead: their short runs (:class:`NelderMead`; ``maxfev`` 30; 2026-12-03 third session).
     """
 
