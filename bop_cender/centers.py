@@ -36,7 +36,7 @@ from skimage.feature import peak_local_max
 
 from bop_cender.geometry.camera import camera_center_in_world
 from bop_cender.geometry.sampling import sample_scores
-from bop_cender.pose.simplex import batched_nelder_mead
+from bop_cender.optim.simplex import batched_nelder_mead
 from bop_cender.settings_checks import COUNT, FRACTION_OPEN, NON_NEGATIVE, POSITIVE, Bound, check_settings
 
 
@@ -249,7 +249,7 @@ def refine_centers(
     points: np.ndarray, heatmaps: np.ndarray, Ks: np.ndarray, T_cam_world: np.ndarray, config: CenterConfig
 ) -> np.ndarray:
     """Nelder-Mead maximisation of the summed heatmap score of each of ``points (Q, 3)`` (initial simplex
-    5 mm), all Q simplices stepping in lockstep (:func:`bop_cender.pose.simplex.batched_nelder_mead`: each
+    5 mm), all Q simplices stepping in lockstep (:func:`bop_cender.optim.simplex.batched_nelder_mead`: each
     step samples the heatmaps at every simplex's new points in one call). Returns ``(Q, 3)``.
 
     Why batched: a pile gives a few hundred merged candidates, and one ``scipy.optimize.minimize`` each

@@ -8,12 +8,10 @@ returns what each stage produced (heatmaps, centres, placed objects) for figures
 
 from __future__ import annotations
 
-import math
 import time
-import typing
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
+from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -25,9 +23,13 @@ from bop_cender.errors import ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
 from bop_cender.meshes import MeshCache
 from bop_cender.net.heatmaps import Heatmaps
-from bop_cender.net.predictor import check_flips
 from bop_cender.net.targets import TargetConfig
-from bop_cender.pose.optimize import PlacedObject, PoseConfig, PoseTarget, SceneCameras, optimise_scene
+from bop_cender.pose.config import PRESETS, PoseConfig
+from bop_cender.pose.config_names import FIGURES, REMOVED, RENAMED
+from bop_cender.pose.context import scene_context
+from bop_cender.pose.sweeps import optimise_scene
+from bop_cender.pose.types import PlacedObject, PoseTarget, SceneCameras
+from bop_cender.settings import apply_setting
 
 
 class HeatmapPredictor(Protocol):
@@ -46,20 +48,15 @@ class CenDerNetConfig:
         targets: how GT heatmaps are made (the oracle; the network's training targets).
         centers: stage 2.
         poses: stage 3.
+        preset: the named starting point :meth:`for_dataset` made this config from (``ours``; ``paper``: the paper's
+            stage 3, :data:`~bop_cender.pose.config.PRESETS`), recorded with the run; the settings themselves are in
+            the sections.
         known_counts: prune the centres to the known number of objects per channel (paper: "if
             information about the number of objects in the scene is available": DIMO ``scene_info``,
             BOP's targets). The count comes from the scene's annotations of target objects.
         known_object_ids: with one shared center channel, try only the object ids the scene is known to
             hold (DIMO's compositions name the part type) instead of every target id of the dataset; with a
             factored network (``tless-factored``), restrict its class softmax to them (BOP's targets name them).
-        test_flips: the network's passes per view whose center maps are averaged (1: none, the default; 2: and
-            its left-right flip; 4: and its up-down flips too; ours,
-            :func:`bop_cender.net.predictor.predict_probabilities`). No effect on the oracle. Measured with the
-            shipped DIMO network (seed 9002 `sim`): 4 passes find more 3D centres (43 of 70 within 5 mm against
-            38, 23 false against 30; ``scripts/eval_centers.py --test-flips``), yet the end-to-end AR_MSSD<5% fell
-            0.682 -> 0.611 (curvature averaged too: 0.483), so it is off by default. At the calibrated curvature
-            threshold (``PoseConfig.t_b_network``) 4 passes gained with that network (0.777 -> 0.812) and lost with the
-            one shipped since (every part type in training: 0.870 -> 0.834), so it stays off.
     """
 
     targets: TargetConfig = field(default_factory=TargetConfig)
@@ -67,48 +64,53 @@ class CenDerNetConfig:
     poses: PoseConfig = field(default_factory=PoseConfig)
     known_counts: bool = True
     known_object_ids: bool = True
-    test_flips: int = 1
+    preset: str = "ours"
 
     def __post_init__(self) -> None:
-        try:
-            check_flips(self.test_flips)
-        except ValueError as exc:
-            raise ConfigError(f"test_flips: {exc}", field="--set") from None
+        if self.preset not in PRESETS:
+            raise ConfigError(f"unknown preset {self.preset!r}; known: {', '.join(PRESETS)}", field="--preset")
 
     @staticmethod
-    def for_dataset(name: str, **poses: object) -> CenDerNetConfig:
-        """The paper's settings for ``name`` (``dimo``; ``tless`` / ``bop``), stage-3 fields overridable.
+    def for_dataset(name: str, preset: str = "ours") -> CenDerNetConfig:
+        """The settings for ``name`` (``dimo``; ``tless`` / ``bop``) from ``preset`` (:data:`PRESETS`: ``ours`` or
+        ``paper``, the paper's stage 3).
 
-        Stage 3 differs by layout in one setting: the edge search's screen (``PoseConfig.screen_starts``) is off
-        for T-LESS / BOP layouts (measured with oracle heatmaps on T-LESS seed 4243: AR 0.893 without, 0.881
-        with 8 screened starts; on DIMO layouts it helps, ``results/accuracy/README.md``)."""
-        layout = {} if name == "dimo" else {"screen_starts": 0}
-        pose_config = PoseConfig(**{**layout, **poses})
-        return CenDerNetConfig(targets=TargetConfig.for_dataset(name), poses=pose_config)
+        Stage 3 differs by layout in one setting: the edge search's screen (``poses.screen.starts``) is off for
+        T-LESS / BOP layouts (measured with oracle heatmaps on T-LESS seed 4243: AR 0.893 without, 0.881 with 8
+        screened starts; on DIMO layouts it helps, ``results/accuracy/README.md``)."""
+        if preset not in PRESETS:
+            raise ConfigError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}", field="--preset")
+        layout = [] if name == "dimo" else ["poses.screen.starts=0"]
+        config = CenDerNetConfig(targets=TargetConfig.for_dataset(name), preset=preset)
+        return config.with_settings([*layout, *(f"poses.{s}" for s in PRESETS[preset])])
 
     def as_dict(self) -> dict:
         return asdict(self)
 
     def with_settings(self, settings: Sequence[str]) -> CenDerNetConfig:
-        """A copy with ``section.field=value`` settings applied (``poses.t_b=0.5``, ``centers.d_c=30``,
-        ``known_counts=false``), each value parsed as its field's type.
+        """A copy with ``path=value`` settings applied at any depth (``poses.t_b=0.5``, ``poses.candidates.n=500``,
+        ``centers.d_c=30``, ``known_counts=false``), each value parsed as its field's type
+        (:func:`~bop_cender.settings.apply_setting`).
 
         Raises:
-            ConfigError: unknown section or field, or a value that is not of the field's type.
+            ConfigError: unknown, renamed or removed setting (the message names the new one, or why it was removed
+                and where its figures are), or a value that is not of the field's type or out of its range.
         """
         config = self
         for item in settings:
-            key, sep, text = item.partition("=")
-            if not sep:
-                raise ConfigError(f"expected section.field=value, got {item!r}", field="--set")
-            section, _, name = key.strip().rpartition(".")
-            target = config if not section else getattr(config, section, None)
-            if not is_dataclass(target) or name not in {f.name for f in fields(target)}:
-                raise ConfigError(f"unknown setting {key!r}; known: {', '.join(_setting_names(self))}", field="--set")
-            value = _parse_setting(text.strip(), *_field_kind(target, name), key)
-            updated = replace(target, **{name: value})
-            config = updated if not section else replace(config, **{section: updated})
+            if item.partition("=")[0].strip() == "preset":
+                raise ConfigError("the preset is chosen before any setting (run --preset ours|paper)", field="--set")
+            config = apply_setting(config, item, _RENAMED, _REMOVED)
         return config
+
+
+#: Old ``--set`` names -> new ones, and removed options -> why (stage 3's: :mod:`bop_cender.pose.config_names`).
+_RENAMED = {f"poses.{old}": f"poses.{new}" for old, new in RENAMED.items()}
+_REMOVED = {
+    **{f"poses.{name}": f"{why}; figures: {FIGURES}" for name, why in REMOVED.items()},
+    "test_flips": "averaging the network's passes lost end to end with both shipped networks (DIMO 0.870 -> 0.834,"
+    f" T-LESS AR 0.355 -> 0.328; heatmaps --test-flips keeps it for the 2D figures); figures: {FIGURES}",
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,7 +135,7 @@ class CenDerNet:
         cost_threads: int = 1,
         pose_device: str | torch.device | None = "cpu",
     ) -> None:
-        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.optimize.optimise_scene`).
+        """``cost_threads``: threads for the candidates' cost (see :func:`~bop_cender.pose.context.scene_context`).
 
         ``pose_device``: where stage 3 renders and costs (None: the device of the heatmaps). The CPU by default,
         whatever device the heatmaps come from: on an H200 machine the pose stage of three DIMO scenes took 14.0,
@@ -176,9 +178,9 @@ class CenDerNet:
             for c in centers
         ]
         H, W = heatmaps.size
-        placed = (
-            optimise_scene(
-                targets,
+        placed = []
+        if targets and candidate_ids:
+            context = scene_context(
                 heatmaps.curvature,
                 SceneCameras(Ks, T_cw, H, W),
                 self.meshes,
@@ -189,9 +191,7 @@ class CenDerNet:
                 target_threshold=self._curvature_threshold(heatmaps),
                 device=self.pose_device,
             )
-            if targets and candidate_ids
-            else []
-        )
+            placed = optimise_scene(context, targets)
         t3 = time.perf_counter()
         objects = tuple(
             ObjectEstimate(p.obj_id, p.T_world_model, 1.0 / (1.0 + p.cost), self._image_scores(p, heatmaps, Ks, T_cw))
@@ -203,7 +203,7 @@ class CenDerNet:
 
     def _curvature_threshold(self, heatmaps: Heatmaps) -> float | None:
         """Where stage 3 binarises ``heatmaps``' curvature: a network's (heatmaps that carry a threshold) at
-        ``poses.t_b_network`` when set, else at the threshold they carry; None (``t_b``) for the oracle's."""
+        ``poses.network.t_b`` when set, else at the threshold they carry; None (``t_b``) for the oracle's."""
         if heatmaps.curvature_threshold is None:
             return None
         return network_curvature_choice(self.config, heatmaps.curvature_threshold)[0]
@@ -234,47 +234,12 @@ class CenDerNet:
 def network_curvature_choice(
     config: CenDerNetConfig, calibrated: float | None, calibrated_for: str | None = None
 ) -> tuple[float | None, str]:
-    """Where stage 3 binarises a network's curvature, the precedence in one place: ``poses.t_b_network``, else the
+    """Where stage 3 binarises a network's curvature, the precedence in one place: ``poses.network.t_b``, else the
     weights' calibration ``calibrated`` (made on views of split ``calibrated_for``, None: the general one; see
     :meth:`~bop_cender.net.weights.NetWeights.curvature_threshold_for`), else None (stage 3's ``t_b``); with the
     name of the setting that decided (for the run's sidecar and summary)."""
-    if config.poses.t_b_network is not None:
-        return config.poses.t_b_network, "poses.t_b_network"
+    if config.poses.network.t_b is not None:
+        return config.poses.network.t_b, "poses.network.t_b"
     if calibrated is not None:
         return calibrated, "the weights' calibration" + (f" on {calibrated_for} views" if calibrated_for else "")
     return None, "poses.t_b: the weights carry no calibrated threshold"
-
-
-def _setting_names(config: CenDerNetConfig) -> list[str]:
-    names = []
-    for f in fields(config):
-        value = getattr(config, f.name)
-        names += [f"{f.name}.{g.name}" for g in fields(value)] if is_dataclass(value) else [f.name]
-    return names
-
-
-def _field_kind(target: object, name: str) -> tuple[type, bool]:
-    """The value type of dataclass field ``name`` of ``target`` and whether it may be None (``float | None``)."""
-    hint = typing.get_type_hints(type(target))[name]
-    args = typing.get_args(hint)
-    if type(None) in args:
-        (kind,) = [a for a in args if a is not type(None)]
-        return kind, True
-    return hint if isinstance(hint, type) else type(getattr(target, name)), False
-
-
-def _parse_setting(text: str, kind: type, optional: bool, key: str) -> object:
-    if optional and text.lower() == "none":
-        return None
-    try:
-        if kind is bool:
-            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError(text)
-            return text.lower() in ("true", "1", "yes")
-        value = kind(text)
-    except ValueError:
-        expected = f"a {kind.__name__}" + (" or none" if optional else "")
-        raise ConfigError(f"{key}: expected {expected}, got {text!r}", field="--set") from None
-    if isinstance(value, float) and not math.isfinite(value):
-        raise ConfigError(f"{key}: expected a finite number, got {text!r}", field="--set")
-    return value

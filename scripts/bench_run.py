@@ -268,7 +268,7 @@ def scene_polish_costs(
     part_meshes = [meshes(g.obj_id).to(device) for g in parts]
     others = [(mesh, g.T_world_model) for mesh, g in zip(part_meshes[1:], parts[1:], strict=True)]
     window = scene_window(part_meshes[0], parts[0].T_world_model, others, Ks, T_cw, edges, dist, threshold,
-                          config.poses.scene_polish_margin_px)  # fmt: skip
+                          config.poses.scene_polish.margin_px)  # fmt: skip
     threads = torch.get_num_threads()
     if device.type == "cpu":
         torch.set_num_threads(1)

@@ -2,7 +2,7 @@
 
 ``bop-cender train`` stores this threshold in every weights file it writes (``curvature_threshold``, from the
 epoch's validation); this script adds or refreshes it in a file written before that existed, or calibrates
-on other views. Stage 3 binarises the network's curvature there (``PoseConfig.t_b_network`` None, the
+on other views. Stage 3 binarises the network's curvature there (``poses.network.t_b`` None, the
 default) instead of at ``t_b``, which suits the renderer's sharp curvature but breaks a network's softer
 edges into fragments. Only the threshold changes: the network's parameters are copied bit for bit.
 

@@ -97,7 +97,7 @@ def mini_scene(root: Path):
     from bop_cender.meshes import MeshCache
     from bop_cender.net.targets import TargetConfig, scene_targets
     from bop_cender.pose.cost import distance_maps
-    from bop_cender.pose.optimize import SceneCameras
+    from bop_cender.pose.types import SceneCameras
 
     ds = open_dimo(build(root), "real")
     scene = ds.scene(ds.scene_keys[0])
@@ -107,3 +107,27 @@ def mini_scene(root: Path):
                         HEIGHT, WIDTH)  # fmt: skip
     dist = torch.as_tensor(distance_maps(maps.curvature.numpy() > BOX_T_B))
     return ds, scene, meshes, maps, cams, dist
+
+
+def pose_config(*settings: str, t_b: float | None = None):
+    """A stage-3 config at this fixture's :data:`BOX_T_B` (or ``t_b``) with ``path=value`` settings below ``poses``
+    applied (``"sweeps.passes=2"``, ``"refine.nelder_mead.maxfev=40"``), as ``run --set`` applies them."""
+    from bop_cender.pose.config import PoseConfig
+    from bop_cender.settings import apply_setting
+
+    config = PoseConfig(t_b=BOX_T_B if t_b is None else t_b)
+    for item in settings:
+        config = apply_setting(config, item)
+    return config
+
+
+def pose_context(mini, config=None, **kwargs):
+    """The stage-3 context of the :func:`mini_scene` ``mini`` (its oracle curvature, cameras, meshes and model centres)
+    under ``config`` (default :func:`pose_config`), curvature scale 1 as the fixture's targets; ``kwargs`` as
+    :func:`~bop_cender.pose.context.scene_context`'s."""
+    from bop_cender.pose.context import scene_context
+
+    ds, scene, meshes, maps, cams, dist = mini
+    config = pose_config() if config is None else config
+    return scene_context(maps.curvature, cams, meshes, lambda i: ds.models[i].center, config,
+                         **{"curvature_scale": 1.0, **kwargs})  # fmt: skip

@@ -27,6 +27,10 @@ NEVER = {
     "bop_toolkit_adapters": {"synth"} | METHOD | APPS,
     "visibility": {"data", "synth", "eval", "results", "report"} | METHOD | APPS,
     "meshes": {"synth", "eval", "results", "report"} | METHOD | APPS,
+    # the optimisers of stages 2 and 3 (lockstep Nelder-Mead): below both, so they import nothing of the project
+    "optim": {"geometry", "data", "render", "synth", "eval", "results", "report", "visibility", "meshes"}
+    | METHOD
+    | APPS,
 }
 
 

@@ -26,7 +26,7 @@ from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
 
 #: Cheap settings: the rows are not precise, but every run with them must give the same rows.
-CHEAP = {"n_candidates": 48, "top_k": 2, "nm_maxfev": 40, "polish_maxfev": 40}
+CHEAP = ["poses.candidates.n=48", "poses.candidates.top_k=2", "poses.refine.nelder_mead.maxfev=40"]
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def mini_root(tmp_path_factory) -> Path:
 
 def request(root: Path, out: Path, **kw) -> RunRequest:
     base = dict(dataset="dimo", data_root=str(root), split="real", out=out, deterministic_time=True,
-                config=CenDerNetConfig.for_dataset("dimo", **CHEAP))  # fmt: skip
+                config=CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP))  # fmt: skip
     base.update(kw)
     return RunRequest(**base)
 
@@ -54,7 +54,7 @@ def test_run_writes_csv_and_sidecar_and_no_work_folder(reference_csv):
     assert {r.obj_id for r in rows} <= {3, 4} and all(r.time == -1 for r in rows)
     sidecar = json.loads(reference_csv.with_suffix(".json").read_text())
     assert sidecar["dataset"] == "dimo" and sidecar["split"] == "real"
-    assert sidecar["extra"]["config"]["poses"]["n_candidates"] == 48
+    assert sidecar["extra"]["config"]["poses"]["candidates"]["n"] == 48
     assert sidecar["extra"]["curvature_threshold"] == {"value": 0.75, "from": "poses.t_b"}  # the oracle's: t_b
     assert sidecar["extra"]["devices"] == {"heatmaps": "cpu", "poses": "cpu"}
     assert not work_dir(reference_csv).exists()
@@ -79,7 +79,7 @@ def test_resume_ignores_shards_of_other_settings(mini_root, tmp_path):
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     with pytest.raises(KeyboardInterrupt):
         run(request(mini_root, out), progress=lambda d, t, k: (_ for _ in ()).throw(KeyboardInterrupt) if d else None)
-    other = CenDerNetConfig.for_dataset("dimo", **{**CHEAP, "n_candidates": 40})
+    other = CenDerNetConfig.for_dataset("dimo").with_settings([*CHEAP, "poses.candidates.n=40"])
     assert run(request(mini_root, out, resume=True, config=other)).resumed == 0
 
 
@@ -136,7 +136,7 @@ def tless_root(tmp_path_factory) -> Path:
 def test_scenes_of_too_few_views_are_refused_or_named(tless_root, tmp_path):
     """Groups of one view (BOP images without camera poses, --n-views 1) wrote a CSV of no rows with exit 0."""
     root = tless_root
-    config = CenDerNetConfig.for_dataset("tless", **CHEAP)
+    config = CenDerNetConfig.for_dataset("tless").with_settings(CHEAP)
     out = tmp_path / "cendernet-oracle_tless-test.csv"
     with pytest.raises(ConfigError, match=r"--n-views: every scene has fewer views than the 2 a 3D centre is "
                        r"triangulated from .*000001/g00 \(1\), 000001/g01 \(1\), 000001/g02 \(1\); group more"):  # fmt: skip
@@ -153,7 +153,7 @@ def test_scenes_of_too_few_views_are_refused_or_named(tless_root, tmp_path):
 
 
 def test_a_dimo_scene_of_too_few_views_is_said_in_dimos_terms(mini_root, tmp_path):
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    config = CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP)
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     unknown = replace(config, known_counts=False, centers=replace(config.centers, min_views_unknown_count=9))
     with pytest.raises(ConfigError, match=r"--split: every scene has fewer views than the 9 .*DIMO reads viewpoints"):
@@ -171,7 +171,7 @@ def test_a_targets_file_score_would_refuse_stops_the_run_before_any_scene(tless_
     targets[0]["inst_count"] = 9
     path.write_text(json.dumps(targets))
     out = tmp_path / "cendernet-oracle_tless-test.csv"
-    config = CenDerNetConfig.for_dataset("tless", **CHEAP)
+    config = CenDerNetConfig.for_dataset("tless").with_settings(CHEAP)
     calls = []
     with pytest.raises(ConfigError, match=r"test_targets_bop19.json: inst_count: the target of scene 1, image \d+, "
                        r"object \d+ has inst_count 9.*: score would refuse this split's targets"):  # fmt: skip
@@ -187,7 +187,7 @@ def test_a_bop_datasets_own_folder_names_the_results(tless_root, tmp_path, monke
     root = tmp_path / "lmo"
     shutil.copytree(tless_root, root)
     (root / "bop_cender_synth.json").unlink()  # a plain BOP layout
-    config = CenDerNetConfig.for_dataset("bop", **CHEAP)
+    config = CenDerNetConfig.for_dataset("bop").with_settings(CHEAP)
     with pytest.raises(ConfigError, match=r"--out: the file name says dataset 'tless', the data is the BOP dataset "
                        r"'lmo'; `score` reads the data from the name: name it m_lmo-test.csv"):  # fmt: skip
         run(RunRequest("bop", str(root), "test", tmp_path / "m_tless-test.csv", model_type="cad", config=config))
@@ -273,9 +273,9 @@ def test_cli_run_prints_the_next_command(mini_root, tmp_path, capsys):
         (["--candidates", "0"], "--candidates"),
         (["--max-views", "0"], "--max-views"),
         (["--out", "bad name.txt"], "--out"),
-        (["--candidates", "2"], "--candidates: refines the best 3 (poses.top_k) of 2 candidates"),
+        (["--candidates", "2"], "--candidates: refines the best 3 (poses.candidates.top_k) of 2 candidates"),
         (["--top-k", "5", "--candidates", "4"], "--top-k: refines the best 5"),
-        (["--set", "poses.top_k=9", "--set", "poses.n_candidates=5"], "--set: refines the best 9"),
+        (["--set", "poses.candidates.top_k=9", "--set", "poses.candidates.n=5"], "--set: refines the best 9"),
     ],
 )
 def test_bad_requests_are_one_line(mini_root, tmp_path, capsys, argv, field, monkeypatch):
@@ -291,7 +291,7 @@ def test_bad_requests_are_one_line(mini_root, tmp_path, capsys, argv, field, mon
 
 def test_a_scene_without_centres_has_no_estimates(mini_root):
     ds = open_dimo(mini_root, "real")
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    config = CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP)
     meshes = MeshCache(ds.models)
     blind = OraclePredictor(ds.models, meshes, config.targets, degradation=Degradation(miss_prob=1.0))
     est = CenDerNet(ds.models, config, blind, meshes).estimate(ds.scene(ds.scene_keys[0]))
@@ -306,7 +306,7 @@ def test_the_figure_judges_poses_on_the_evaluation_models(mini_root, tmp_path, m
     real = figure.judge_estimates
     monkeypatch.setattr(figure, "judge_estimates", lambda e, g, models: seen.append(models) or real(e, g, models))
     ds = open_dimo(mini_root, "real")
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    config = CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP)
     method = CenDerNet(ds.models, config, OraclePredictor(ds.models, MeshCache(ds.models), config.targets))
     scene = ds.scene(ds.scene_keys[0])
     judged_on = dict(ds.models)  # another mapping than the method's, of the same models
@@ -357,13 +357,14 @@ def test_score_of_a_partial_run_counts_only_its_scenes(mini_root, tmp_path, caps
 
 
 def test_top_k_against_the_candidates_is_judged_once_every_setting_is_in(mini_root, tmp_path) -> None:
-    """Judged per setting, --set poses.n_candidates=2 --set poses.top_k=1 was refused and the reverse order not;
-    run() judges the whole config for every caller (not only the CLI's)."""
-    for order in (["poses.n_candidates=2", "poses.top_k=1"], ["poses.top_k=1", "poses.n_candidates=2"]):
+    """Judged per setting, --set poses.candidates.n=2 --set poses.candidates.top_k=1 was refused and the reverse
+    order not; run() judges the whole config for every caller (not only the CLI's)."""
+    n, top_k = "poses.candidates.n=2", "poses.candidates.top_k=1"
+    for order in ([n, top_k], [top_k, n]):
         config = CenDerNetConfig.for_dataset("dimo").with_settings(order)
-        assert (config.poses.n_candidates, config.poses.top_k) == (2, 1)
-    too_few = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.n_candidates=2"])
-    with pytest.raises(ConfigError, match=r"poses.top_k: refines the best 3 \(poses.top_k\) of 2 candidates"):
+        assert (config.poses.candidates.n, config.poses.candidates.top_k) == (2, 1)
+    too_few = CenDerNetConfig.for_dataset("dimo").with_settings([n])
+    with pytest.raises(ConfigError, match=r"refines the best 3 \(poses.candidates.top_k\) of 2 candidates"):
         run(dataclasses.replace(request(mini_root, tmp_path / "cendernet-oracle_dimo-real.csv"), config=too_few))
     assert list(tmp_path.iterdir()) == []
 
@@ -372,14 +373,14 @@ def test_settings_override_the_config():
     c = CenDerNetConfig.for_dataset("dimo").with_settings(["centers.d_c=30", "poses.occlusion=false", "known_counts=0"])
     assert c.centers.d_c == 30.0 and c.poses.occlusion is False and c.known_counts is False
     for bad in ("poses.bogus=1", "poses.t_b=abc", "poses.t_b=nan", "nosep", "poses.occlusion=maybe",
-                "poses.t_b_network=abc", "poses.t_b_network=1.2", "poses.t_b=none"):  # fmt: skip
+                "poses.network.t_b=abc", "poses.network.t_b=1.2", "poses.t_b=none"):  # fmt: skip
         with pytest.raises(ConfigError):
             c.with_settings([bad])
     # an optional number (None: the weights' calibration) takes a number or "none"
-    assert c.with_settings(["poses.t_b_network=0.5"]).poses.t_b_network == 0.5
-    assert c.with_settings(["poses.t_b_network=0.5", "poses.t_b_network=none"]).poses.t_b_network is None
+    assert c.with_settings(["poses.network.t_b=0.5"]).poses.network.t_b == 0.5
+    assert c.with_settings(["poses.network.t_b=0.5", "poses.network.t_b=none"]).poses.network.t_b is None
     with pytest.raises(ConfigError, match="expected a float or none"):
-        c.with_settings(["poses.t_b_network=x"])
+        c.with_settings(["poses.network.t_b=x"])
 
 
 @pytest.mark.parametrize(
@@ -390,11 +391,11 @@ def test_settings_override_the_config():
         ("centers.peak_threshold=5", r"centers.peak_threshold: expected a number in \(0, 1\)"),
         ("centers.min_views=-2", "centers.min_views: expected an integer >= 1"),
         ("centers.refine_maxiter=-1", "centers.refine_maxiter: expected an integer >= 1"),
-        ("poses.top_k=0", "poses.top_k: expected an integer >= 1, got 0"),
-        ("poses.n_candidates=0", "poses.n_candidates: expected an integer >= 1"),
-        ("poses.nm_maxfev=-1", "poses.nm_maxfev: expected an integer >= 1"),
-        ("poses.rotation_bound_rad=0", "poses.rotation_bound_rad: expected a number > 0"),
-        ("poses.candidate_downscale=0", "poses.candidate_downscale: expected an integer >= 1"),
+        ("poses.candidates.top_k=0", "poses.candidates.top_k: expected an integer >= 1, got 0"),
+        ("poses.candidates.n=0", "poses.candidates.n: expected an integer >= 1"),
+        ("poses.refine.nelder_mead.maxfev=-1", "poses.refine.nelder_mead.maxfev: expected an integer >= 1"),
+        ("poses.refine.rotation_bound_rad=0", "poses.refine.rotation_bound_rad: expected a number > 0"),
+        ("poses.candidates.downscale=0", "poses.candidates.downscale: expected an integer >= 1"),
         ("targets.min_visib_fract=2", r"targets.min_visib_fract: expected a number in \[0, 1\)"),
         ("targets.s_e=0", "targets.s_e: expected a number > 0"),
         ("targets.curvature_scale=-1", "targets.curvature_scale: expected a number > 0"),
@@ -508,7 +509,7 @@ def test_the_cli_exits_1_when_a_scene_failed(mini_root, tmp_path, capsys, monkey
     monkeypatch.setattr(method_module.CenDerNet, "run_scene", second_fails)
     out = tmp_path / "cendernet-oracle_dimo-real.csv"
     code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--out", str(out),
-                 "--no-progress", "--deterministic-time", "--candidates", "48", "--top-k", "2", "--set", "poses.nm_maxfev=40"])  # fmt: skip
+                 "--no-progress", "--deterministic-time", "--candidates", "48", "--top-k", "2", "--set", "poses.refine.nelder_mead.maxfev=40"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 1 and "warning: scene 000001: no estimates (RuntimeError: truncated image)" in err
     assert "error: 1 of 2 scene(s) failed" in err and "--resume" in err and out.is_file()
@@ -555,12 +556,12 @@ def test_a_run_with_one_head_of_each_source(mini_root, tmp_path):
     out = tmp_path / "cendernet-mixed2_dimo-real.csv"
     summary = run(request(mini_root, out, heatmaps="oracle-curvature", weights=str(weights), limit_scenes=1))
     assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.75, "poses.t_b")
-    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4", "poses.n_candidates=48"])
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.network.t_b=0.4", "poses.candidates.n=48"])
     out = tmp_path / "cendernet-mixed3_dimo-real.csv"
     summary = run(
         request(mini_root, out, heatmaps="oracle-centers", weights=str(weights), limit_scenes=1, config=given)
     )
-    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.4, "poses.t_b_network")
+    assert (summary.curvature_threshold, summary.curvature_threshold_source) == (0.4, "poses.network.t_b")
     # a threshold calibrated on this split's views wins over the general one
     payload = weights_payload(UNet(UNetSpec.dimo_lean(width=0.5)), "dimo", None, TargetConfig.for_dataset("dimo"),
                               curvature_threshold=0.55, curvature_threshold_by_split={"real": 0.45, "sim": 0.65})  # fmt: skip
@@ -582,8 +583,8 @@ def test_a_request_without_a_config_gets_its_datasets_settings(tmp_path):
         request = RunRequest(dataset=dataset, data_root=None, split="test", out=tmp_path / "x.csv")
         assert request.config == CenDerNetConfig.for_dataset(dataset)
     tless = RunRequest(dataset="tless", data_root=None, split="test", out=tmp_path / "x.csv")
-    assert tless.config.targets.per_object_channels and tless.config.poses.screen_starts == 0
-    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.top_k=2"])
+    assert tless.config.targets.per_object_channels and tless.config.poses.screen.starts == 0
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.candidates.top_k=2"])
     assert (
         RunRequest(dataset="tless", data_root=None, split="test", out=tmp_path / "x.csv", config=given).config is given
     )
@@ -599,15 +600,15 @@ def test_the_default_heatmaps_use_shipped_weights_only_for_their_own_dataset():
 
 
 def test_the_network_curvature_threshold_precedence():
-    """``poses.t_b_network``, then the weights' calibration, then ``t_b`` (None), each named for the sidecar."""
+    """``poses.network.t_b``, then the weights' calibration, then ``t_b`` (None), each named for the sidecar."""
     from bop_cender.method import network_curvature_choice
 
     plain = CenDerNetConfig.for_dataset("dimo")
-    given = plain.with_settings(["poses.t_b_network=0.3"])
-    assert network_curvature_choice(given, 0.6) == (0.3, "poses.t_b_network")
+    given = plain.with_settings(["poses.network.t_b=0.3"])
+    assert network_curvature_choice(given, 0.6) == (0.3, "poses.network.t_b")
     assert network_curvature_choice(plain, 0.6) == (0.6, "the weights' calibration")
     assert network_curvature_choice(plain, 0.6, "real") == (0.6, "the weights' calibration on real views")
-    assert network_curvature_choice(given, 0.6, "real") == (0.3, "poses.t_b_network")
+    assert network_curvature_choice(given, 0.6, "real") == (0.3, "poses.network.t_b")
     assert network_curvature_choice(plain, None) == (None, "poses.t_b: the weights carry no calibrated threshold")
 
 
@@ -616,7 +617,7 @@ def _oracle_and_network_like(mini_root, **fields):
     oracle's maps as a network's (``fields`` also set on its :class:`Heatmaps`)."""
     ds = open_dimo(mini_root, "real")
     scene = ds.scene(ds.scene_keys[0])
-    config = CenDerNetConfig.for_dataset("dimo", **CHEAP)
+    config = CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP)
     meshes = MeshCache(ds.models)
     oracle = OraclePredictor(ds.models, meshes, config.targets)
 
@@ -652,12 +653,14 @@ def test_stage_2_joins_the_channels_as_the_centre_maps_say(mini_root, monkeypatc
 
 
 def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
-    """Stage 3 gets ``poses.translation_*_network`` and ``scene_polish_passes_network`` where the centre maps are a
+    """Stage 3 gets ``poses.network``'s translation widths and scene-polish passes where the centre maps are a
     network's (also through a mixed source), the general ones for the oracle's; None falls back to the general."""
     seen = []
 
-    def fake_optimise(targets, curvature, cameras, meshes, centers, config, **kw):
-        seen.append((config.translation_sigma_mm, config.translation_bound_mm, config.scene_polish_passes))
+    def fake_optimise(context, targets, **kw):
+        config = context.config
+        seen.append((config.candidates.translation_sigma_mm, config.refine.translation_bound_mm,
+                     config.scene_polish.passes))  # fmt: skip
         return []
 
     monkeypatch.setattr(method_module, "optimise_scene", fake_optimise)
@@ -672,13 +675,13 @@ def test_a_networks_centres_are_searched_wider(mini_root, monkeypatch):
         seen.clear()
         CenDerNet(ds.models, config, predictor, meshes).estimate(scene)
         assert seen == [expected]
-    same = config.with_settings(["poses.translation_sigma_mm_network=none", "poses.translation_bound_mm_network=none",
-                                 "poses.scene_polish_passes_network=none"])  # fmt: skip
+    same = config.with_settings(["poses.network.translation_sigma_mm=none", "poses.network.translation_bound_mm=none",
+                                 "poses.network.scene_polish_passes=none"])  # fmt: skip
     seen.clear()
     CenDerNet(ds.models, same, AsNetwork(), meshes).estimate(scene)
     assert seen == [(5.0, 20.0, 2)]
-    for bad in ("poses.translation_sigma_mm_network=-1", "poses.translation_bound_mm_network=0",
-                "poses.scene_polish_passes=0", "poses.scene_polish_passes_network=0"):  # fmt: skip
+    for bad in ("poses.network.translation_sigma_mm=-1", "poses.network.translation_bound_mm=0",
+                "poses.scene_polish.passes=0", "poses.network.scene_polish_passes=0"):  # fmt: skip
         with pytest.raises(ConfigError):
             config.with_settings([bad])
 

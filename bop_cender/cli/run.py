@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from bop_cender.cli.options import add_data_options, announce, count, resolve_device
+
+if TYPE_CHECKING:
+    from bop_cender.method import CenDerNetConfig
 
 EPILOG = """examples:
   bop-cender run --dataset dimo --split real            # the embedded demo, the shipped network
@@ -88,10 +92,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="estimate from the first K views of each scene (ablation; at least centers.min_views, 2 by default)",
     )
     p.add_argument(
+        "--preset",
+        choices=("ours", "paper"),
+        default="ours",
+        help="the method's settings to start from (default ours; paper: the paper's stage 3, one sweep, no scene"
+        " polish, no centre term, no screen; bop_cender/pose/config.py PRESETS); recorded in the run's sidecar",
+    )
+    p.add_argument(
         "--set",
         action="append",
         metavar="SECTION.FIELD=VALUE",
-        help="override a method setting (repeatable): centers.d_c=30, poses.t_b_network=0.5 (a network's curvature; default: the weights' calibration), poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
+        help="override a method setting after --preset (repeatable, any depth): centers.d_c=30, poses.candidates.n=500,"
+        " poses.sweeps.passes=1, poses.network.t_b=0.5 (a network's curvature; default: the weights' calibration),"
+        " poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
     )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -115,11 +128,32 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
     return "net"
 
 
+def run_config(args: argparse.Namespace) -> CenDerNetConfig:
+    """The method's settings of a ``run`` command line: ``--preset`` for ``--dataset``, then ``--seed``,
+    ``--candidates``, ``--top-k`` and ``--no-occlusion``, then every ``--set`` in order (which may override them).
+
+    Raises:
+        ConfigError: a bad setting, or more starts to refine than candidates (naming the option that gave them).
+    """
+    from bop_cender.method import CenDerNetConfig
+
+    options = [f"poses.seed={args.seed}"]
+    for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1
+        if value is not None:
+            options.append(f"poses.{name}={value}")
+    if args.no_occlusion:
+        options.append("poses.occlusion=false")
+    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).with_settings([*options, *(args.set or [])])
+    config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
+        "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
+    )
+    return config
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bop_cender.data.registry import DEFAULT_SPLIT
-    from bop_cender.method import CenDerNetConfig
     from bop_cender.progress import progress_bar
     from bop_cender.results.files import default_result_filename
     from bop_cender.runner import RunRequest, results_dataset_name, run
@@ -131,17 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             announce(f"no network weights are shipped for {args.dataset}: heatmaps from the oracle (--heatmaps oracle)")
     device = str(resolve_device(args.device))
     pose_device = device if args.pose_device == "same" else str(resolve_device(args.pose_device, "--pose-device"))
-    overrides = {}
-    for name, value in (("n_candidates", args.candidates), ("top_k", args.top_k)):  # count() refused < 1
-        if value is not None:
-            overrides[name] = value
-    if args.no_occlusion:
-        overrides["occlusion"] = False
-    overrides["seed"] = args.seed
-    config = CenDerNetConfig.for_dataset(args.dataset, **overrides).with_settings(args.set or [])
-    config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
-        "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
-    )
+    config = run_config(args)
     out = Path(
         args.out
         or default_result_filename(

@@ -27,10 +27,10 @@ class Heatmaps:
             scene's maps may hold some of a network's ids only: those its GT holds (:func:`scene_channel_ids`).
         im_ids: the image id of each view, in order.
         curvature_threshold: where stage 3 should binarise this curvature, when its maker knows better than
-            ``PoseConfig.t_b`` (a network: its calibrated threshold, ``PoseConfig.t_b_network``); None: ``t_b``
+            ``PoseConfig.t_b`` (a network: its calibrated threshold, ``poses.network.t_b``); None: ``t_b``
             (the oracle's rendered curvature).
         centers_from_network: the centre maps are a network's (True) or rendered from the ground truth (False):
-            stage 3 searches wider around a network's centres (``PoseConfig.translation_*_network``).
+            stage 3 searches wider around a network's centres (``poses.network``).
         exclusive_channels: the center channels split one class-agnostic probability among the object ids (a
             factored network's: their sum is it) rather than each being a probability of its own (the oracle's,
             independent channels): how stage 2 joins them (:func:`bop_cender.centers.class_agnostic_map`).

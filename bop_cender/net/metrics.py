@@ -13,13 +13,13 @@ the later stages see of a prediction, with the same detector and the same thresh
   negatives; a peak in the wrong channel is therefore one false positive and one false negative.
   Counts are summed over every view and channel seen; precision, recall and F1 come from the sums.
 - **Curvature**: a pixel is positive where the GT curvature exceeds ``curvature_threshold`` (stage 3's
-  ``t_b``, with its strict ``>``: :func:`bop_cender.pose.optimize.place_objects` binarises
+  ``t_b``, with its strict ``>``: :func:`bop_cender.pose.context.scene_context` binarises
   ``curv > t_b``). The average precision of the predicted curvature as a score over all pixels seen,
   from a fixed histogram of ``curvature_bins`` score bins (memory does not grow with the pixels seen),
   and precision, recall and F1 of the prediction binarised as stage 3 does (exact counts, not binned).
   Also the binarisation threshold of the prediction with the best F1 against the same GT pixels (from the
   histogram): a network's curvature is softer than the renderer's, so the ``t_b`` that suits the GT maps
-  need not suit its predictions (``PoseConfig.t_b_network``).
+  need not suit its predictions (``poses.network.t_b``).
 
 Ratios with an empty denominator (``0 / 0``) are 1: precision is 1 when nothing was predicted (no false
 claim), recall is 1 when there was nothing to find (nothing missed), and F1 is 1 only when there was
@@ -37,7 +37,7 @@ from scipy.optimize import linear_sum_assignment
 from bop_cender.centers import CenterConfig, find_peaks
 from bop_cender.geometry.check import check_shape
 from bop_cender.net.heatmaps import Heatmaps
-from bop_cender.pose.optimize import PoseConfig
+from bop_cender.pose.config import PoseConfig
 
 _STAGE2 = CenterConfig()
 _STAGE3 = PoseConfig()

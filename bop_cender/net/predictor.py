@@ -60,7 +60,7 @@ def predict_probabilities(
     binarised map (measured with the shipped DIMO network on seed 9002 `sim`: 4 passes for both heads raised
     center F1 0.540 -> 0.609 and curvature AP 0.615 -> 0.643 but lowered curvature F1 at t_b 0.444 -> 0.429
     and the end-to-end AR_MSSD<5% 0.682 -> 0.483). The centres alone averaged: more 3D centres found (43 of 70
-    within 5 mm against 38), end to end 0.611, so ``run`` uses 1 pass by default (``CenDerNetConfig.test_flips``).
+    within 5 mm against 38), end to end 0.611, so ``run`` uses 1 pass (``heatmaps --test-flips`` offers more).
     """
     check_flips(flips)
     model.eval()
@@ -132,7 +132,7 @@ class NetPredictor:
     channels or without GT.
     ``flips``: test-time flips (:func:`predict_probabilities`; 1: the network alone, as the cards' subsets).
     ``curvature_threshold``: the binarisation threshold its heatmaps carry for stage 3 (``run`` passes
-    ``PoseConfig.t_b_network`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
+    ``poses.network.t_b`` when set); None: the weights' calibrated one, or stage 3's ``t_b`` without one.
     """
 
     name = "net"

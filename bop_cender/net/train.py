@@ -6,7 +6,7 @@
   (the net is fully convolutional: crops cut the cost of large T-LESS images), then validation on
   ``val_split`` (losses, center-peak precision / recall / F1, curvature AP and F1 at t_b, and the curvature
   threshold with the best F1, stored in the weights as their calibrated ``curvature_threshold``: stage 3
-  binarises this network's curvature there, ``PoseConfig.t_b_network``).
+  binarises this network's curvature there, ``poses.network.t_b``).
 - Deterministic per seed on the CPU: the model's initial weights come from ``seed``, the order of the
   samples, the augmentations and the crops of epoch ``e`` from ``(seed, e)`` alone, so that a run
   resumed from its checkpoint after epoch ``e`` continues bit for bit as if it had never stopped.

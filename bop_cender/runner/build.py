@@ -102,7 +102,6 @@ def net_predictor(request: RunRequest, dataset: Dataset, weights: NetWeights | N
         weights,
         device=request.device,
         known_object_ids=request.config.known_object_ids,
-        flips=request.config.test_flips,
         curvature_threshold=network_threshold(request, weights)[0],
     )
 
@@ -115,7 +114,7 @@ def network_threshold(request: RunRequest, weights: NetWeights) -> tuple[float |
 
 def curvature_threshold(request: RunRequest, weights: NetWeights | None) -> tuple[float, str]:
     """Where stage 3 binarises the curvature of ``request``'s heatmaps, and which setting says so (for the sidecar
-    and the summary): a network's curvature at ``poses.t_b_network`` or the weights' calibration, else ``t_b``.
+    and the summary): a network's curvature at ``poses.network.t_b`` or the weights' calibration, else ``t_b``.
     ``weights``: the request's, from :func:`read_weights` (None where no network is used)."""
     if not uses_network(request.heatmaps) or request.heatmaps == "oracle-curvature":
         return request.config.poses.t_b, "poses.t_b"

@@ -11,7 +11,7 @@ import torch
 from bop_cender.centers import CenterConfig
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig, match_peaks
-from bop_cender.pose.optimize import PoseConfig
+from bop_cender.pose.config import PoseConfig
 
 H, W = 48, 64
 

@@ -250,16 +250,14 @@ def test_test_flips_average_the_passes_flipped_back() -> None:
         predict_probabilities(model, image, flips=3)
 
 
-def test_the_run_config_validates_its_test_flips() -> None:
+def test_the_run_config_has_no_test_flips_and_says_where_their_figures_are() -> None:
+    """Test-time flips lost end to end with both shipped networks and were off: run's config dropped them (the
+    predictor keeps them for ``heatmaps --test-flips``)."""
     from bop_cender.method import CenDerNetConfig
 
-    config = CenDerNetConfig.for_dataset("dimo")
-    assert config.test_flips == 1 and config.with_settings(["test_flips=4"]).test_flips == 4
-    with pytest.raises(ConfigError, match="test_flips: expected one of"):
-        config.with_settings(["test_flips=3"])
-    for bad in (True, 2.0):  # equal to 1 and 2 as dict keys, but not counts of passes
-        with pytest.raises(ConfigError, match="test_flips: expected one of"):
-            CenDerNetConfig(test_flips=bad)
+    with pytest.raises(ConfigError, match="test_flips was removed: .* figures: results/accuracy/README.md"):
+        CenDerNetConfig.for_dataset("dimo").with_settings(["test_flips=4"])
+    assert not hasattr(CenDerNetConfig(), "test_flips")
 
 
 def test_shipped_weights_are_found_or_named_missing() -> None:
@@ -304,7 +302,7 @@ def test_mixed_sources_take_each_head_from_its_own_predictor(tmp_path) -> None:
 
 
 def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heatmaps(tmp_path) -> None:
-    """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.t_b_network`` overrides it,
+    """The weights' ``curvature_threshold`` reaches the predictor's heatmaps, ``poses.network.t_b`` overrides it,
     and a value outside (0, 1) is one error naming the file."""
     from bop_cender.method import CenDerNetConfig, network_curvature_choice
 
@@ -323,7 +321,7 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
     assert NetPredictor(calibrated).predict(scene).centers_from_network  # stage 3 searches its centres wider
     with pytest.raises(ValueError, match="curvature_threshold must be in"):
         replace(NetPredictor(calibrated).predict(scene), curvature_threshold=float("nan"))
-    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.t_b_network=0.4"])
+    given = CenDerNetConfig.for_dataset("dimo").with_settings(["poses.network.t_b=0.4"])
     assert net_predictor(replace(request, config=given), dataset).predict(scene).curvature_threshold == 0.4
     assert (
         network_curvature_choice(CenDerNetConfig(), load_weights(tmp_path / "plain.pt").curvature_threshold)[0] is None

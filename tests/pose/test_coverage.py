@@ -12,10 +12,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
-from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
 from bop_cender.pose.coverage import two_sided_costs  # noqa: E402
-from bop_cender.pose.optimize import PlacedObject, PoseConfig, _occluder_depth  # noqa: E402
+from bop_cender.pose.occluders import occluder_depth  # noqa: E402
+from bop_cender.pose.types import PlacedObject  # noqa: E402
 
 
 def _inputs(mini, T_world_model, edges=None):
@@ -90,19 +90,12 @@ def test_an_occluder_hides_the_target_edges_behind_it_from_the_coverage(mini):
     T_gt = gt_of(scene, 3).T_world_model
     # the part itself as the occluder, 2 mm nearer the cameras: it hides all of the candidate
     nearer = T_gt.copy()
-    occluder = _occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes)
+    occluder = occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes)
     occluder = torch.where(occluder > 0, occluder - 2.0, occluder)
     c = _costs(mini, T_gt[None], occ=occluder)
     assert c.coverage[0] == 0.0  # no pixel of the pose is visible: no edge inside it to explain
     diagonal = float(np.hypot(cams.height, cams.width))
     assert c.forward[0] == pytest.approx(diagonal, rel=1e-5)
-
-
-def test_pose_config_refuses_a_negative_coverage_weight_and_no_pass():
-    with pytest.raises(ConfigError, match="coverage_weight"):
-        PoseConfig(coverage_weight=-1.0)
-    with pytest.raises(ConfigError, match="passes"):
-        PoseConfig(passes=0)
 
 
 def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
@@ -130,8 +123,3 @@ def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
     for i in range(len(parts)):
         moved = [perturb(g.T_world_model, 25.0, 4.0) if j == i else g.T_world_model for j, g in enumerate(parts)]
         assert cost(moved) > exact + 0.5
-
-
-def test_pose_config_refuses_an_unknown_acceptance():
-    with pytest.raises(ConfigError, match="acceptance"):
-        PoseConfig(acceptance="part")

@@ -264,11 +264,12 @@ def test_cuda_gives_the_cpu_costs(mini):
 
 
 def test_a_candidate_that_duplicates_a_placed_object_draws_almost_nothing(mini):
-    from bop_cender.pose.optimize import PlacedObject, _occluder_depth
+    from bop_cender.pose.occluders import occluder_depth
+    from bop_cender.pose.types import PlacedObject
 
     ds, scene, meshes, maps, cams, dist = mini
     T = gt_of(scene, 3).T_world_model
-    placed = _occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    placed = occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
     free, _ = _cost_pair(mini, T[None])
     twice, _ = _cost_pair(mini, T[None], occ=edge_occluder(placed))
     assert free[0] < 0.3

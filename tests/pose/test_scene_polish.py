@@ -1,30 +1,20 @@
-"""The final scene polish: the windowed scene cost ranks poses as the full scene cost does, and the polish
-moves a slightly wrong part onto its true pose (only where the whole scene gains)."""
+"""The scene polish's windowed cost (``pose/scene_polish.py``): it ranks poses as the full scene cost does, its
+compiled pass gives the torch steps' costs, and its windows drop the target edges along their inner sides. The
+polish itself: ``test_polish.py``."""
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, perturb  # noqa: E402
 
 from bop_cender.pose.coverage import scene_cost  # noqa: E402
-from bop_cender.pose.optimize import (  # noqa: E402
-    CostMaps,
-    PlacedObject,
-    PoseConfig,
-    PoseTarget,
-    SceneJudge,
-    optimise_scene,
-    polish_on_scene,
-)
 from bop_cender.pose.scene_polish import scene_window  # noqa: E402
 
 EDGE_THRESHOLD = BOX_T_B  # the fixture's curvature scale is 1
@@ -109,34 +99,6 @@ def test_the_compiled_scene_cost_gives_the_torch_cost(mini):
         assert compiled == pytest.approx(torch_steps, rel=1e-5) and scene_cost(*args) == compiled
 
 
-def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
-    ds, scene, meshes, maps, cams, dist = mini
-    edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
-    fine = CostMaps(cams, dist, edges)
-    ids = sorted(parts)
-    start = {ids[0]: parts[ids[0]], ids[1]: perturb(parts[ids[1]], 3.0, 1.5)}
-    placed = [PlacedObject(i, start[i], 1.0, 7) for i in ids]
-    targets = [
-        PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in start.items()
-    ]
-    config = PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=150)
-    polished = polish_on_scene(
-        placed, SceneJudge(targets, fine, meshes, lambda i: ds.models[i].center, config, EDGE_THRESHOLD)
-    )
-    moved = polished[1]
-    T = parts[ids[1]]
-    R_err = np.degrees(Rotation.from_matrix(moved.T_world_model[:3, :3] @ T[:3, :3].T).magnitude())
-    assert R_err < 1.0 and np.linalg.norm(moved.T_world_model[:3, 3] - T[:3, 3]) < 0.5, R_err
-    assert moved.evaluations > 7 and moved.cost != 1.0  # its evaluations counted, its cost that of the new pose
-    before = _full_scene_cost(meshes, start, cams, edges, dist)
-    after = _full_scene_cost(meshes, {p.obj_id: p.T_world_model for p in polished}, cams, edges, dist)
-    assert after < before
-    # the part already at its true pose stays there (a polish never makes the scene worse)
-    R0 = np.degrees(Rotation.from_matrix(polished[0].T_world_model[:3, :3] @ parts[ids[0]][:3, :3].T).magnitude())
-    assert R0 < 0.5 and np.linalg.norm(polished[0].T_world_model[:3, 3] - parts[ids[0]][:3, 3]) < 0.3
-
-
 def test_window_drops_target_edges_along_its_inner_sides_only():
     """Target edges within WINDOW_BORDER_PX of a window side inside the image are left out (a neighbour's edges
     spilling across it); a side on the image border keeps its edges."""
@@ -170,191 +132,3 @@ def test_scene_window_drops_the_border_rows_in_a_real_window(mini):
     sides = (window.offsets[:, 1] > 0) & (window.offsets[:, 1] + w < cams.width)
     assert sides.any()
     assert not window.target_edges[sides][:, :, 0].any() and not window.target_edges[sides][:, :, -1].any()
-
-
-def test_scene_polish_stops_at_its_own_tolerances(mini):
-    """The polish's Nelder-Mead stops where its simplex is within scene_polish_xatol / _fatol (loose: after a few
-    steps), else at scene_polish_maxfev; the search's nm_xatol / nm_fatol do not decide it."""
-    ds, scene, meshes, maps, cams, dist = mini
-    edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
-    ids = sorted(parts)
-    placed = [PlacedObject(i, perturb(parts[i], 2.0, 1.0), 1.0, 0) for i in ids]
-    targets = [PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,))
-               for i, T in parts.items()]  # fmt: skip
-
-    def spent(**tolerances) -> list[int]:
-        config = PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60, nm_xatol=1e-9, nm_fatol=1e-9, **tolerances)
-        judge = SceneJudge(targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center, config,
-                           EDGE_THRESHOLD)  # fmt: skip
-        return [p.evaluations for p in polish_on_scene(placed, judge)]
-
-    tight = spent(scene_polish_xatol=1e-9, scene_polish_fatol=1e-9)
-    loose = spent(scene_polish_xatol=50.0, scene_polish_fatol=50.0)
-    assert all(n >= 60 for n in tight), tight  # the budget, plus the judge's evaluations
-    assert all(n < 20 for n in loose), loose  # the first simplex is already within the tolerances
-
-
-def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
-    """A window cost that prefers a wrong pose: the full scene cost refuses it and the old pose stays."""
-    from bop_cender.pose import scene_polish
-
-    ds, scene, meshes, maps, cams, dist = mini
-    edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
-    ids = sorted(parts)
-    wrong = {i: perturb(T, 20.0, 8.0) for i, T in parts.items()}
-    monkeypatch.setattr(scene_polish.SceneWindow, "costs",
-                        lambda self, T: np.array([np.linalg.norm(t[:3, 3] - wrong[ids[0]][:3, 3]) for t in T]))  # fmt: skip
-    placed = [PlacedObject(i, parts[i], 0.5, 3) for i in ids]
-    targets = [
-        PoseTarget(T[:3, :3] @ ds.models[i].center + T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in parts.items()
-    ]
-    judge = SceneJudge(targets, CostMaps(cams, dist, edges), meshes, lambda i: ds.models[i].center,
-                       PoseConfig(t_b=BOX_T_B, scene_polish_maxfev=60), EDGE_THRESHOLD)  # fmt: skip
-    out = polish_on_scene(placed, judge)
-    for p, q in zip(out, placed, strict=True):
-        assert np.array_equal(p.T_world_model, q.T_world_model) and p.cost == 0.5 and p.evaluations > 3
-
-
-def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch):
-    from bop_cender.pose import optimize
-
-    ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
-    calls = []
-    monkeypatch.setattr(optimize, "optimise_object",
-                        lambda target, *a, **k: PlacedObject(min(parts, key=lambda i: np.linalg.norm(parts[i][:3, 3] - target.center)),
-                                                             parts[3], 0.0, 1))  # fmt: skip
-    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, *a, **k: calls.append(len(placed)) or placed)
-    targets = [PoseTarget(T[:3, 3], np.ones(len(cams.Ks)), (i,)) for i, T in parts.items()]
-    args = (targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center)
-    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=0), curvature_scale=1.0)
-    assert calls == []
-    assert PoseConfig().scene_polish_maxfev == 100 and PoseConfig().center_weight == 1.0  # ours; the paper has neither
-    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10), curvature_scale=1.0)
-    assert calls == [2]  # two passes asked (ours), but the first kept no new pose: the second would repeat it
-    moved = []
-
-    def moving(placed, judge, scene_now=None):  # every pass moves every part a little
-        moved.append(scene_now)
-        return [dataclasses.replace(p, T_world_model=p.T_world_model + 1e-3) for p in placed]
-
-    monkeypatch.setattr(optimize, "polish_on_scene", moving)
-    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10, scene_polish_passes=3),
-                   curvature_scale=1.0)  # fmt: skip
-    assert len(moved) == 3 and moved[1:] == [None, None]  # later passes judge the placement afresh
-    moved.clear()
-    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, judge, scene_now=None: moved.append(1) or [
-        dataclasses.replace(p, T_world_model=p.T_world_model.copy()) for p in placed])  # fmt: skip
-    optimise_scene(*args, PoseConfig(t_b=BOX_T_B, passes=1, scene_polish_maxfev=10, scene_polish_passes=3),
-                   curvature_scale=1.0)  # fmt: skip
-    assert len(moved) == 1  # copies of the same poses: nothing moved, judged by value
-
-
-@pytest.mark.parametrize(
-    "field",
-    [
-        "scene_polish_maxfev",
-        "scene_polish_margin_px",
-        "scene_polish_xatol",
-        "scene_polish_fatol",
-        "center_weight",
-        "screen_starts",
-        "screen_maxfev",
-    ],  # fmt: skip
-)
-@pytest.mark.parametrize("value", [-1, float("nan")])
-def test_a_negative_or_nan_stage3_setting_is_a_config_error(field, value):
-    from bop_cender.errors import ConfigError
-
-    if isinstance(PoseConfig().__getattribute__(field), int) and value != value:
-        pytest.skip("an int field cannot be NaN")
-    with pytest.raises(ConfigError, match=field):
-        PoseConfig(**{field: value})
-
-
-def _center_setup(mini, obj_id=3):
-    from bop_cender.geometry.sampling import sample_scores
-
-    ds, scene, meshes, maps, cams, dist = mini
-    T = _parts(ds, scene)[obj_id]
-    center_map = maps.center[:, 0].numpy()  # (V, H, W): the fixture's one shared centre channel
-    c = T[:3, :3] @ ds.models[obj_id].center + T[:3, 3]
-    scores = sample_scores(c[None], center_map, cams.Ks, cams.T_cam_world)[0]
-    return ds, cams, T, center_map, scores
-
-
-def test_center_term_is_zero_at_the_detected_centre_and_grows_away_from_it(mini):
-    from bop_cender.pose.optimize import center_term
-
-    ds, cams, T, center_map, scores = _center_setup(mini)
-    shifted = []
-    for d in (0.0, 2.0, 5.0, 10.0, 40.0):
-        S = T.copy()
-        S[:3, 3] += d * np.array([0.6, -0.8, 0.0])
-        shifted.append(S)
-    w = np.full(len(cams.Ks), 1.0 / len(cams.Ks))
-    terms = center_term(np.stack(shifted), ds.models[3].center, scores, center_map, w, cams, 2.0)
-    assert terms[0] == pytest.approx(0.0, abs=1e-9)
-    assert np.all(np.diff(terms) > 0), terms
-    assert terms[-1] <= 2.0 * scores.max() + 1e-9  # at most the weight times the score it can lose
-    # a rotation about the centre keeps the centre: no term
-    R = T.copy()
-    R[:3, :3] = Rotation.from_euler("z", 40, degrees=True).as_matrix() @ T[:3, :3]
-    R[:3, 3] = T[:3, :3] @ ds.models[3].center + T[:3, 3] - R[:3, :3] @ ds.models[3].center
-    assert center_term(R[None], ds.models[3].center, scores, center_map, w, cams, 2.0)[0] == pytest.approx(0, abs=1e-9)
-    assert np.all(center_term(np.stack(shifted), ds.models[3].center, scores, center_map, w, cams, 0.0) == 0)
-    assert np.all(center_term(np.stack(shifted), ds.models[3].center, scores, None, w, cams, 2.0) == 0)
-
-
-def test_the_scene_judge_adds_each_objects_centre_term(mini):
-    from bop_cender.pose.optimize import _scene_cost
-
-    ds, scene, meshes, maps, cams, dist = mini
-    _, _, T, center_map, scores = _center_setup(mini)
-    edges = maps.curvature > BOX_T_B
-    fine = CostMaps(cams, dist, edges)
-    parts = _parts(ds, scene)
-    moved = T.copy()
-    moved[:3, 3] += np.array([6.0, -8.0, 0.0])
-    placed = [PlacedObject(3, moved, 0.0, 0), PlacedObject(4, parts[4], 0.0, 0)]
-    c4 = parts[4][:3, :3] @ ds.models[4].center + parts[4][:3, 3]
-    targets = [
-        PoseTarget(T[:3, :3] @ ds.models[3].center + T[:3, 3], scores, (3,), center_map),
-        PoseTarget(c4, np.ones(len(cams.Ks)), (4,), None),  # no map: no term
-    ]
-    args = (targets, fine, meshes, lambda i: ds.models[i].center)
-    plain = _scene_cost(placed, fine, meshes, EDGE_THRESHOLD)
-    assert SceneJudge(*args, PoseConfig(t_b=BOX_T_B, center_weight=0.0), EDGE_THRESHOLD).cost(placed) == plain
-    with_term = SceneJudge(*args, PoseConfig(t_b=BOX_T_B, center_weight=1.0), EDGE_THRESHOLD).cost(placed)
-    assert with_term > plain + 0.05
-
-
-def test_the_judge_and_the_polish_pair_each_placed_object_with_its_own_target(mini, monkeypatch):
-    """Objects are placed most visible first, so ``placed[k]`` is not ``targets[k]``: the scene judge and the
-    polish must see each object beside its own target (its centre and centre map)."""
-    from bop_cender.pose import optimize
-
-    ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
-    ids = sorted(parts)
-    centre = {i: T[:3, :3] @ ds.models[i].center + T[:3, 3] for i, T in parts.items()}
-    # the first target is the less visible one: it is placed second
-    targets = [PoseTarget(centre[ids[0]], np.full(len(cams.Ks), 0.2), (ids[0],), maps.center[:, 0].numpy()),
-               PoseTarget(centre[ids[1]], np.full(len(cams.Ks), 0.9), (ids[1],), maps.center[:, 0].numpy())]  # fmt: skip
-    monkeypatch.setattr(optimize, "optimise_object",
-                        lambda target, *a, **k: PlacedObject(target.obj_ids[0], parts[target.obj_ids[0]], 0.0, 1))  # fmt: skip
-    monkeypatch.setattr(optimize, "_hidden_pixels_differ", lambda *a: True)
-    seen = []
-
-    def judged(judge, placed):
-        seen.append([(p.obj_id, t.obj_ids[0]) for p, t in zip(placed, judge.targets, strict=True)])
-        return 0.0
-
-    monkeypatch.setattr(optimize.SceneJudge, "cost", judged)
-    monkeypatch.setattr(optimize, "polish_on_scene", lambda placed, judge, *a, **k: judged(judge, placed) or placed)
-    placed = optimise_scene(targets, maps.curvature, cams, meshes, lambda i: ds.models[i].center,
-                            PoseConfig(t_b=BOX_T_B, passes=2, scene_polish_maxfev=10), curvature_scale=1.0)  # fmt: skip
-    assert [p.obj_id for p in placed] == [ids[1], ids[0]]  # most visible first
-    assert seen and all(pair == [(ids[1], ids[1]), (ids[0], ids[0])] for pair in seen)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize, rosen
 
-from bop_cender.pose.simplex import batched_nelder_mead
+from bop_cender.optim.simplex import batched_nelder_mead
 
 
 def test_quadratic_from_several_starts():
