@@ -167,7 +167,7 @@ def check_request(request: RunRequest) -> None:
             " thread (give one of the two)",
             field="--threads",
         )
-    request.config.poses.check_refinable("poses.top_k")  # the CLI checked first, naming its option
+    request.config.poses.check_refinable("poses.candidates.top_k")  # the CLI checked first, naming its option
     min_views = request.config.centers.min_views  # at least 1 (its bound)
     if request.max_views is not None and request.max_views < min_views:
         raise ConfigError(
