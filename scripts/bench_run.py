@@ -40,7 +40,8 @@ import numpy as np
 import torch
 
 from bop_cender.pose.cost import candidate_costs
-from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+from bop_cender.pose.edge_cost import edge_costs
+from bop_cender.pose.edge_model import edge_model_of
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.synth.reference_meshes import reference_bracket
 

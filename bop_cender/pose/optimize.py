@@ -62,7 +62,8 @@ from bop_cender.errors import ConfigError
 from bop_cender.geometry.sampling import sample_scores
 from bop_cender.pose.cost import candidate_costs, distance_maps
 from bop_cender.pose.coverage import TwoSidedCost, scene_cost, two_sided_costs
-from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_model_of, edge_occluder
+from bop_cender.pose.edge_cost import edge_costs, edge_occluder
+from bop_cender.pose.edge_model import EdgeModel, edge_model_of
 from bop_cender.pose.scene_polish import SceneWindow, scene_window
 from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE

@@ -31,7 +31,8 @@ _SIMULATED = textwrap.dedent(
     import method_data
     from method_data import gt_of, perturb
     from bop_cender.pose.cuda_edge_kernel import cuda_canvas_costs
-    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_costs, edge_model_of
+    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_costs
+    from bop_cender.pose.edge_model import edge_model_of
     from bop_cender.pose.edge_kernel import kernel_canvas_costs
 
     ds, scene, meshes, maps, cams, dist = method_data.mini_scene(Path(tempfile.mkdtemp()) / "dimo")
@@ -94,7 +95,8 @@ def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None
 
 
 def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
-    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+    from bop_cender.pose.edge_cost import edge_costs
+    from bop_cender.pose.edge_model import edge_model_of
     from bop_cender.render.cuda_loops import simulator_enabled
     from bop_cender.render.mesh import prepare_mesh
 

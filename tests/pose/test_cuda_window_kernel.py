@@ -149,7 +149,7 @@ def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer
     """The CUDA z-buffer's exact keys (1/z's float32 bits above the face id, one int64 maximum) keep what the CPU's
     exact test keeps: the larger 1/z, ties to the larger face id, never a negative or NaN 1/z; -0.0 as +0.0."""
     from bop_cender.render.compiled_raster import keep_fragment
-    from bop_cender.render.cuda_loops import FACE_ID_BITS, _keep_fragment_exact_simulated
+    from bop_cender.render.cuda_device import FACE_ID_BITS, keep_fragment_exact_simulated
 
     rng = np.random.default_rng(7)
     values = np.array([0.0, -0.0, 1e-3, 2e-3, 0.5, 0.5, 3.0, np.inf, -1e-3, np.nan], dtype=np.float32)
@@ -158,7 +158,7 @@ def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer
         cuda_key = np.full(1, -1, np.int64)
         for q, f in zip(rng.choice(values, 6), rng.integers(0, 50, 6), strict=True):
             keep_fragment(cpu_key, cpu_w, 0, np.float32(q), np.int64(f), np.int64(f), False)
-            _keep_fragment_exact_simulated(cuda_key, None, 0, np.float32(q), 0, int(f), False)
+            keep_fragment_exact_simulated(cuda_key, None, 0, np.float32(q), 0, int(f), False)
         assert (cuda_key[0] & ((1 << FACE_ID_BITS) - 1) if cuda_key[0] >= 0 else -1) == cpu_key[0]
 
 

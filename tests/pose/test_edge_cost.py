@@ -16,7 +16,8 @@ sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import gt_of, perturb  # noqa: E402
 
 from bop_cender.pose.cost import candidate_costs  # noqa: E402
-from bop_cender.pose.edge_cost import edge_costs, edge_model, edge_model_of, edge_occluder  # noqa: E402
+from bop_cender.pose.edge_cost import edge_costs, edge_occluder  # noqa: E402
+from bop_cender.pose.edge_model import edge_model, edge_model_of  # noqa: E402
 from bop_cender.render.mesh import prepare_mesh  # noqa: E402
 
 
@@ -287,7 +288,7 @@ def test_the_edge_occluder_is_the_nearest_placed_surface_around_each_pixel():
 
 def _one_segment(a: np.ndarray, b: np.ndarray):
     """An EdgeModel of one always-drawn crease segment from ``a`` to ``b`` (model frame, mm)."""
-    from bop_cender.pose.edge_cost import EdgeModel
+    from bop_cender.pose.edge_model import EdgeModel
 
     facing = torch.tensor([[[0.0, 0.0, 0.0, -1.0], [0.0, 0.0, 0.0, -1.0]]])  # n . eye - d = 1 > 0: faces the camera
     return EdgeModel(
@@ -373,7 +374,8 @@ def test_with_one_thread_the_compiled_loops_start_no_thread_pool():
     code = """
 import numpy as np, torch, trimesh
 import numba.np.ufunc.parallel as pool
-from bop_cender.pose.edge_cost import edge_costs, edge_model
+from bop_cender.pose.edge_cost import edge_costs
+from bop_cender.pose.edge_model import edge_model
 from bop_cender.pose.window_kernel import window_costs
 torch.set_num_threads(1)
 box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
