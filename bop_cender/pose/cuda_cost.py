@@ -18,9 +18,9 @@ its size, and 2,000 candidates ran 14,265 calls/s against issue 11's goal of 20,
 The host waits for the device once per call, to read the windows' sizes (the scratch's size and the launches'
 groups) and the nearest vertex. Quantised int32 keys only (a mesh of at most 2^15 faces,
 :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind the near plane
-:func:`cuda_candidate_costs` returns None and the torch path runs. :func:`kernel_costs` is what
-:func:`~bop_cender.pose.cost.candidate_costs` calls: the kernel where numba's CUDA target works, a warning and the
-torch path where it does not.
+:func:`cuda_candidate_costs` returns None and the torch path runs. The ``numba`` and ``auto`` backends call it on CUDA
+(:meth:`~bop_cender.pose.backend.Backend.candidate_costs`): ``auto`` takes the torch atlases, with a warning, where
+numba's CUDA target does not work.
 
 Rounding. On a GPU, NVVM contracts float32 multiply-adds into fused ones, as nvcc does for torch's CUDA kernels, so
 the costs agree with the torch path's to float32 rounding, not bit for bit. In numba's CUDA simulator (CPU, no
@@ -157,34 +157,12 @@ class LaunchBlocks(NamedTuple):
 GUARD = KernelGuard("the CUDA cost kernel", "the render cost runs on the torch atlases on CUDA", kernel_function)
 
 
-def kernel_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
-                 dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None,
-                 compiled: bool | None) -> torch.Tensor | None:  # fmt: skip
-    """:func:`cuda_candidate_costs` as :func:`~bop_cender.pose.cost.candidate_costs` takes it on CUDA: None where the
-    torch path is to run instead: the kernel does not apply, or (with ``compiled=None``) numba's CUDA target is
-    unavailable or the kernel failed in this process (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a
-    warning says why, once).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable, or the kernel failed.
-        ValueError: ``compiled=True`` where the kernel does not apply (the message says why).
-    """
-    costs = GUARD.run(
-        lambda: cuda_candidate_costs(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth), compiled
-    )
-    if costs is None and compiled:
-        faces = int(mesh.faces.shape[0])
-        why = f"a mesh of {faces} faces (at most 2^15)" if faces > 1 << 15 else "a vertex behind the near plane"
-        raise ValueError(f"compiled=True, but the CUDA kernel does not apply here: {why} (compiled=None: torch)")
-    return costs
-
-
 def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
                          dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None = None,
                          threads: int = BLOCK_THREADS, fused: bool = True,
                          scratch_bytes: int = SCRATCH_BYTES) -> torch.Tensor | None:  # fmt: skip
     """Unweighted costs ``(B * V,)`` float32 of B candidates in V views (canvas ``c`` = candidate ``c // V`` in view
-    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view, by the CUDA kernel; None where
+    ``c % V``), as :meth:`~bop_cender.pose.backend.Backend.candidate_costs` takes them per view, by the CUDA kernel; None where
     it does not apply (a mesh of more than 2^15 faces, whose keys are exact; a vertex behind the near plane: use the
     torch path).
 

@@ -13,7 +13,7 @@ a GPU NVVM contracts multiply-adds: the costs agree with the CPU's to float32 ro
 CUDA simulator (what the tests run without a GPU) the device functions are the plain Python ones.
 
 numba's CUDA target is optional (:mod:`bop_cender.render.cuda_loops`): where it is missing or the kernel fails to
-compile or to launch, :func:`~bop_cender.pose.edge_cost.edge_costs` warns once and runs the ``dense`` torch layout
+compile or to launch, the ``auto`` backend (:meth:`~bop_cender.pose.backend.Backend.edge_costs`) warns once and runs the ``dense`` torch layout
 (an error the device reports later, asynchronously, surfaces in torch's next call instead).
 """
 

@@ -17,7 +17,7 @@ launch. Block ``c`` takes canvas ``c`` (trial ``c // V`` in view ``c % V``) and 
    target pixel only, the least ``g(k, j)^2 + (i - k)^2`` over the rows ``k`` (the CPU loop's own functions,
    :mod:`bop_cender.pose.window_kernel`): the exact distance, without a transform of the window.
 
-The same kernel gives the full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`, the sweeps' judge and the
+The same kernel gives the full scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`, the sweeps' judge and the
 polish's acceptance: 19 ms a call in torch on the H200): every placed part in every full frame, each view one window
 with nothing else in it (:func:`cuda_scene_cost`).
 
@@ -186,7 +186,7 @@ def cuda_window_costs(
     window: SceneWindow, T_world_model: np.ndarray, threads: int = WINDOW_THREADS
 ) -> np.ndarray | None:
     """``(m,)`` windowed scene costs of trial poses ``T_world_model (m, 4, 4)`` of the window's part, as
-    :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` gives them on the CPU, by the CUDA kernel; None where a
+    :meth:`~bop_cender.pose.backend.Backend.window_costs` gives them on the CPU, by the CUDA kernel; None where a
     vertex lies behind the near plane in some canvas (use the torch steps, whose renderer cuts the faces there).
 
     Args:
@@ -230,7 +230,7 @@ def cuda_scene_cost(
     edge_threshold: float,
     threads: int = FRAME_THREADS,
 ) -> float | None:
-    """The full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`: every placed part rendered into every full
+    """The full scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`: every placed part rendered into every full
     frame, forward plus backward, the mean over the views) by the same kernel, each view one canvas, the frame its
     window, nothing else in it; None where a vertex lies behind the near plane (use the torch steps).
 

@@ -29,21 +29,21 @@ the render cost (a render-cost polish is optional, ``PoseConfig.polish_maxfev``,
 back onto the pixel grid). Being continuous in the pose (bilinear lookups, no pixel
 snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
 
-Three layouts of the same arithmetic (:func:`edge_costs`' ``layout``), which agree to float rounding
-(``tests/pose/test_edge_cost.py``):
+Four layouts of the same arithmetic, which agree to float rounding (``tests/pose/test_edge_cost.py``); the backend
+chooses (:meth:`~bop_cender.pose.backend.Backend.edge_costs`, ``poses.backend``):
 
-- ``kernel``, the CPU's default: one compiled loop over canvases, edges and segments
+- numba on the CPU (``numba``, ``auto``): one compiled loop over canvases, edges and segments
   (:mod:`bop_cender.pose.edge_kernel`), nothing allocated per segment. A Nelder-Mead step of 3 poses took
   2.6 ms in the compacted torch layout (~430 operators) and takes 0.6 ms here on one 2-core Intel Xeon thread;
-- ``compacted`` (torch): the drawn segments gathered first (``nonzero``: of a part's segments only the
-  contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
+- numba on CUDA (``numba``, ``auto`` where numba's CUDA target works): the same loop as one CUDA kernel (a block
+  per canvas, :mod:`bop_cender.pose.cuda_edge_kernel`), one launch per call instead of dozens of torch kernels;
+- compacted (torch, here: ``torch`` on the CPU): the drawn segments gathered first (``nonzero``: of a part's segments
+  only the contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
   the work); the CPU's layout before the kernel, kept as its reference;
-- ``dense`` (torch), CUDA's fallback: every segment of every canvas costed with a 0/1 weight. That costs
-  several times the arithmetic but has fixed shapes: no ``nonzero`` or data-dependent ``repeat_interleave``,
-  so a call never waits for the device until its result is read, which is what bounds the small calls of
-  Nelder-Mead on a GPU (``results/bench/``);
-- ``cuda``, CUDA's default where numba's CUDA target works: the kernel layout's loop as one CUDA kernel (a block
-  per canvas, :mod:`bop_cender.pose.cuda_edge_kernel`), one launch per call instead of dozens of torch kernels.
+- dense (torch, here: ``torch`` on CUDA, and ``auto``'s there where the kernel cannot run): every segment of every
+  canvas costed with a 0/1 weight. That costs several times the arithmetic but has fixed shapes: no ``nonzero`` or
+  data-dependent ``repeat_interleave``, so a call never waits for the device until its result is read, which is what
+  bounds the small calls of Nelder-Mead on a GPU (``results/bench/``).
 
 Measured (``scripts/bench_run.py``): see ``results/bench/``.
 """
@@ -66,9 +66,6 @@ SAMPLES_PER_SEGMENT = 2
 #: 1 mm deeper than the point on the same surface).
 EDGE_COINCIDENCE_MM = 1.0
 
-#: The layouts of :func:`edge_costs` (module docstring).
-LAYOUTS = ("kernel", "compacted", "dense", "cuda")
-
 #: Canvases (candidate x view) costed together in the compacted layout: bounds the memory of the per-segment arrays.
 CANVAS_CHUNK = 512
 
@@ -77,109 +74,21 @@ CANVAS_CHUNK = 512
 DENSE_CHUNK_SEGMENTS = 1 << 22
 
 
-def edge_costs(
-    model: EdgeModel,
-    T_cam_model: torch.Tensor,
-    K: torch.Tensor,
-    dist_maps: torch.Tensor,
-    view_weights: torch.Tensor,
-    occluder_depth: torch.Tensor | None = None,
-    near: float = 1.0,
-    layout: str | None = None,
-) -> torch.Tensor:
-    """Edge-point cost ``(B,)`` of B candidates over V views (see the module docstring).
-
-    Args:
-        model: the object's edges (:func:`edge_model`), on the device of ``T_cam_model``.
-        T_cam_model: ``(B, V, 4, 4)`` candidate poses in each view's camera frame (mm).
-        K: ``(V, 3, 3)`` intrinsics of the distance maps' resolution (a pinhole K: last row ``[0, 0, 1]``,
-            so that the third homogeneous coordinate is the camera depth that ``near`` is compared with).
-        dist_maps: ``(V, H, W)`` float32 distance maps of the target curvature (pixels).
-        view_weights: ``(V,)``.
-        occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
-            :func:`edge_occluder`; None: none.
-        near: points closer to the camera plane than this (mm) are not drawn.
-        layout: ``kernel`` (CPU only: one compiled loop, :mod:`bop_cender.pose.edge_kernel`), ``cuda`` (CUDA only,
-            or numba's simulator: the same loop as one CUDA kernel, :mod:`bop_cender.pose.cuda_edge_kernel`),
-            ``compacted`` (torch: the drawn segments gathered first) or ``dense`` (torch: every segment costed with a
-            0/1 weight, fixed shapes, no wait for the device); None (default): the kernel on the CPU, the CUDA kernel
-            on CUDA where numba's CUDA target works, else dense (warned once; the module docstring says why).
-
-    Returns:
-        ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
-    """
-    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
-    check_shape(K, "V 3 3", "K", sizes)
-    check_shape(dist_maps, "V H W", "dist_maps", sizes)
-    check_shape(view_weights, "V", "view_weights", sizes)
-    if occluder_depth is not None:
-        check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
-    device = T_cam_model.device
-    fallback = layout is None and device.type == "cuda"  # the CUDA kernel where numba's CUDA target works
-    if layout is None:
-        layout = "kernel" if device.type != "cuda" else _cuda_default()
-    if layout not in LAYOUTS:
-        raise ValueError(f"unknown edge-cost layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
-    if layout == "kernel" and device.type != "cpu":
-        raise ValueError(f"the kernel layout runs on the CPU only, not on {device}")
-    if layout == "cuda":
-        from bop_cender.render.cuda_loops import check_device
-
-        check_device(device, "the cuda layout (the CUDA edge kernel)")
-    T = T_cam_model.to(torch.float32)
-    B, V = sizes["B"], sizes["V"]
-    flat_T = T.reshape(B * V, 4, 4)
-    Ks = K.to(device, torch.float32)
-    dist = dist_maps.to(device, torch.float32)
-    occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
-    per_view = None
-    if layout == "kernel":
-        from bop_cender.pose.edge_kernel import kernel_canvas_costs  # numba: imported where it is used
-
-        view = torch.arange(B * V) % V
-        per_view = kernel_canvas_costs(
-            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
-        )
-    elif layout == "cuda":
-        per_view = _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback)
-        if per_view is None:  # the kernel failed where it was the default: the torch layout serves
-            layout = "dense"
-    if per_view is None:
-        dense = layout == "dense"
-        per_view = torch.empty(B * V, dtype=torch.float32, device=device)
-        chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
-        for start in range(0, B * V, chunk):
-            stop = min(B * V, start + chunk)
-            view = torch.arange(start, stop, device=device) % V
-            per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
-    return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
-
-
-def _cuda_default() -> str:
-    """CUDA's default layout: the CUDA kernel (:mod:`bop_cender.pose.cuda_edge_kernel`) where numba's CUDA target
-    works, else ``dense`` (with one warning saying why)."""
-    from bop_cender.pose import cuda_edge_kernel
-
-    reason = cuda_edge_kernel.GUARD.unavailable()
-    if reason is None:
-        return "cuda"
-    cuda_edge_kernel.GUARD.warn_once(f"{cuda_edge_kernel.GUARD.fallback}: {reason}")
-    return "dense"
-
-
-def _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback) -> torch.Tensor | None:
-    """The CUDA kernel's per-canvas costs; None where it failed and ``fallback`` lets the torch layout serve (the
-    default on CUDA: warned once; after a failure of numba or the driver, later calls take the torch layout); where the
-    kernel was asked for by name, its failure is raised (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`)."""
-    from bop_cender.pose import cuda_edge_kernel
-
-    view = torch.arange(flat_T.shape[0], device=flat_T.device) % V
-    return cuda_edge_kernel.GUARD.run(
-        lambda: cuda_edge_kernel.cuda_canvas_costs(
-            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
-        ),
-        None if fallback else True,
-    )
+def torch_edge_view_costs(model: EdgeModel, T: torch.Tensor, V: int, K: torch.Tensor, dist: torch.Tensor,
+                          occ: torch.Tensor | None, near: float, dense: bool) -> torch.Tensor:  # fmt: skip
+    """Unweighted edge-point costs ``(C,)`` float32 of C canvases (canvas ``c`` in view ``c % V``) in a torch layout:
+    ``dense`` (every segment costed with a 0/1 weight, fixed shapes, no wait for the device) or compacted (the drawn
+    segments gathered first). Inputs on one device, float32: ``T (C, 4, 4)`` poses in each canvas's camera frame,
+    ``K (V, 3, 3)``, ``dist (V, H, W)``, ``occ (V, H, W)`` (:func:`edge_occluder`; None: no occluder); ``near`` (mm):
+    points closer to the camera plane are not drawn."""
+    C, device = int(T.shape[0]), T.device
+    per_view = torch.empty(C, dtype=torch.float32, device=device)
+    chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
+    for start in range(0, C, chunk):
+        stop = min(C, start + chunk)
+        view = torch.arange(start, stop, device=device) % V
+        per_view[start:stop] = _canvas_costs(model, T[start:stop], view, K, dist, occ, near, dense)
+    return per_view
 
 
 def _drawn_edges(model: EdgeModel, T: torch.Tensor) -> torch.Tensor:
@@ -296,7 +205,7 @@ def _segment_weights(
 
 
 def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:
-    """The occluder depth ``(V, H, W)`` that :func:`edge_costs` wants: each pixel the nearest placed surface
+    """The occluder depth ``(V, H, W)`` that :meth:`~bop_cender.pose.backend.Backend.edge_costs` wants: each pixel the nearest placed surface
     in its 3 x 3 neighbourhood (0 where none).
 
     Why: a candidate that duplicates a placed object has its contour exactly on the placed object's

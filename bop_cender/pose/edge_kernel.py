@@ -1,6 +1,6 @@
 """The edge proxy's CPU layout: one compiled loop per canvas instead of ~430 torch operators per call.
 
-Why. On the CPU, :func:`~bop_cender.pose.edge_cost.edge_costs` in its compacted torch layout spends a
+Why. On the CPU, :meth:`~bop_cender.pose.backend.Backend.edge_costs` in its compacted torch layout spends a
 Nelder-Mead step of 3 poses (21 canvases, a few thousand drawn segments) in ~430 small operators: the
 arithmetic of a segment is a few dozen flops, but each operator reads and writes whole arrays and costs
 its dispatch. Stage 3 makes thousands of such calls per scene (the edge search's Nelder-Mead is half of
@@ -15,7 +15,7 @@ docstring of :mod:`bop_cender.pose.edge_cost`), in float64 instead of float32: t
 rounding (``tests/pose/test_edge_cost.py``), except where a face lies within rounding of edge-on, whose
 edge one layout draws and the other not.
 
-numba is imported on the first kernel call (:func:`~bop_cender.pose.edge_cost.edge_costs` imports this module then:
+numba is imported on the first kernel call (the numba backend imports this module then, :mod:`bop_cender.pose.backend`:
 half a second), so that nothing else pays for it. Its serial compilation (4 s) is cached on disk.
 """
 

@@ -60,11 +60,13 @@ from scipy.spatial.transform import Rotation
 
 from bop_cender.errors import ConfigError
 from bop_cender.geometry.sampling import sample_scores
-from bop_cender.pose.cost import candidate_costs, distance_maps
-from bop_cender.pose.coverage import TwoSidedCost, scene_cost, two_sided_costs
-from bop_cender.pose.edge_cost import edge_costs, edge_occluder
+from bop_cender.pose.backend import Backend, backend_named
+from bop_cender.pose.cost import distance_maps
+from bop_cender.pose.coverage import TwoSidedCost, two_sided_costs
+from bop_cender.pose.edge_cost import edge_occluder
 from bop_cender.pose.edge_model import EdgeModel, edge_model_of
 from bop_cender.pose.scene_polish import SceneWindow, scene_window
+from bop_cender.render.backend import BACKEND_NAMES
 from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE
 from bop_cender.render.mesh import RenderMesh
@@ -247,6 +249,8 @@ class PoseConfig:
             unscreened variants measured on the idle machine that day). A screened start may already have moved
             up to the rotation bound, and the continued run is bounded about it again. ``screen_maxfev`` counts
             the initial simplex's 7 evaluations per start, so any screen costs at least those.
+        backend: which code computes the renders and costs (:mod:`bop_cender.pose.backend`): ``auto`` (default:
+            numba's loops on the CPU, its kernels on CUDA, torch where they cannot run), ``torch`` or ``numba``.
     """
 
     t_b: float = 0.75
@@ -286,6 +290,7 @@ class PoseConfig:
     center_weight: float = 1.0
     screen_starts: int = 8
     screen_maxfev: int = 30
+    backend: str = "auto"
 
     def for_network_centers(self) -> PoseConfig:
         """This config with the candidates' spread, the refinement's box and the scene polish's passes of a
@@ -319,7 +324,7 @@ class PoseConfig:
         """Every setting is checked here (named choices, types and ranges), so that a bad ``--set`` is one error
         before any scene runs."""
         for name, allowed in (("search_cost", SEARCH_COSTS), ("refiner", REFINERS), ("view_weights", VIEW_WEIGHTS),
-                              ("acceptance", ACCEPTANCES)):  # fmt: skip
+                              ("acceptance", ACCEPTANCES), ("backend", BACKEND_NAMES)):  # fmt: skip
             if getattr(self, name) not in allowed:
                 raise ConfigError(
                     f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
@@ -469,6 +474,7 @@ def optimise_scene(
     order = sorted(range(len(targets)), key=lambda i: -float(np.sum(targets[i].view_scores)))
     total = len(targets) * config.passes
     edge_threshold = config.t_b * curvature_scale
+    backend = backend_named(config.backend)
 
     def fit(
         i: int,
@@ -480,7 +486,7 @@ def optimise_scene(
     ) -> PlacedObject:
         occ_coarse = occ
         if occ is not None and coarse is not fine:
-            occ_coarse = _occluder_depth(others, coarse.cameras, meshes)
+            occ_coarse = _occluder_depth(others, coarse.cameras, meshes, backend)
         rng = np.random.default_rng([config.seed, i] if sweep == 0 else [config.seed, i, sweep])
         return optimise_object(
             targets[i], (coarse, occ_coarse), (fine, occ), meshes, model_centers, config, rng, cost_threads, edges,
@@ -490,7 +496,7 @@ def optimise_scene(
     placed: list[PlacedObject] = []
     contexts: list[torch.Tensor | None] = []  # the occluder depth each object was last fitted under
     for n, i in enumerate(order):
-        occ = _occluder_depth(placed, fine.cameras, meshes) if config.occlusion and placed else None
+        occ = _occluder_depth(placed, fine.cameras, meshes, backend) if config.occlusion and placed else None
         placed.append(fit(i, placed, occ, 0, None))
         contexts.append(occ)
         if progress is not None:
@@ -503,9 +509,9 @@ def optimise_scene(
     for sweep in range(1, config.passes):
         for idx, i in enumerate(order):
             others = placed[:idx] + placed[idx + 1 :]
-            occ = _occluder_depth(others, fine.cameras, meshes) if config.occlusion and others else None
+            occ = _occluder_depth(others, fine.cameras, meshes, backend) if config.occlusion and others else None
             # where nothing hides it differently from when it was fitted, the same search would be repeated
-            if _hidden_pixels_differ(placed[idx], contexts[idx], occ, fine.cameras, meshes):
+            if _hidden_pixels_differ(placed[idx], contexts[idx], occ, fine.cameras, meshes, backend):
                 pool: list[PlacedObject] | None = [] if config.acceptance == "finalists" else None
                 moved = fit(i, others, occ, sweep, placed[idx], pool)
                 if config.acceptance != "object":
@@ -559,7 +565,7 @@ def polish_on_scene(
         window = scene_window(
             meshes(obj.obj_id), obj.T_world_model, [(meshes(o.obj_id), o.T_world_model) for o in others],
             maps.cameras.Ks, maps.cameras.T_cam_world, maps.edges, maps.dist, judge.edge_threshold,
-            config.scene_polish_margin_px,
+            config.scene_polish_margin_px, judge.backend,
         )  # fmt: skip
         # the occluders only matter for the final cost of a kept pose: rendered then, not for every part
         problem = _refinement(judge.targets[idx], obj.obj_id, maps, None, meshes, judge.model_centers, polish,
@@ -570,7 +576,7 @@ def polish_on_scene(
         spent = obj.evaluations + fev + 1
         if cost < scene_now:
             if config.occlusion and others:
-                problem = replace(problem, occluder_depth=_occluder_depth(others, maps.cameras, meshes))
+                problem = replace(problem, occluder_depth=_occluder_depth(others, maps.cameras, meshes, judge.backend))
             final = problem.judge(T_new) + problem.center_term(T_new)
             placed[idx] = PlacedObject(obj.obj_id, T_new[0], float(final[0]), spent + 1)
             scene_now = cost
@@ -662,7 +668,9 @@ def optimise_object(
             model = edges(obj_id) if edges is not None else edge_model_of(mesh, config.edge_segment_mm)
             T_ref, c_ref, fev = _search_on_edges(T, model, problem, extra)
         else:
-            costs = _cost(mesh, T, coarse[0].cameras, coarse[0].dist, problem.weights, coarse[1], cost_threads)
+            costs = _cost(
+                mesh, T, coarse[0].cameras, coarse[0].dist, problem.weights, coarse[1], problem.backend, cost_threads
+            )
             starts = T[np.argsort(costs, kind="stable")[: max(1, config.top_k)]]
             starts = starts if extra is None else np.concatenate([starts, extra])
             refine = _refine_lockstep if config.refiner == "lockstep" else _refine_scipy
@@ -772,7 +780,7 @@ def polish_placed(
 
 def _polish_cost(window: SceneWindow, problem: Refinement, T_world_model: np.ndarray) -> np.ndarray:
     """``(n,)`` what the scene polish minimises for poses ``(n, 4, 4)``: the windowed scene cost plus the centre term."""
-    return window.costs(T_world_model) + problem.center_term(T_world_model)
+    return problem.backend.window_costs(window, T_world_model) + problem.center_term(T_world_model)
 
 
 def _refinement(
@@ -855,11 +863,12 @@ def _cost(
     dist: torch.Tensor,
     weights: torch.Tensor,
     occluder_depth: torch.Tensor | None,
+    backend: Backend,
     threads: int = 1,
 ) -> np.ndarray:
     """``(n,)`` float64 costs of ``T_world_model (n, 4, 4)`` in all views (``threads``: chunk threads)."""
     T_cm = np.einsum("vij,njk->nvik", cameras.T_cam_world, T_world_model)
-    out = candidate_costs(
+    out = backend.candidate_costs(
         mesh,
         torch.as_tensor(T_cm, dtype=torch.float32, device=dist.device),
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=dist.device),
@@ -901,6 +910,11 @@ class Refinement:
         """``weights`` as float64 NumPy ``(V,)``, once (the centre term reads them at every evaluation)."""
         return self.weights.detach().cpu().double().numpy()
 
+    @property
+    def backend(self) -> Backend:
+        """The backend of ``config.backend`` (:func:`~bop_cender.pose.backend.backend_named`: one per run)."""
+        return backend_named(self.config.backend)
+
     @cached_property
     def edge_occluder(self) -> torch.Tensor | None:
         """The occluder depth widened for the edge cost (:func:`~bop_cender.pose.edge_cost.edge_occluder`)."""
@@ -908,7 +922,7 @@ class Refinement:
 
     def cost(self, T_world_model: np.ndarray) -> np.ndarray:
         """``(n,)`` render costs of poses ``(n, 4, 4)``."""
-        return _cost(self.mesh, T_world_model, self.cameras, self.dist, self.weights, self.occluder_depth)
+        return _cost(self.mesh, T_world_model, self.cameras, self.dist, self.weights, self.occluder_depth, self.backend)
 
     def two_sided(self, T_world_model: np.ndarray) -> TwoSidedCost:
         """The two-sided costs (:func:`~bop_cender.pose.coverage.two_sided_costs`) of poses ``(n, 4, 4)``."""
@@ -925,6 +939,7 @@ class Refinement:
             self.edge_threshold,
             self.config.coverage_weight,
             self.occluder_depth,
+            self.backend,
         )
 
     def judge(self, T_world_model: np.ndarray) -> np.ndarray:
@@ -938,7 +953,7 @@ class Refinement:
     def edge_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
         """``(n,)`` edge-point costs (:func:`~bop_cender.pose.edge_cost.edge_costs`) of poses ``(n, 4, 4)``."""
         T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
-        out = edge_costs(
+        out = self.backend.edge_costs(
             model,
             torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device),
             torch.as_tensor(self.cameras.Ks, dtype=torch.float32, device=self.dist.device),
@@ -1035,6 +1050,7 @@ def _hidden_pixels_differ(
     after: torch.Tensor | None,
     cameras: SceneCameras,
     meshes: Callable[[int], RenderMesh],
+    backend: Backend,
 ) -> bool:
     """Whether the occluder depth ``after (V, H, W)`` hides other pixels of ``obj`` than ``before`` did
     (the render cost's rule; None: no occluder). Where it hides the same ones, the object's cost and its
@@ -1049,6 +1065,7 @@ def _hidden_pixels_differ(
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=mesh.device),
         cameras.height,
         cameras.width,
+        backend=backend,
     ).depth
 
     def hidden(occ: torch.Tensor | None) -> torch.Tensor:
@@ -1058,12 +1075,16 @@ def _hidden_pixels_differ(
 
 
 def _scene_cost(
-    placed: Sequence[PlacedObject], maps: CostMaps, meshes: Callable[[int], RenderMesh], edge_threshold: float
+    placed: Sequence[PlacedObject],
+    maps: CostMaps,
+    meshes: Callable[[int], RenderMesh],
+    edge_threshold: float,
+    backend: Backend,
 ) -> float:
     """:func:`~bop_cender.pose.coverage.scene_cost` of ``placed`` against the full-resolution ``maps``."""
     T_wm = np.stack([p.T_world_model for p in placed])
     T_cm = np.einsum("vij,mjk->vmik", maps.cameras.T_cam_world, T_wm)
-    return scene_cost(
+    return backend.scene_cost(
         [meshes(p.obj_id) for p in placed],
         torch.as_tensor(T_cm, dtype=torch.float32, device=maps.dist.device),
         torch.as_tensor(maps.cameras.Ks, dtype=torch.float32, device=maps.dist.device),
@@ -1112,10 +1133,15 @@ class SceneJudge:
     config: PoseConfig
     edge_threshold: float
 
+    @property
+    def backend(self) -> Backend:
+        """The backend of ``config.backend`` (:func:`~bop_cender.pose.backend.backend_named`: one per run)."""
+        return backend_named(self.config.backend)
+
     def cost(self, placed: Sequence[PlacedObject]) -> float:
         """What the sweeps and the scene polish judge ``placed`` by: its scene cost (:func:`_scene_cost`) plus,
         with ``center_weight`` > 0, each object's :func:`center_term`."""
-        cost = _scene_cost(placed, self.maps, self.meshes, self.edge_threshold)
+        cost = _scene_cost(placed, self.maps, self.meshes, self.edge_threshold, self.backend)
         if self.config.center_weight > 0:
             for obj, target in zip(placed, self.targets, strict=True):
                 w = view_weights(target.view_scores, self.config.view_weights)
@@ -1125,7 +1151,7 @@ class SceneJudge:
 
 
 def _occluder_depth(
-    placed: Sequence[PlacedObject], cameras: SceneCameras, meshes: Callable[[int], RenderMesh]
+    placed: Sequence[PlacedObject], cameras: SceneCameras, meshes: Callable[[int], RenderMesh], backend: Backend
 ) -> torch.Tensor:
     """``(V, H, W)`` depth of the placed objects rendered together in every view (0: nothing)."""
     T_wm = np.stack([p.T_world_model for p in placed])
@@ -1138,5 +1164,6 @@ def _occluder_depth(
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=device),
         cameras.height,
         cameras.width,
+        backend=backend,
     )
     return render.depth

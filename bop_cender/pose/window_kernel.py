@@ -1,6 +1,6 @@
 """The scene polish's windowed cost after the render, as one compiled loop per canvas (CPU).
 
-Why. :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` renders the moving part into its windows, then
+Why. :meth:`~bop_cender.pose.backend.Backend.window_costs` renders the moving part into its windows, then
 composites it over the other parts by depth, takes the curvature of the composite normals
 (:func:`~bop_cender.render.curvature.curvature`), the forward cost (:func:`~bop_cender.pose.cost.view_costs`)
 and the backward one (:func:`~bop_cender.pose.coverage.mean_distance_to_own_edges`). In torch those steps are

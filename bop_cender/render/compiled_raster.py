@@ -155,7 +155,7 @@ def _addcmul_is_fused() -> bool | None:
 #: How torch's CPU ``addcmul`` rounds on this machine (probed once): the compiled loops repeat it. None (mixed): they
 #: cannot, and the CPU keeps the torch pipeline (:data:`AVAILABLE` False).
 ADDCMUL_FUSED = _addcmul_is_fused()
-#: Whether the compiled loops give the torch pipeline's bits here (``render_scene`` and ``candidate_costs`` use them
+#: Whether the compiled loops give the torch pipeline's bits here (the ``auto`` backend's renders and candidate costs use them
 #: by default on the CPU only then).
 AVAILABLE = ADDCMUL_FUSED is not None
 
@@ -163,29 +163,6 @@ AVAILABLE = ADDCMUL_FUSED is not None
 def key_bits(codec: KeyCodec) -> tuple[int, int]:
     """``(face_bits, depth_bits)`` of an int32 codec, ``(0, 0)`` for exact int64 keys (the loops' convention)."""
     return (codec.face_bits, codec.depth_bits) if codec.dtype == torch.int32 else (0, 0)
-
-
-def use_compiled(compiled: bool | None, device: torch.device) -> bool:
-    """Whether a renderer entry point takes the compiled loop: ``compiled`` as asked (True only on the CPU), or by
-    default on the CPU where the loops repeat torch's rounding (:data:`AVAILABLE`).
-
-    Raises:
-        ValueError: ``compiled=True`` for inputs on another device.
-    """
-    if compiled and device.type != "cpu":
-        raise ValueError(f"compiled=True runs on the CPU; the inputs are on {device}")
-    return AVAILABLE and device.type == "cpu" if compiled is None else bool(compiled)
-
-
-def behind_near_plane(compiled: bool | None) -> None:
-    """What a caller does when the loop declined (a vertex behind the near plane): the torch pipeline, which cuts the
-    faces there, unless ``compiled=True`` was asked for explicitly.
-
-    Raises:
-        ValueError: ``compiled`` is True.
-    """
-    if compiled:
-        raise ValueError("compiled=True, but a vertex lies behind the near plane (the torch renderer clips it)")
 
 
 def loop_inputs(meshes: RenderMesh | PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, near: float,

@@ -86,18 +86,6 @@ def kernel_function():
 GUARD = KernelGuard("the CUDA render kernel", "render_scene runs the torch pipeline on CUDA", kernel_function)
 
 
-def render_or_none(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
-                   near: float, compiled: bool | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
-    """:func:`cuda_render` as ``render_scene`` takes it on CUDA: None where the torch pipeline is to run instead
-    (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a vertex behind the near plane, or, with
-    ``compiled=None``, the kernel unavailable or failed).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and the kernel cannot run here.
-    """
-    return GUARD.run(lambda: cuda_render(packed, R, t, K, height, width, near), compiled)
-
-
 def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
                 near: float, offsets: torch.Tensor | None = None,
                 threads: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
-from bop_cender.pose.cost import candidate_costs  # noqa: E402
+from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.optimize import (  # noqa: E402
     PlacedObject,
     PoseConfig,
@@ -30,8 +30,8 @@ from bop_cender.pose.optimize import (  # noqa: E402
 def cost_of(mesh, T_world_model, cams, dist, occ=None):
     T = np.einsum("vij,njk->nvik", cams.T_cam_world, T_world_model)
     w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
-    return candidate_costs(mesh, torch.as_tensor(T, dtype=torch.float32), cams.Ks, cams.height, cams.width, dist, w,
-                           occluder_depth=occ).numpy()  # fmt: skip
+    return backend_named("auto").candidate_costs(mesh, torch.as_tensor(T, dtype=torch.float32), cams.Ks, cams.height,
+                                                  cams.width, dist, w, occluder_depth=occ).numpy()  # fmt: skip
 
 
 def test_cost_is_smallest_at_gt_and_grows_with_the_perturbation(mini):
@@ -131,11 +131,11 @@ def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkey
 
         monkeypatch.setattr(module, name, wrapped)
 
-    spy(optimize, "candidate_costs")
-    spy(optimize, "edge_costs")
+    auto = backend_named("auto")  # the config's backend: each of its computations sees the inputs' device
+    for name in ("candidate_costs", "edge_costs", "scene_cost", "scene_maps", "window_maps"):
+        spy(auto, name)
     spy(optimize, "render_scene")
     spy(optimize, "two_sided_costs")
-    spy(optimize, "scene_cost")
     spy(scene_polish, "render_scene")
     curvature = maps.curvature.to(device)
     placed = optimise_scene(targets, curvature, cams, meshes, lambda i: ds.models[i].center, config,
@@ -234,7 +234,7 @@ def test_a_candidate_that_duplicates_a_placed_object_costs_the_most(mini):
 
     ds, scene, meshes, maps, cams, dist = mini
     T = gt_of(scene, 3).T_world_model
-    placed = _occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    placed = _occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes, backend_named("auto"))
     free = cost_of(meshes(3), T[None], cams, dist)
     twice = cost_of(meshes(3), T[None], cams, dist, placed)
     assert free[0] < 0.1
