@@ -142,7 +142,7 @@ class PoseConfig:
             finalists judged and polished on the render cost; see the module docstring) or ``render``
             (the paper's: every evaluation renders).
         edge_segment_mm: edges are cut into segments of at most this length (ours: 3 mm, about 2 pixels
-            at DIMO's 320 x 256; see :func:`~bop_cender.pose.edge_cost.edge_model`).
+            at DIMO's 320 x 256; see :func:`~bop_cender.pose.edge_model.edge_model`).
         candidate_segments: size of the sparse edge model that ranks the candidates (ours: 600 segments:
             0.2-0.3 ms per candidate in 7 views on one CPU thread, and the 10 best by the render cost
             were all among its 100 best in our measurements).
@@ -182,7 +182,7 @@ class PoseConfig:
         acceptance: what decides whether a further sweep's new pose replaces the old: ``finalists`` (ours,
             the default: every refined finalist of the new search, each start of each candidate id, is
             judged by the scene cost, the symmetric edge distance of all objects rendered together against
-            the target, :func:`~bop_cender.pose.coverage.scene_cost`; the lowest wins if it is below the
+            the target, :meth:`~bop_cender.pose.backend.Backend.scene_cost`; the lowest wins if it is below the
             current placement's; with ``polish_maxfev`` > 0 a chosen finalist the search did not polish is
             polished then), ``scene``
             (the same judge for the search's own best only) or ``object`` (the judge's cost of that object
@@ -443,7 +443,7 @@ def optimise_scene(
         config: see :class:`PoseConfig`.
         progress: called with (objects done, objects) after each object.
         cost_threads: threads that render the chunks of the candidate batch side by side
-            (:func:`~bop_cender.pose.cost.candidate_costs` ``workers``: the same bits; worth it with one
+            (:meth:`~bop_cender.pose.backend.Backend.candidate_costs` ``workers``: the same bits; worth it with one
             torch thread and free cores: 258 against 169 calls/s on 2 cores, ``results/bench/run_*``).
         edges: the edge model of an object id, on ``device`` (default: built from ``meshes`` on first use).
         curvature_scale: the targets' curvature scale ``c`` (``curvature`` is ``clip(raw / c, 0, 1)``):
@@ -951,7 +951,7 @@ class Refinement:
         return self.edge_cost(T_world_model, model) + self.center_term(T_world_model)
 
     def edge_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
-        """``(n,)`` edge-point costs (:func:`~bop_cender.pose.edge_cost.edge_costs`) of poses ``(n, 4, 4)``."""
+        """``(n,)`` edge-point costs (:meth:`~bop_cender.pose.backend.Backend.edge_costs`) of poses ``(n, 4, 4)``."""
         T_cm = np.einsum("vij,njk->nvik", self.cameras.T_cam_world, T_world_model)
         out = self.backend.edge_costs(
             model,
@@ -1081,7 +1081,7 @@ def _scene_cost(
     edge_threshold: float,
     backend: Backend,
 ) -> float:
-    """:func:`~bop_cender.pose.coverage.scene_cost` of ``placed`` against the full-resolution ``maps``."""
+    """The scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`) of ``placed`` against the full-resolution ``maps``."""
     T_wm = np.stack([p.T_world_model for p in placed])
     T_cm = np.einsum("vij,mjk->vmik", maps.cameras.T_cam_world, T_wm)
     return backend.scene_cost(
