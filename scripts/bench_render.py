@@ -32,7 +32,8 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from bop_cender.pose.cost import candidate_costs, distance_maps
+from bop_cender.pose.backend import backend_named
+from bop_cender.pose.cost import distance_maps
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh, prepare_mesh
 from bop_cender.render.rasterizer import render_scene
@@ -116,7 +117,7 @@ def time_calls(fn: Callable[[], object], sync: Callable[[], None], seconds: floa
 def bench_torch(
     name: str, mesh: RenderMesh, device: torch.device, threads: int, workers: int, args: argparse.Namespace
 ) -> list[Row]:
-    """poses/s of :func:`candidate_costs` for each batch size, with ``threads`` intra-op threads and
+    """poses/s of the ``auto`` backend's candidate costs for each batch size, with ``threads`` intra-op threads and
     ``workers`` chunk threads (CPU)."""
     T_cw, K = make_rig()
     dist = target_distance_maps(mesh, T_cw, K).to(device)
@@ -131,7 +132,7 @@ def bench_torch(
         T = torch.as_tensor(make_candidates(batch, rng, T_cw), dtype=torch.float32, device=device)
 
         def call(T: torch.Tensor = T) -> None:
-            candidate_costs(mesh, T, K, HEIGHT, WIDTH, dist, weights, workers=workers)
+            backend_named("auto").candidate_costs(mesh, T, K, HEIGHT, WIDTH, dist, weights, workers=workers)
 
         rows.append(_row(name, mesh.num_faces, label, batch, time_calls(call, sync, args.seconds, args.rounds)))
     return rows
@@ -265,7 +266,7 @@ def main() -> None:
     path = args.out or Path(__file__).resolve().parents[1] / "results" / "bench" / f"render_{machine_slug()}.md"
     notes.append(
         "cpu TxW: T torch intra-op threads, W threads rendering independent chunks side by side "
-        "(`candidate_costs(..., workers=W)`)."
+        "(`Backend.candidate_costs(..., workers=W)`)."
     )
     command = " ".join(["python", "scripts/bench_render.py", *sys.argv[1:]])
     if os.environ.get("LD_PRELOAD"):

@@ -39,8 +39,8 @@ import bench_render
 import numpy as np
 import torch
 
-from bop_cender.pose.cost import candidate_costs
-from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+from bop_cender.pose.backend import Backend, TorchBackend, backend_named
+from bop_cender.pose.edge_model import edge_model_of
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.synth.reference_meshes import reference_bracket
 
@@ -74,21 +74,22 @@ def _calls_per_second(call, device: torch.device, batch: int, seconds: float) ->
 
 
 def cost_calls_per_second(
-    device: torch.device, batch: int, seconds: float, workers: int = 1, compiled: bool | None = None
+    device: torch.device, batch: int, seconds: float, workers: int = 1, backend: str = "auto"
 ) -> tuple[float, float]:
     """Median calls/s and ms per cost call of ``batch`` poses over six views (``workers`` chunk threads of the torch
-    atlases; ``compiled``: the CPU's compiled loop, :mod:`bop_cender.pose.cost_kernel`, None: the device's default)."""
+    atlases; ``backend``: the backend's name, :mod:`bop_cender.pose.backend`: ``numba`` on the CPU the compiled loop,
+    :mod:`bop_cender.pose.cost_kernel`; ``torch`` the torch atlases; ``auto`` the device's default)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
+    costs = backend_named(backend)
 
     def call() -> None:
-        candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers,
-                        compiled=compiled)  # fmt: skip
+        costs.candidate_costs(mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w, workers=workers)
 
     return _calls_per_second(call, device, batch, seconds)
 
 
 def _cuda_default_label() -> str:
-    """What ``candidate_costs`` runs on CUDA by default here: the kernel, or the torch atlases and why."""
+    """What the ``auto`` backend's candidate costs run on CUDA here: the kernel, or the torch atlases and why."""
     from bop_cender.render.cuda_loops import cuda_unavailable_reason
 
     reason = cuda_unavailable_reason()
@@ -100,10 +101,20 @@ def edge_calls_per_second(
 ) -> tuple[float, float]:
     """Median calls/s and ms per call of the edge-point proxy (:mod:`bop_cender.pose.edge_cost`) on the same
     workload as :func:`cost_calls_per_second`; ``max_segments``: the sparse model of the candidates' ranking;
-    ``layout``: its layout (None: the device's default, the kernel on the CPU, the CUDA kernel or dense on CUDA)."""
+    ``layout``: its layout (:func:`_edge_backend`; None: the device's default, the kernel on the CPU, the CUDA kernel
+    or dense on CUDA)."""
     mesh, T, Ks, dist, w = _workload(device, batch)
     model = _edge_model(mesh, max_segments)
-    return _calls_per_second(lambda: edge_costs(model, T, Ks, dist, w, layout=layout), device, batch, seconds)
+    backend = _edge_backend(layout)
+    return _calls_per_second(lambda: backend.edge_costs(model, T, Ks, dist, w), device, batch, seconds)
+
+
+def _edge_backend(layout: str | None) -> Backend:
+    """The backend that runs the edge proxy in ``layout`` (the rows' label): ``kernel`` (the CPU) and ``cuda`` (CUDA)
+    the ``numba`` backend, ``compacted`` and ``dense`` the ``torch`` backend's two layouts, None the ``auto`` backend."""
+    if layout in ("compacted", "dense"):
+        return TorchBackend(dense_edges=layout == "dense")
+    return backend_named({None: "auto", "kernel": "numba", "cuda": "numba"}[layout])
 
 
 def _cuda_edge_kernel_unavailable() -> str | None:
@@ -125,18 +136,18 @@ _SYNC_EVENTS = ("aten::nonzero", "aten::item", "aten::_local_scalar_dense", "ate
 
 
 def cost_call_profile(
-    device: torch.device, batches: tuple[int, ...] = (1, 8), compiled: bool | None = None
+    device: torch.device, batches: tuple[int, ...] = (1, 8), backend: str = "auto"
 ) -> list[tuple[str, float, int, int, int]]:
     """One cost call of each batch size profiled (after 3 warm-ups): ``(batch and path, wall ms of an unprofiled call,
     aten operators, CUDA kernel launches, synchronising calls)`` (launches and syncs 0 on the CPU but ``nonzero`` and
-    ``item``, which only synchronise on a GPU); ``compiled`` as ``candidate_costs`` takes it (None: the device's
-    default: the compiled loop on the CPU, the kernel on CUDA; False: the torch atlases)."""
+    ``item``, which only synchronise on a GPU); ``backend`` the backend's name (``auto``: the device's default, the
+    compiled loop on the CPU, the kernel on CUDA; ``torch``: the torch atlases)."""
     rows = []
-    path = "torch atlases" if compiled is False else "default"
+    path = "torch atlases" if backend == "torch" else "default"
     for batch in batches:
         mesh, T, Ks, dist, w = _workload(device, batch)
-        call = partial(candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH, dist, w,
-                       compiled=compiled)  # fmt: skip
+        call = partial(backend_named(backend).candidate_costs, mesh, T, Ks, bench_render.HEIGHT, bench_render.WIDTH,
+                       dist, w)  # fmt: skip
         rows.append((f"{batch}, {path}", *_profile(call, device)))
         print(f"profile {device.type} batch {batch} ({path}): " + _profile_line(rows[-1][1:]), flush=True)
     return rows
@@ -152,7 +163,7 @@ def edge_call_profile(device: torch.device, batch: int = 3) -> list[tuple[str, f
     rows = []
     own = ("kernel",) if device.type == "cpu" else ("cuda",) if _cuda_edge_kernel_unavailable() is None else ()
     for layout in ("compacted", "dense", *own):
-        rows.append((layout, *_profile(partial(edge_costs, model, T, Ks, dist, w, layout=layout), device)))
+        rows.append((layout, *_profile(partial(_edge_backend(layout).edge_costs, model, T, Ks, dist, w), device)))
         print(f"profile edge proxy {device.type} batch {batch} {layout}: " + _profile_line(rows[-1][1:]), flush=True)
     return rows
 
@@ -245,7 +256,6 @@ def scene_polish_costs(
     from bop_cender.method import CenDerNetConfig
     from bop_cender.net.oracle import OraclePredictor
     from bop_cender.pose.cost import distance_maps
-    from bop_cender.pose.coverage import scene_cost
     from bop_cender.pose.scene_polish import scene_window
     from bop_cender.render.rasterizer import render_scene
 
@@ -273,36 +283,38 @@ def scene_polish_costs(
     if device.type == "cpu":
         torch.set_num_threads(1)
     K = torch.as_tensor(Ks, dtype=torch.float32, device=device)
+    auto, torch_backend = backend_named("auto"), backend_named("torch")
     rows = [(f"full scene cost ({len(parts)} parts, {len(Ks)} views)", 1,
-             *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold), device, 1, seconds))]  # fmt: skip
+             *_calls_per_second(lambda: auto.scene_cost(part_meshes, T_cm, K, edges, dist, threshold), device, 1,
+                                seconds))]  # fmt: skip
     if device.type == "cuda":  # the kernel (the default) against the torch steps it replaced
         rows.append((f"full scene cost ({len(parts)} parts, {len(Ks)} views), torch steps (no kernel)", 1,
-                     *_calls_per_second(lambda: scene_cost(part_meshes, T_cm, K, edges, dist, threshold, compiled=False),
+                     *_calls_per_second(lambda: torch_backend.scene_cost(part_meshes, T_cm, K, edges, dist, threshold),
                                         device, 1, seconds)))  # fmt: skip
     for batch in (1, 7):
         T = np.repeat(parts[0].T_world_model[None], batch, 0)
         rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}", batch,
-                     *_calls_per_second(lambda T=T: window.costs(T), device, batch, seconds)))  # fmt: skip
-    # the same call as torch operators (on the CPU after the compiled render; on CUDA all of it, the path before
-    # the CUDA window kernel, and still the fallback where numba's CUDA target is missing)
+                     *_calls_per_second(lambda T=T: auto.window_costs(window, T), device, batch, seconds)))  # fmt: skip
+    # the same call as torch operators (the torch backend: on CUDA the path before the CUDA window kernel, and still
+    # the fallback where numba's CUDA target is missing)
     T = parts[0].T_world_model[None]
-    how = "torch steps after the render" if device.type == "cpu" else "torch steps (no kernel)"
+    how = "torch backend (torch render and steps)" if device.type == "cpu" else "torch steps (no kernel)"
     rows.append((f"windowed cost, windows {window.size[0]}x{window.size[1]}, {how}", 1,
-                 *_calls_per_second(lambda: window.costs(T, compiled=False), device, 1, seconds)))  # fmt: skip
+                 *_calls_per_second(lambda: torch_backend.window_costs(window, T), device, 1, seconds)))  # fmt: skip
     if device.type == "cpu":
         # the renders alone, torch pipeline against the compiled loop (render_scene's CPU default; the same bits)
         h, w = window.size
         T_win = torch.as_tensor(np.einsum("vij,jk->vik", window.T_cam_world, parts[0].T_world_model)[:, None],
                                 dtype=torch.float32)  # fmt: skip
         H, W = scene.views[0].height, scene.views[0].width
-        renders = {f"render alone, the part's {len(Ks)} windows {h}x{w}": lambda c: render_scene(
-                       [window.mesh], T_win, window.K, h, w, compiled=c),
-                   f"render alone, {len(Ks)} full frames of {len(parts)} parts": lambda c: render_scene(
-                       part_meshes, T_cm, K, H, W, compiled=c)}  # fmt: skip
+        renders = {f"render alone, the part's {len(Ks)} windows {h}x{w}": lambda b: render_scene(
+                       [window.mesh], T_win, window.K, h, w, backend=b),
+                   f"render alone, {len(Ks)} full frames of {len(parts)} parts": lambda b: render_scene(
+                       part_meshes, T_cm, K, H, W, backend=b)}  # fmt: skip
         for what, render in renders.items():
-            for compiled, how in ((False, "torch pipeline"), (True, "compiled")):
+            for backend, how in ((torch_backend, "torch pipeline"), (backend_named("numba"), "compiled")):
                 rows.append((f"{what}, {how}", 1,
-                             *_calls_per_second(lambda r=render, c=compiled: r(c), device, 1, seconds)))  # fmt: skip
+                             *_calls_per_second(lambda r=render, b=backend: r(b), device, 1, seconds)))  # fmt: skip
     torch.set_num_threads(threads)
     for what, batch, calls, ms in rows:
         print(f"scene polish ({device.type}): {what}, batch {batch}: {calls:,.0f} poses/s ({ms:.2f} ms per call)",
@@ -351,24 +363,24 @@ def main() -> None:
     threads = torch.get_num_threads()
     cores = bench_machine.usable_cores()
     for device in [] if args.scenes_only else devices:
-        # (batch, torch threads, chunk threads, compiled): on the CPU the compiled loop (the default) with one thread
-        # (as `run` calls it) and with all, then the torch atlases for reference
+        # (batch, torch threads, chunk threads, backend): on the CPU the compiled loop (numba, the default) with one
+        # thread (as `run` calls it) and with all, then the torch atlases for reference
         setups = (
-            [(2000, 1, 1, True), (2000, threads, 1, True), (2000, threads, 1, False), (2000, 1, cores, False),
-             (1, 1, 1, True), (1, threads, 1, False)]
+            [(2000, 1, 1, "numba"), (2000, threads, 1, "numba"), (2000, threads, 1, "torch"), (2000, 1, cores, "torch"),
+             (1, 1, 1, "numba"), (1, threads, 1, "torch")]
             if device.type == "cpu"
-            else [(2000, threads, 1, None), (1, threads, 1, None), (2000, threads, 1, False), (1, threads, 1, False)]
+            else [(2000, threads, 1, "auto"), (1, threads, 1, "auto"), (2000, threads, 1, "torch"),
+                  (1, threads, 1, "torch")]
         )  # fmt: skip
-        for batch, n_threads, workers, compiled in setups:
+        for batch, n_threads, workers, backend in setups:
             torch.set_num_threads(n_threads)
-            calls, ms = cost_calls_per_second(device, batch, args.seconds, workers, compiled)
+            calls, ms = cost_calls_per_second(device, batch, args.seconds, workers, backend)
             how = (
                 f"compiled, {n_threads} thread(s)"
-                if compiled
+                if backend == "numba"
                 else _cuda_default_label()
-                if device.type == "cuda" and compiled is None
-                else f"{'torch atlases, ' if compiled is False else ''}{n_threads} torch thread(s), {workers} chunk"
-                " thread(s)"
+                if backend == "auto"
+                else f"torch atlases, {n_threads} torch thread(s), {workers} chunk thread(s)"
             )
             cost_rows.append((device.type, batch, how, calls, ms))
             print(f"cost {device.type} batch {batch} ({how}): {calls:,.0f} calls/s ({ms:.2f} ms per call)", flush=True)
@@ -403,8 +415,8 @@ def main() -> None:
     torch.set_num_threads(threads)
     profiled = args.profile and not args.scenes_only
     profile_rows = (
-        [(d.type, *row) for d in devices for c in (None, False)[: 1 + (d.type == "cuda")] for row in
-         cost_call_profile(d, compiled=c)]
+        [(d.type, *row) for d in devices for b in ("auto", "torch")[: 1 + (d.type == "cuda")] for row in
+         cost_call_profile(d, backend=b)]
         if profiled
         else []
     )  # fmt: skip

@@ -41,7 +41,7 @@ def _launch_arguments() -> list:
     K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
     plan = launch_plan(mesh, T, K, 96, 128, 1.0, torch.ones(2, 96, 128), torch.zeros(2, 96, 128))
     _, arguments = plan.launches[0]
-    return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
+    return _as_numpy(arguments)
 
 
 def main() -> int:
@@ -104,19 +104,17 @@ def _edge_arguments() -> list:
     import torch
     import trimesh
 
-    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_model_of
+    from bop_cender.pose.cuda_edge_kernel import EdgeTables
+    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT
+    from bop_cender.pose.edge_model import edge_model_of
     from bop_cender.render.mesh import prepare_mesh
 
     model = edge_model_of(prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0))))
-    proj = model.projection
-    first, count = model.edge_segments.unbind(1)
     T = torch.eye(4).repeat(2, 1, 1)
     T[:, 2, 3] = 300.0
     K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
-    tensors = [T, torch.arange(2), K, torch.ones(2, 96, 128), torch.zeros(2, 96, 128), model.planes, model.crease,
-               first, count, proj.seg_from, proj.seg_to, proj.frac_a, proj.frac_b, proj.ends]  # fmt: skip
-    arrays = [x.contiguous().numpy() for x in tensors]
-    return [*arrays, 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM, np.zeros(2)]
+    tensors = [T, torch.arange(2), K, torch.ones(2, 96, 128), torch.zeros(2, 96, 128), EdgeTables.of(model)]
+    return [*_as_numpy(tensors), 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM, np.zeros(2)]
 
 
 def _window_arguments() -> list:
@@ -138,7 +136,7 @@ def _window_arguments() -> list:
     edges[:, 40:50, 60] = True
     window = scene_window(mesh, np.eye(4), [(mesh, other)], Ks, T_cw, edges, torch.ones(2, 96, 128), 3.0, 12)
     arguments, _ = kernel_arguments(*window_canvases(window, np.eye(4)[None]))
-    return [a.numpy() if isinstance(a, torch.Tensor) else a for a in arguments]
+    return _as_numpy(arguments)
 
 
 def _render_arguments() -> list:
@@ -155,9 +153,8 @@ def _render_arguments() -> list:
     T[:, 1, 0, 3] = 45.0
     K = torch.tensor([[300.0, 0.0, 64.0], [0.0, 300.0, 48.0], [0.0, 0.0, 1.0]]).repeat(2, 1, 1)
     canvases, _ = exact_key_inputs(pack_meshes([mesh, mesh]), T[..., :3, :3], T[..., :3, 3], K, 1.0)
-    arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in canvases]
     return [
-        *arrays,
+        *_as_numpy(canvases),
         np.float32(1.0),
         np.zeros((2, 2), np.int64),
         np.zeros((2, 96 * 128), np.int64),
@@ -165,6 +162,20 @@ def _render_arguments() -> list:
         np.zeros((2, 96, 128, 3), np.float32),
         np.zeros((2, 96, 128), np.int64),
     ]
+
+
+def _as_numpy(arguments) -> list:
+    """A kernel's arguments with every tensor as a NumPy array, in named tuples too (what ``numba.typeof`` types)."""
+    import torch
+
+    def convert(x):
+        if isinstance(x, torch.Tensor):
+            return x.contiguous().numpy()
+        if isinstance(x, tuple):
+            return type(x)(*(convert(y) for y in x))
+        return x
+
+    return [convert(x) for x in arguments]
 
 
 if __name__ == "__main__":

@@ -86,7 +86,11 @@ def test_the_api_examples_run(tmp_path, monkeypatch, capsys):
     root = method_data.build(tmp_path / "dimo")
     monkeypatch.setattr(demo, "ensure_demo", lambda layout, **kw: root)
     for_dataset = CenDerNetConfig.for_dataset
-    monkeypatch.setattr(CenDerNetConfig, "for_dataset", staticmethod(lambda name, preset="ours": for_dataset(name, preset).with_settings(CHEAP)))
+    monkeypatch.setattr(
+        CenDerNetConfig,
+        "for_dataset",
+        staticmethod(lambda name, preset="ours": for_dataset(name, preset).with_settings(CHEAP)),
+    )
     work = tmp_path / "work"
     work.mkdir()
     out = run_examples(work, monkeypatch, capsys)

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from bop_cender.data.types import ObjectModel
-from bop_cender.eval.ground_truth import ImageGt
 from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pair_vsd import pair_vsd
+from bop_cender.eval.pairs import Pairs
 from bop_cender.eval.pose_errors import hull_vertices, mspd, mssd
 from bop_cender.eval.render_process import DepthRenderer, ThreadRenderer
 from bop_cender.eval.vsd import VSD_TAUS
@@ -33,31 +33,6 @@ from bop_cender.progress import progress_bar
 
 #: Worker threads (the benchmark target is two cores).
 WORKERS = 2
-
-
-@dataclass(frozen=True, eq=False)
-class Pairs:
-    """P (estimate, GT) pairs, as arrays.
-
-    Attributes:
-        est: ``(P,)`` index of the estimate (in the scorer's kept list); several pairs share one.
-        image: ``(P,)`` index into ``images``.
-        gt_id: ``(P,)`` the GT instance's gt_id in its image.
-        obj_id: ``(P,)`` object id.
-        T_est, T_gt: ``(P, 4, 4)`` model-to-camera poses.
-        images: the images the pairs refer to.
-    """
-
-    est: np.ndarray
-    image: np.ndarray
-    gt_id: np.ndarray
-    obj_id: np.ndarray
-    T_est: np.ndarray
-    T_gt: np.ndarray
-    images: list[ImageGt]
-
-    def __len__(self) -> int:
-        return len(self.est)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,14 +23,12 @@ from bop_cender.data.bop_io import load_depth
 from bop_cender.data.types import ObjectModel
 from bop_cender.errors import DatasetError
 from bop_cender.eval.ground_truth import ImageGt
+from bop_cender.eval.pairs import Pairs
 from bop_cender.eval.render_crops import DepthCrops, paste, union_window
 from bop_cender.eval.render_process import DepthRenderer, RenderJob
 from bop_cender.eval.vsd import overlapping_sphere_projections, vsd
 from bop_cender.meshes import MeshCache
 from bop_cender.progress import progress_bar
-
-if TYPE_CHECKING:
-    from bop_cender.eval.pair_errors import Pairs
 
 #: Poses per chunk of images (about 50 per object and job with T-LESS's mix: enough to fill the rasteriser).
 CHUNK_POSES = 320

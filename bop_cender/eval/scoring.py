@@ -45,7 +45,8 @@ from bop_cender.eval.matching import (
     select_top_n,
     valid_gts,
 )
-from bop_cender.eval.pair_errors import PairErrors, Pairs, pair_errors
+from bop_cender.eval.pair_errors import PairErrors, pair_errors
+from bop_cender.eval.pairs import Pairs
 from bop_cender.eval.render_process import DepthRenderer
 from bop_cender.eval.score_report import ScoreCounts, ScoreMetadata, ScoreReport
 from bop_cender.eval.score_rows import check_rows, count_not_target, estimate_records, unmatched_reasons

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 from bop_cender.errors import ConfigError
+from bop_cender.render.backend import BACKEND_NAMES
 from bop_cender.settings_checks import COUNT, COUNT_OR_ZERO, NON_NEGATIVE, POSITIVE, Bound, check_settings
 
 #: What stage 3 searches and refines on: the edge-point proxy (ours) or the paper's render cost.
@@ -186,6 +187,9 @@ class PoseConfig:
         edge_segment_mm: longest segment of the edge models (mm; 3; 2026-12-04 eighth session).
         center_weight: weight of the centre term in every cost (pixels; 1, the paper's 0; 2026-12-03 second session).
         seed: seed of the candidates, with the object's index (integer; 0).
+        backend: the code of every render and cost (``auto``: numba's loops on the CPU and kernels on CUDA, torch
+            where they cannot run; ``torch``; ``numba``, which fails instead of falling back; the same rows to float32
+            rounding, :mod:`bop_cender.pose.backend`; ``docs/performance.md``).
         candidates, refine, screen, sweeps, scene_polish, network: the sections above.
     """
 
@@ -195,6 +199,7 @@ class PoseConfig:
     edge_segment_mm: float = 3.0
     center_weight: float = 1.0
     seed: int = 0
+    backend: str = "auto"
     candidates: CandidateSettings = field(default_factory=CandidateSettings)
     refine: RefineSettings = field(default_factory=RefineSettings)
     screen: ScreenSettings = field(default_factory=ScreenSettings)
@@ -231,10 +236,11 @@ class PoseConfig:
     def __post_init__(self) -> None:
         """Every setting of every section is checked here (named choices, types and ranges), so that a bad ``--set``
         is one error before any scene runs."""
-        if self.search_cost not in SEARCH_COSTS:
-            raise ConfigError(
-                f"poses.search_cost: expected one of {', '.join(SEARCH_COSTS)}, got {self.search_cost!r}", field="--set"
-            )
+        for name, allowed in (("search_cost", SEARCH_COSTS), ("backend", BACKEND_NAMES)):
+            if getattr(self, name) not in allowed:
+                raise ConfigError(
+                    f"poses.{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}", field="--set"
+                )
         check_settings("poses", self, _POSES, flags=("occlusion",))
         for name, kind, bounds in _SECTIONS:
             section: object = self

@@ -14,9 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from bop_cender.pose.backend import Backend, backend_named
 from bop_cender.pose.config import PoseConfig
 from bop_cender.pose.cost import distance_maps
-from bop_cender.pose.edge_cost import EdgeModel, edge_model_of
+from bop_cender.pose.edge_model import EdgeModel, edge_model_of
 from bop_cender.pose.types import CostMaps, SceneCameras
 from bop_cender.render.curvature import DEFAULT_CURVATURE_SCALE
 from bop_cender.render.mesh import RenderMesh
@@ -32,10 +33,12 @@ class SceneContext:
         coarse: the maps that cost the render search's candidates (``fine`` itself for the edge search or a
             ``candidates.downscale`` of 1).
         meshes: the render mesh of an object id, on the pose stage's device.
-        edge_models: the edge model of an object id (:func:`~bop_cender.pose.edge_cost.edge_model_of`), there too.
+        edge_models: the edge model of an object id (:func:`~bop_cender.pose.edge_model.edge_model_of`), there too.
         model_centers: the 3D centre ``(3,)`` of an object id in model coordinates (mm, bbox centre).
         edge_threshold: raw curvature above which a rendered pose draws an edge (``t_b`` times the targets' scale),
             for the scene cost.
+        backend: the code that computes every render and cost (``config.backend``,
+            :func:`~bop_cender.pose.backend.backend_named`: one object per name and process).
         cost_threads: threads that render the chunks of the render search's candidate batch side by side.
     """
 
@@ -46,6 +49,7 @@ class SceneContext:
     edge_models: Callable[[int], EdgeModel]
     model_centers: Callable[[int], np.ndarray]
     edge_threshold: float
+    backend: Backend
     cost_threads: int = 1
 
     @property
@@ -80,7 +84,7 @@ def scene_context(
         model_centers: the 3D centre ``(3,)`` of an object id in model coordinates (bbox centre).
         config: see :class:`~bop_cender.pose.config.PoseConfig`.
         cost_threads: threads that render the chunks of the candidate batch side by side
-            (:func:`~bop_cender.pose.cost.candidate_costs` ``workers``: the same bits; worth it with one
+            (:meth:`~bop_cender.pose.backend.Backend.candidate_costs` ``workers``: the same bits; worth it with one
             torch thread and free cores: 258 against 169 calls/s on 2 cores, ``results/bench/run_*``).
         edges: the edge model of an object id, on ``device`` (default: built from ``meshes`` on first use).
         curvature_scale: the targets' curvature scale ``c`` (``curvature`` is ``clip(raw / c, 0, 1)``):
@@ -106,7 +110,8 @@ def scene_context(
         pooled = torch.nn.functional.max_pool2d(binary[:, None].float(), f, ceil_mode=True)[:, 0] > 0
         coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())).to(device))
     edge_threshold = config.t_b * curvature_scale
-    return SceneContext(config, fine, coarse, meshes, edges, model_centers, edge_threshold, cost_threads)
+    backend = backend_named(config.backend)
+    return SceneContext(config, fine, coarse, meshes, edges, model_centers, edge_threshold, backend, cost_threads)
 
 
 class _MeshesOn:

@@ -20,18 +20,7 @@ import cv2
 import numpy as np
 import torch
 
-from bop_cender.geometry.check import check_shape
-from bop_cender.render.candidate_curvature import (
-    CurvatureAtlas,
-    chunk_curvature,
-    prepare_candidates,
-)
-from bop_cender.render.mesh import RenderMesh
-from bop_cender.render.raster import DEFAULT_NEAR
-from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS, RenderSettings
-
-#: Window pixels per chunk on CUDA (GPUs want large batches; 2^24 int32 keys are 64 MB).
-CUDA_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.candidate_chunk_pixels_cuda
+from bop_cender.render.candidate_curvature import CandidateBatch, CurvatureAtlas, chunk_curvature
 
 ArrayLike = np.ndarray | torch.Tensor
 
@@ -123,94 +112,27 @@ def view_costs(curv: torch.Tensor, dist_maps: torch.Tensor, offsets: torch.Tenso
     return torch.where(den > 0, num / den.clamp_min(1e-30), torch.full_like(den, diagonal))
 
 
-def candidate_costs(
-    mesh: RenderMesh,
-    T_cam_model: ArrayLike,
-    K: ArrayLike,
-    height: int,
-    width: int,
-    dist_maps: ArrayLike,
-    view_weights: ArrayLike,
-    near: float = DEFAULT_NEAR,
-    chunk_pixels: int | None = None,
-    workers: int = 1,
-    occluder_depth: ArrayLike | None = None,
-    settings: RenderSettings | None = None,
-    compiled: bool | None = None,
-) -> torch.Tensor:
-    """Render, take curvature and cost B candidates end to end: ``T_cam_model (B, V, 4, 4)`` -> ``(B,)``.
-
-    The candidates are rendered in tight windows, chunk by chunk
-    (:mod:`bop_cender.render.candidate_curvature`); the result equals, to float rounding,
-    :func:`render_cost` of :func:`~bop_cender.render.rasterizer.render_candidates` windows.
+def atlas_view_costs(batch: CandidateBatch, dist_maps: torch.Tensor, workers: int = 1) -> torch.Tensor:
+    """Unweighted costs ``(B * V,)`` float32 of a prepared batch (canvas ``c`` = candidate ``c // V`` in view
+    ``c % V``) by the torch atlases: the candidates rendered in tight windows, chunk by chunk
+    (:mod:`bop_cender.render.candidate_curvature`), equal to float rounding to :func:`render_cost` of
+    :func:`~bop_cender.render.rasterizer.render_candidates` windows. What the ``torch`` backend's candidate costs are
+    (:meth:`~bop_cender.pose.backend.Backend.candidate_costs`), and the others' where their loop or kernel declines.
 
     Args:
-        mesh: the object.
-        T_cam_model: ``(B, V, 4, 4)`` candidate poses in each view's camera frame (mm).
-        K: ``(V, 3, 3)`` intrinsics.
-        height, width: image size.
-        dist_maps: ``(V, H, W)`` float32 distance maps (:func:`distance_maps`).
-        view_weights: ``(V,)`` per-view weights.
-        near: near plane (mm).
-        chunk_pixels: window pixels per chunk (default: small on CPU for its caches, large on CUDA).
-        workers: threads that render chunks side by side (CPU; ignored on CUDA, where the chunks queue on one
-            stream anyway). Chunks are independent, so the result is the same bits; worth it only with
-            ``torch.set_num_threads(1)`` and free cores (on a shared machine, one intra-op thread per process is
-            the safe default: OpenMP threads that wait for a busy core make every parallel op cost a scheduler
-            time slice).
-        occluder_depth: ``(V, H, W)`` depth (mm) of objects already placed, 0 where none: candidate
-            pixels behind it draw no curvature (the paper's sequential occlusion). None: no occluders.
-        settings: near plane and chunk sizes (:class:`~bop_cender.render.settings.RenderSettings`); when
-            given, they replace ``near`` and the default ``chunk_pixels``.
-        compiled: on the CPU, one compiled loop per canvas (:mod:`bop_cender.pose.cost_kernel`: the same costs to
-            float32 rounding, without the atlases and their operators; ``chunk_pixels`` and ``workers`` then do not
-            apply, torch's thread count does); on CUDA, one kernel per call (:mod:`bop_cender.pose.cuda_cost`, numba's
-            CUDA target); None (default): either where it applies (on CUDA where numba's CUDA target is available,
-            for meshes of at most 2^15 faces), unless a vertex is behind the near plane; False: the torch atlases.
-
-    Returns:
-        ``(B,)`` float32 costs on the device of ``T_cam_model`` (a torch tensor) or of the mesh.
+        batch: :func:`~bop_cender.render.candidate_curvature.prepare_candidates`'s windows and vertices.
+        dist_maps: ``(V, H, W)`` float32 distance maps on the batch's device.
+        workers: threads that render chunks side by side (CPU; on CUDA the chunks queue on one stream anyway).
+            Chunks are independent, so the result is the same bits; worth it only with ``torch.set_num_threads(1)``
+            and free cores (on a shared machine, one intra-op thread per process is the safe default: OpenMP threads
+            that wait for a busy core make every parallel op cost a scheduler time slice).
     """
-    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
-    check_shape(K, "V 3 3", "K", sizes)
-    check_shape(dist_maps, f"V {int(height)} {int(width)}", "dist_maps", sizes)
-    check_shape(view_weights, "V", "view_weights", sizes)
-    if occluder_depth is not None:
-        check_shape(occluder_depth, f"V {int(height)} {int(width)}", "occluder_depth", sizes)
-    device = T_cam_model.device if isinstance(T_cam_model, torch.Tensor) else mesh.device
-    mesh = mesh.to(device)
-    T = torch.as_tensor(T_cam_model, device=device).to(torch.float32)
-    Ks = torch.as_tensor(K, device=device).to(torch.float32)
-    dist = torch.as_tensor(dist_maps, device=device).to(torch.float32)
-    weights = torch.as_tensor(view_weights, device=device).to(torch.float32)
-    if settings is not None:
-        near = settings.near
-    if chunk_pixels is None:
-        chunk_pixels = (settings or DEFAULT_RENDER_SETTINGS).candidate_chunk_pixels(device)
-    B, V = int(T.shape[0]), int(T.shape[1])
-    per_view = torch.zeros(B * V, dtype=torch.float32, device=device)
-    occ = None if occluder_depth is None else torch.as_tensor(occluder_depth, device=device).to(torch.float32)
-    if device.type == "cuda" and compiled is not False:
-        from bop_cender.pose.cuda_cost import kernel_costs  # numba: imported where it is used
-
-        costs = kernel_costs(mesh, T, Ks, height, width, near, dist, occ, compiled)
-        if costs is not None:
-            return (costs.view(B, V) * weights).sum(1)
-        compiled = False
-    batch = prepare_candidates(mesh, T, Ks, height, width, near, chunk_pixels, occluder_depth=occ)
-    from bop_cender.render import compiled_raster  # numba: imported where it is used
-
-    if compiled_raster.use_compiled(compiled, device):
-        from bop_cender.pose.cost_kernel import compiled_candidate_costs
-
-        costs = compiled_candidate_costs(batch, dist)
-        if costs is not None:
-            return (costs.view(B, V) * weights).sum(1)
-        compiled_raster.behind_near_plane(compiled)
+    device = dist_maps.device
+    per_view = torch.zeros(int(batch.verts.shape[1]), dtype=torch.float32, device=device)
 
     def run(chunk: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor]:
         atlas = chunk_curvature(batch, chunk)
-        return atlas.canvases, _atlas_costs(atlas, dist)
+        return atlas.canvases, _atlas_costs(atlas, dist_maps)
 
     if workers > 1 and len(batch.chunks) > 1 and device.type == "cpu":  # one stream on CUDA: threads gain nothing
         with ThreadPoolExecutor(workers) as pool:
@@ -219,7 +141,7 @@ def candidate_costs(
         results = [run(chunk) for chunk in batch.chunks]
     for canvases, costs in results:
         per_view.index_copy_(0, canvases, costs)
-    return (per_view.view(B, V) * weights).sum(1)
+    return per_view
 
 
 def _atlas_costs(atlas: CurvatureAtlas, dist_maps: torch.Tensor) -> torch.Tensor:

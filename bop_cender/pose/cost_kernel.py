@@ -1,6 +1,6 @@
 """The render-and-compare cost of pose candidates as one compiled loop per canvas (CPU).
 
-Why. :func:`~bop_cender.pose.cost.candidate_costs` renders every (candidate, view) canvas in a tight window
+Why. :meth:`~bop_cender.pose.backend.Backend.candidate_costs` renders every (candidate, view) canvas in a tight window
 (:mod:`bop_cender.render.candidate_curvature`), takes the Prewitt curvature of its normals and sums it against
 the view's distance map: in torch, a few hundred operators per chunk of canvases, with the windows stacked
 into atlases so that the operators amortise. Here each canvas is rendered by the compiled rasteriser
@@ -83,7 +83,7 @@ def _canvas_costs(cam_all, px_all, py_all, draw, faces, face_instance, corner_no
 
 def compiled_candidate_costs(batch: CandidateBatch, dist_maps: torch.Tensor) -> torch.Tensor | None:
     """Unweighted costs ``(B * V,)`` float32 of a prepared CPU batch (canvas ``c`` = candidate ``c // V`` in view
-    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view; None when a vertex lies
+    ``c % V``), as :meth:`~bop_cender.pose.backend.Backend.candidate_costs` takes them per view; None when a vertex lies
     behind the near plane (the torch pipeline cuts faces there: use it).
 
     Args:

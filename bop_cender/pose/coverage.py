@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from bop_cender.pose.cost import distance_maps, view_costs
+from bop_cender.render.backend import RenderBackend
 from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import RenderMesh
@@ -58,6 +59,7 @@ def two_sided_costs(
     edge_threshold: float,
     coverage_weight: float,
     occluder_depth: torch.Tensor | None = None,
+    backend: RenderBackend | None = None,
 ) -> TwoSidedCost:
     """Two-sided costs of ``n`` poses of one object over V views (see the module docstring).
 
@@ -74,6 +76,7 @@ def two_sided_costs(
         occluder_depth: ``(V, H, W)`` depth of the placed objects (0: none); pose pixels behind it or less
             than :data:`~bop_cender.render.candidate_curvature.OCCLUSION_MARGIN_MM` in front of it are
             hidden, as in the render cost.
+        backend: which code renders the poses (:mod:`bop_cender.render.backend`; None: ``auto``).
 
     Returns:
         :class:`TwoSidedCost`. A view where the pose draws no curvature costs the image diagonal
@@ -84,7 +87,7 @@ def two_sided_costs(
     device = dist_maps.device
     T = T_cam_model.to(device, torch.float32).reshape(n * V, 1, 4, 4)
     Ks = K.to(device, torch.float32).repeat(n, 1, 1)
-    render = render_scene([mesh.to(device)], T, Ks, H, W)
+    render = render_scene([mesh.to(device)], T, Ks, H, W, backend=backend)
     normals, depth = render.normals, render.depth
     if occluder_depth is not None:
         hidden = occluded(depth, occluder_depth.to(device).repeat(n, 1, 1))
@@ -102,64 +105,24 @@ def two_sided_costs(
     return TwoSidedCost(fwd, cov, fwd + coverage_weight * cov)
 
 
-def scene_cost(
-    meshes: list[RenderMesh],
-    T_cam_model: torch.Tensor,
-    K: torch.Tensor,
-    target_edges: torch.Tensor,
-    dist_maps: torch.Tensor,
-    edge_threshold: float,
-    compiled: bool | None = None,
-) -> float:
-    """The symmetric edge distance of a whole placement: all objects rendered together, against the target.
+def torch_scene_cost(normals: torch.Tensor, dist_maps: torch.Tensor, target_edges: torch.Tensor,
+                     edge_threshold: float) -> float:  # fmt: skip
+    """The scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`) of a composite's full-frame
+    ``normals (V, H, W, 3)`` by torch operators: the mean over the V views of forward (the paper's cost of the
+    composite against ``dist_maps (V, H, W)``) plus backward (every ``target_edges (V, H, W)`` pixel's distance to the
+    nearest edge the composite draws, its curvature above ``edge_threshold``), in pixels.
 
-    What a sweep's move is judged by with ``PoseConfig.acceptance="scene"``. Forward, the paper's cost of the
-    composite: its edges must lie near target edges. Backward, over *every* target edge pixel: its
-    distance to the nearest edge the composite draws. A part moved onto a neighbour's edges costs itself no
-    more forward, but the edges of its true place are now explained by nothing and cost the scene backward;
-    a part removed or hidden does too. (Only the target edges inside the composite's silhouette, as the
-    two-sided judge counts them, would miss exactly those: a scene without one of its parts cost less than
-    the full true scene.) Target edges of parts never detected add the same to every placement compared.
-
-    Args:
-        meshes: the M placed objects' meshes.
-        T_cam_model: ``(V, M, 4, 4)`` their poses in each view's camera frame (mm).
-        K, target_edges, dist_maps, edge_threshold: as :func:`two_sided_costs`.
-        compiled: on the CPU the steps after the render in one compiled pass
-            (:func:`~bop_cender.pose.window_kernel.window_costs`, the full frame as one window with nothing else in
-            it), on CUDA all of it in one kernel (:func:`~bop_cender.pose.cuda_window_kernel.cuda_scene_cost`), instead
-            of torch operators; None (default): compiled on the CPU, the kernel on CUDA where numba's CUDA target
-            works (else the torch steps, warned once). Equal to float32 rounding.
-
-    Returns:
-        The mean over the V views of forward plus backward, in pixels (a view where the composite draws no
-        edge costs the image diagonal forward).
+    Why both terms: a part moved onto a neighbour's edges costs itself no more forward, but the edges of its true place
+    are now explained by nothing and cost the scene backward; a part removed or hidden does too. (Only the target edges
+    inside the composite's silhouette, as the two-sided judge counts them, would miss exactly those: a scene without one
+    of its parts cost less than the full true scene.) Target edges of parts never detected add the same to every
+    placement compared. A view where the composite draws no edge costs the image diagonal forward.
     """
-    V = int(T_cam_model.shape[0])
-    _, H, W = target_edges.shape
-    device = dist_maps.device
-    if device.type == "cuda" and compiled is not False:
-        from bop_cender.pose import cuda_window_kernel
-
-        cost = cuda_window_kernel.GUARD.run(
-            lambda: cuda_window_kernel.cuda_scene_cost(meshes, T_cam_model, K, target_edges, dist_maps, edge_threshold),
-            compiled,
-        )
-        if cost is not None:
-            return cost
-        compiled = False  # the torch steps (a vertex behind the near plane, or no kernel)
-    render = render_scene(meshes, T_cam_model.to(device, torch.float32), K.to(device, torch.float32), H, W,
-                          compiled=False if device.type == "cuda" else None)  # fmt: skip
-    offsets = torch.zeros((V, 2), dtype=torch.int64, device=device)
-    if compiled if compiled is not None else device.type == "cpu":
-        from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
-
-        total = window_costs(render.depth, render.normals, None, None, dist_maps.to(device), offsets,
-                             target_edges.to(device), edge_threshold)  # fmt: skip
-        return float(total.mean())
-    curv = curvature(render.normals)  # (V, H, W)
-    forward = view_costs(curv, dist_maps.to(device), offsets)
-    backward = mean_distance_to_own_edges(curv, target_edges.to(device), edge_threshold)
+    V = int(normals.shape[0])
+    offsets = torch.zeros((V, 2), dtype=torch.int64, device=normals.device)
+    curv = curvature(normals)  # (V, H, W)
+    forward = view_costs(curv, dist_maps, offsets)
+    backward = mean_distance_to_own_edges(curv, target_edges, edge_threshold)
     return float((forward + backward).mean())
 
 

@@ -18,9 +18,9 @@ its size, and 2,000 candidates ran 14,265 calls/s against issue 11's goal of 20,
 The host waits for the device once per call, to read the windows' sizes (the scratch's size and the launches'
 groups) and the nearest vertex. Quantised int32 keys only (a mesh of at most 2^15 faces,
 :class:`~bop_cender.render.scanline.KeyCodec`); for larger meshes or a vertex behind the near plane
-:func:`cuda_candidate_costs` returns None and the torch path runs. :func:`kernel_costs` is what
-:func:`~bop_cender.pose.cost.candidate_costs` calls: the kernel where numba's CUDA target works, a warning and the
-torch path where it does not.
+:func:`cuda_candidate_costs` returns None and the torch path runs. The ``numba`` and ``auto`` backends call it on CUDA
+(:meth:`~bop_cender.pose.backend.Backend.candidate_costs`): ``auto`` takes the torch atlases, with a warning, where
+numba's CUDA target does not work.
 
 Rounding. On a GPU, NVVM contracts float32 multiply-adds into fused ones, as nvcc does for torch's CUDA kernels, so
 the costs agree with the torch path's to float32 rounding, not bit for bit. In numba's CUDA simulator (CPU, no
@@ -32,15 +32,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
+import numba
 import numpy as np
 import torch
 
 from bop_cender.geometry.check import check_shape
 from bop_cender.render.candidate_curvature import OCCLUSION_MARGIN_MM
 from bop_cender.render.compiled_raster import loop_tensors
-from bop_cender.render.cuda_loops import KernelGuard, check_device, check_threads, clone, device_namespace
+from bop_cender.render.cuda_device import DeviceFunctions, device_functions
+from bop_cender.render.cuda_loops import CanvasArrays, KernelGuard, check_device, check_threads
 from bop_cender.render.scanline import KeyCodec
+
+try:  # numba's CUDA target: where it is missing, the guard says so and the torch atlases serve
+    from numba import cuda
+except ImportError:  # pragma: no cover
+    cuda = None
 
 #: Threads per block (one block per canvas): the float64 reduction's shared arrays have this size.
 BLOCK_THREADS = 128
@@ -48,107 +56,105 @@ BLOCK_THREADS = 128
 SCRATCH_BYTES = 1 << 30
 
 
-def _costs_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, face_bits,
-                  depth_bits, fused, z_range, lo, extent, canvases, base, row_base, near, occ, margin, dist, keys,
-                  normals, out):  # fmt: skip
-    """Unweighted cost of canvas ``c = canvases[blockIdx.x]`` (view ``c % V``) into ``out[c]`` (the first eleven
-    arguments: :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` its vertices' least and
-    greatest z). Scratch of the launch's group of canvases: ``keys`` int32, block b's ``h * w`` keys from ``base[b]``;
-    ``normals (rows, widest, 3)`` float32, its ``h`` rows from ``row_base[b]`` (3-D, so that the CPU's
-    :func:`pixel_curvature` reads it as it is)."""
-    b = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
-    c = canvases[b]
-    tid = cuda.threadIdx.x  # noqa: F821
-    threads = cuda.blockDim.x  # noqa: F821
-    V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
-    v = c % V
-    top, left, h, w = lo[c, 0], lo[c, 1], extent[c, 0], extent[c, 1]
-    n_pixels = h * w
-    key = keys[base[b] : base[b] + n_pixels]
-    nrm = normals[row_base[b] : row_base[b] + h]  # (h, widest, 3): the window's normals in its first w columns
-    levels = key_levels(depth_bits, True)  # noqa: F821
-    w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)  # noqa: F821
-    for p in range(tid, n_pixels, threads):
-        key[p] = -1
-    cuda.syncthreads()  # noqa: F821
-    row = cuda.local.array(12, numba.float32)  # noqa: F821
-    cam, px, py, Rc, Kc = cam_all[c], px_all[c], py_all[c], R[c], K_inv[c]
-    for f in range(tid, faces.shape[0], threads):
-        if draw[c, f]:
-            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)  # noqa: F821
-            qa, qb, qc = key_plane(row, True, scale, w_lo)  # noqa: F821
-            scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, top, left, h, w, True, levels,  # noqa: F821
-                      face_bits, fused, key, z_range[c])  # fmt: skip
-    cuda.syncthreads()  # noqa: F821
-    mask = (1 << face_bits) - 1
-    half = np.float32(0.5)
-    for p in range(tid, n_pixels, threads):
-        i = p // w
-        j = p - i * w
-        n0 = n1 = n2 = np.float32(0.0)
-        k = key[p]
-        if k >= 0 and 0 < i < h - 1:  # the first and last rows of a window are background (the atlas rule)
-            face_row(cam, faces, face_instance, corner_normals, Rc, Kc, k & mask, fused, row)  # noqa: F821
-            depth, n0, n1, n2 = shade(row, np.float32(left + j) + half, np.float32(top + i) + half, fused)  # noqa: F821
+def costs_kernel(functions: DeviceFunctions):
+    """The cost kernel's Python function on ``functions`` (:func:`~bop_cender.render.cuda_device.device_functions`,
+    quantised keys; ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it)."""
+    raster, block_sum_pair = functions.raster, functions.block_sum_pair
+    key_levels, key_scale, face_row, key_plane = raster.key_levels, raster.key_scale, raster.face_row, raster.key_plane
+    scan_face, shade, pixel_curvature = raster.scan_face, raster.shade, raster.pixel_curvature
+
+    def canvas_costs(canvas: CanvasArrays, face_bits, depth_bits, fused, z_range, lo, extent, blocks: LaunchBlocks,
+                     near, occ, margin, dist, keys, normals, out):  # fmt: skip
+        """Unweighted cost of canvas ``c = blocks.canvases[blockIdx.x]`` (view ``c % V``) into ``out[c]``:
+        ``z_range (C, 2)`` its vertices' least and greatest z, ``lo, extent (C, 2)`` its window. Scratch of the
+        launch's group of canvases: ``keys`` int32, block b's ``h * w`` keys from ``blocks.base[b]``; ``normals (rows,
+        widest, 3)`` float32, its ``h`` rows from ``blocks.row_base[b]`` (3-D, so that the CPU's
+        ``pixel_curvature`` reads it as it is)."""
+        b = cuda.blockIdx.x
+        c = blocks.canvases[b]
+        tid = cuda.threadIdx.x
+        threads = cuda.blockDim.x
+        V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
+        v = c % V
+        top, left, h, w = lo[c, 0], lo[c, 1], extent[c, 0], extent[c, 1]
+        n_pixels = h * w
+        key = keys[blocks.base[b] : blocks.base[b] + n_pixels]
+        nrm = normals[
+            blocks.row_base[b] : blocks.row_base[b] + h
+        ]  # (h, widest, 3): the window's normals in its first w columns
+        levels = key_levels(depth_bits, True)
+        w_lo, scale = key_scale(z_range[c, 0], z_range[c, 1], near, levels)
+        for p in range(tid, n_pixels, threads):
+            key[p] = -1
+        cuda.syncthreads()
+        row = cuda.local.array(12, numba.float32)
+        cam, px, py, Rc, Kc = canvas.cam[c], canvas.px[c], canvas.py[c], canvas.R[c], canvas.K_inv[c]
+        faces, face_instance, corner_normals = canvas.faces, canvas.face_instance, canvas.corner_normals
+        for f in range(tid, faces.shape[0], threads):
+            if canvas.draw[c, f]:
+                face_row(cam, faces, face_instance, corner_normals, Rc, Kc, f, fused, row)
+                qa, qb, qc = key_plane(row, True, scale, w_lo)
+                scan_face(px, py, faces[f, 0], faces[f, 1], faces[f, 2], f, qa, qb, qc, top, left, h, w, True, levels,
+                          face_bits, fused, key, z_range[c])  # fmt: skip
+        cuda.syncthreads()
+        mask = (1 << face_bits) - 1
+        half = np.float32(0.5)
+        for p in range(tid, n_pixels, threads):
+            i = p // w
+            j = p - i * w
+            n0 = n1 = n2 = np.float32(0.0)
+            k = key[p]
+            if k >= 0 and 0 < i < h - 1:  # the first and last rows of a window are background (the atlas rule)
+                face_row(cam, faces, face_instance, corner_normals, Rc, Kc, k & mask, fused, row)
+                depth, n0, n1, n2 = shade(row, np.float32(left + j) + half, np.float32(top + i) + half, fused)
+                r, s = top + i, left + j
+                if occ.shape[0] > 0 and 0 <= r < H and 0 <= s < W:  # candidate_curvature.occluded
+                    o = occ[v, r, s]
+                    if o > 0 and depth > 0 and depth > o - margin:
+                        n0 = n1 = n2 = np.float32(0.0)
+            nrm[i, j, 0] = n0
+            nrm[i, j, 1] = n1
+            nrm[i, j, 2] = n2
+        cuda.syncthreads()
+        num = 0.0
+        den = 0.0
+        for p in range(tid, n_pixels, threads):
+            i = p // w
+            j = p - i * w
             r, s = top + i, left + j
-            if occ.shape[0] > 0 and 0 <= r < H and 0 <= s < W:  # candidate_curvature.occluded
-                o = occ[v, r, s]
-                if o > 0 and depth > 0 and depth > o - margin:
-                    n0 = n1 = n2 = np.float32(0.0)
-        nrm[i, j, 0] = n0
-        nrm[i, j, 1] = n1
-        nrm[i, j, 2] = n2
-    cuda.syncthreads()  # noqa: F821
-    num = 0.0
-    den = 0.0
-    for p in range(tid, n_pixels, threads):
-        i = p // w
-        j = p - i * w
-        r, s = top + i, left + j
-        if 0 < i < h - 1 and 0 < j < w - 1 and 0 <= r < H and 0 <= s < W:
-            curv = pixel_curvature(nrm, i - 1, i, i + 1, j - 1, j, j + 1, fused)  # noqa: F821
-            num += np.float64(curv) * np.float64(dist[v, r, s])
-            den += np.float64(curv)
-    sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    block_sum_pair(sums, tid, threads, num, den)  # noqa: F821
-    if tid == 0:
-        out[c] = (
-            np.float32(sums[0, 0] / sums[1, 0])
-            if sums[1, 0] > 0.0
-            else np.float32(math.hypot(np.float64(H), np.float64(W)))
-        )
+            if 0 < i < h - 1 and 0 < j < w - 1 and 0 <= r < H and 0 <= s < W:
+                curv = pixel_curvature(nrm, i - 1, i, i + 1, j - 1, j, j + 1, fused)
+                num += np.float64(curv) * np.float64(dist[v, r, s])
+                den += np.float64(curv)
+        sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)
+        block_sum_pair(sums, tid, threads, num, den)
+        if tid == 0:
+            out[c] = (
+                np.float32(sums[0, 0] / sums[1, 0])
+                if sums[1, 0] > 0.0
+                else np.float32(math.hypot(np.float64(H), np.float64(W)))
+            )
+
+    return canvas_costs
 
 
 def kernel_function():
-    """The kernel's Python function with the rasteriser's CUDA device functions as its globals (not compiled yet:
-    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
-    return clone(_costs_kernel, {**device_namespace(), "BLOCK_THREADS": BLOCK_THREADS})
+    """The kernel's Python function on this process's device functions (not compiled yet:
+    ``scripts/check_cuda_compile.py`` compiles it to PTX)."""
+    return costs_kernel(device_functions())
+
+
+class LaunchBlocks(NamedTuple):
+    """Which canvas each block of a launch takes (``canvases (n,)`` int64) and where its scratch starts: its first key
+    (``base``) and its first normal-map row (``row_base``), both ``(n,)`` int64."""
+
+    canvases: torch.Tensor
+    base: torch.Tensor
+    row_base: torch.Tensor
 
 
 #: The kernel's standing in this process (compiled on first use; where it cannot run, the torch atlases).
 GUARD = KernelGuard("the CUDA cost kernel", "the render cost runs on the torch atlases on CUDA", kernel_function)
-
-
-def kernel_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
-                 dist_maps: torch.Tensor, occluder_depth: torch.Tensor | None,
-                 compiled: bool | None) -> torch.Tensor | None:  # fmt: skip
-    """:func:`cuda_candidate_costs` as :func:`~bop_cender.pose.cost.candidate_costs` takes it on CUDA: None where the
-    torch path is to run instead: the kernel does not apply, or (with ``compiled=None``) numba's CUDA target is
-    unavailable or the kernel failed in this process (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a
-    warning says why, once).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and numba's CUDA target is unavailable, or the kernel failed.
-        ValueError: ``compiled=True`` where the kernel does not apply (the message says why).
-    """
-    costs = GUARD.run(
-        lambda: cuda_candidate_costs(mesh, T_cam_model, K, height, width, near, dist_maps, occluder_depth), compiled
-    )
-    if costs is None and compiled:
-        faces = int(mesh.faces.shape[0])
-        why = f"a mesh of {faces} faces (at most 2^15)" if faces > 1 << 15 else "a vertex behind the near plane"
-        raise ValueError(f"compiled=True, but the CUDA kernel does not apply here: {why} (compiled=None: torch)")
-    return costs
 
 
 def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, width: int, near: float,
@@ -156,7 +162,7 @@ def cuda_candidate_costs(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, heigh
                          threads: int = BLOCK_THREADS, fused: bool = True,
                          scratch_bytes: int = SCRATCH_BYTES) -> torch.Tensor | None:  # fmt: skip
     """Unweighted costs ``(B * V,)`` float32 of B candidates in V views (canvas ``c`` = candidate ``c // V`` in view
-    ``c % V``), as :func:`~bop_cender.pose.cost.candidate_costs` takes them per view, by the CUDA kernel; None where
+    ``c % V``), as :meth:`~bop_cender.pose.backend.Backend.candidate_costs` takes them per view, by the CUDA kernel; None where
     it does not apply (a mesh of more than 2^15 faces, whose keys are exact; a vertex behind the near plane: use the
     torch path).
 
@@ -243,8 +249,9 @@ def launch_plan(mesh, T_cam_model: torch.Tensor, K: torch.Tensor, height: int, w
     for group in groups:
         n = len(group.canvases)
         scratch = normals[: group.rows * group.widest * 3].view(group.rows, group.widest, 3)
-        launches.append((n, [*inputs[:-2], *inputs[-2:], bool(fused), z_range, lo.contiguous(), extent.contiguous(),
-                             *tables[:, first : first + n], np.float32(near), occ.float().contiguous(),
+        blocks = LaunchBlocks(*tables[:, first : first + n])
+        launches.append((n, [CanvasArrays.of(inputs), *inputs[-2:], bool(fused), z_range, lo.contiguous(),
+                             extent.contiguous(), blocks, np.float32(near), occ.float().contiguous(),
                              np.float32(OCCLUSION_MARGIN_MM), dist_maps.float().contiguous(), keys, scratch, out]))  # fmt: skip
         first += n
     return LaunchPlan(out, launches)

@@ -17,7 +17,7 @@ launch. Block ``c`` takes canvas ``c`` (trial ``c // V`` in view ``c % V``) and 
    target pixel only, the least ``g(k, j)^2 + (i - k)^2`` over the rows ``k`` (the CPU loop's own functions,
    :mod:`bop_cender.pose.window_kernel`): the exact distance, without a transform of the window.
 
-The same kernel gives the full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`, the sweeps' judge and the
+The same kernel gives the full scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`, the sweeps' judge and the
 polish's acceptance: 19 ms a call in torch on the H200): every placed part in every full frame, each view one window
 with nothing else in it (:func:`cuda_scene_cost`).
 
@@ -33,24 +33,29 @@ from __future__ import annotations
 
 import math
 from functools import cache
-from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 import torch
 
+from bop_cender.pose.scene_polish import SceneWindow
+from bop_cender.pose.window_kernel import DistanceArithmetic, distance_arithmetic
+from bop_cender.render.cuda_device import DeviceFunctions, device_functions
 from bop_cender.render.cuda_loops import (
+    CanvasArrays,
     KernelGuard,
     check_device,
     check_threads,
-    clone,
-    device_functions,
-    device_namespace,
     exact_key_inputs,
+    simulator_enabled,
 )
+from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
+from bop_cender.render.raster import DEFAULT_NEAR
 
-if TYPE_CHECKING:
-    from bop_cender.pose.scene_polish import SceneWindow
-    from bop_cender.render.mesh import PackedMeshes, RenderMesh
+try:  # numba's CUDA target: where it is missing, the guard says so and the scene costs take their torch steps
+    from numba import cuda
+except ImportError:  # pragma: no cover
+    cuda = None
 
 #: Most threads per block (one block per window); a power of two, the size of the float64 reductions' shared arrays.
 BLOCK_THREADS = 512
@@ -60,109 +65,117 @@ WINDOW_THREADS = 128
 FRAME_THREADS = 512
 
 
-def _window_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, fused, z_range,
-                   near, other_depth, other_normals, dist, offsets, target_edges, threshold, keys, comp,
-                   out):  # fmt: skip
-    """``out[c]`` = forward plus backward cost of canvas ``c = blockIdx.x`` (view ``c % V``). The first nine
-    arguments: :func:`~bop_cender.render.compiled_raster.loop_tensors` (exact keys); ``z_range (C, 2)`` the canvas's
-    least and greatest vertex z; ``other_depth (V, h, w)`` and ``other_normals (V, h, w, 3)`` the other parts (no
-    rows: none); ``dist (V, H, W)``; ``offsets (V, 2)`` each window's origin (row, column); ``target_edges (V, h, w)``
-    uint8; scratch ``keys (C, h * w)`` int64 and ``comp (C, h, w, 3)`` float32."""
-    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
-    tid = cuda.threadIdx.x  # noqa: F821
-    threads = cuda.blockDim.x  # noqa: F821
-    V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
-    h, w = comp.shape[1], comp.shape[2]
-    v = c % V
-    n_pixels = h * w
-    key = keys[c]
-    nrm = comp[c]
-    row = cuda.local.array(12, numba.float32)  # noqa: F821
-    # 1. the z-buffer: exact keys (the CPU's rule for packed meshes)
-    scan_canvas_exact(c, tid, threads, cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
-                      fused, z_range, near, 0, 0, h, w, key, row)  # fmt: skip
-    # 2. shade and composite over the other parts (window_kernel._composite_costs)
-    has_other = other_depth.shape[0] > 0
-    zero = np.float32(0.0)
-    for p in range(tid, n_pixels, threads):
-        i = p // w
-        j = p - i * w
-        d = zero
-        n0 = n1 = n2 = zero
-        k = key[p]
-        if k >= 0:
-            d, n0, n1, n2 = shade_key(c, k, i, j, 0, 0, cam_all, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
-                                      fused, row)  # fmt: skip
-        o = other_depth[v, i, j] if has_other else zero
-        if not (d > 0 and (o == 0 or d < o)):
-            n0 = other_normals[v, i, j, 0] if has_other else zero
-            n1 = other_normals[v, i, j, 1] if has_other else zero
-            n2 = other_normals[v, i, j, 2] if has_other else zero
-        nrm[i, j, 0] = n0
-        nrm[i, j, 1] = n1
-        nrm[i, j, 2] = n2
-    cuda.syncthreads()  # noqa: F821
-    # 3. curvature, forward sums, own edges (the key array now holds 0 at an own edge, `far` elsewhere)
-    top, left = offsets[v, 0], offsets[v, 1]
-    far = 2 * (h + w)
-    num = 0.0
-    den = 0.0
-    own = 0.0
-    for p in range(tid, n_pixels, threads):
-        i = p // w
-        j = p - i * w
-        curv = pixel_curvature(nrm, max(i - 1, 0), i, min(i + 1, h - 1), max(j - 1, 0), j, min(j + 1, w - 1), fused)  # noqa: F821
-        r, s = top + i, left + j
-        if 0 <= r < H and 0 <= s < W:
-            num += np.float64(curv) * np.float64(dist[v, r, s])
-            den += np.float64(curv)
-        if curv > threshold:
-            key[p] = 0
-            own += 1.0
-        else:
-            key[p] = far
-    sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    block_sum_pair(sums, tid, threads, num, den)  # noqa: F821
-    forward = sums[0, 0] / sums[1, 0] if sums[1, 0] > 0.0 else math.hypot(np.float64(H), np.float64(W))
-    counts = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    block_sum_pair(counts, tid, threads, own, 0.0)  # noqa: F821  (also the barrier before the rows)
-    own_edges = counts[0, 0]
-    # 4a. each row's distance to its nearest own edge (`far` where the row has none)
-    for i in range(tid, h, threads):
-        row_distances(key, i * w, w)  # noqa: F821
-    cuda.syncthreads()  # noqa: F821
-    # 4b. at each target edge, the nearest own edge over the rows
-    total = 0.0
-    targets = 0.0
-    for p in range(tid, n_pixels, threads):
-        i = p // w
-        j = p - i * w
-        if target_edges[v, i, j] != 0:
-            targets += 1.0
-            if own_edges > 0.0:
-                total += np.float64(sqrt32(np.float32(nearest_edge_sq(key, i, j, h, w, far))))  # noqa: F821
-    sums2 = cuda.shared.array((2, BLOCK_THREADS), numba.float64)  # noqa: F821
-    block_sum_pair(sums2, tid, threads, total, targets)  # noqa: F821
-    if tid == 0:
-        backward = 0.0
-        if sums2[1, 0] > 0.0:
-            backward = sums2[0, 0] / sums2[1, 0] if own_edges > 0.0 else np.float64(np.float32(math.hypot(h, w)))
-        out[c] = forward + backward
+def window_kernel(functions: DeviceFunctions, distances: DistanceArithmetic):
+    """The window kernel's Python function on ``functions`` (:func:`~bop_cender.render.cuda_device.device_functions`
+    with exact keys) and the backward term's ``distances`` (:func:`~bop_cender.pose.window_kernel.distance_arithmetic`,
+    the CPU loop's own source) compiled for the same target; ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take
+    it."""
+    scan_canvas_exact, shade_key, block_sum_pair = (
+        functions.scan_canvas_exact,
+        functions.shade_key,
+        functions.block_sum_pair,
+    )
+    pixel_curvature, sqrt32 = functions.raster.pixel_curvature, functions.raster.sqrt32
+    row_distances, nearest_edge_sq = distances.row_distances, distances.nearest_edge_sq
+
+    def window_costs(canvas: CanvasArrays, fused, z_range, near, other_depth, other_normals, dist, offsets,
+                     target_edges, threshold, keys, comp, out):  # fmt: skip
+        """``out[c]`` = forward plus backward cost of canvas ``c = blockIdx.x`` (view ``c % V``): ``z_range (C, 2)``
+        the canvas's least and greatest vertex z; ``other_depth (V, h, w)`` and ``other_normals (V, h, w, 3)`` the
+        other parts (no rows: none); ``dist (V, H, W)``; ``offsets (V, 2)`` each window's origin (row, column);
+        ``target_edges (V, h, w)`` uint8; scratch ``keys (C, h * w)`` int64 and ``comp (C, h, w, 3)`` float32."""
+        c = cuda.blockIdx.x
+        tid = cuda.threadIdx.x
+        threads = cuda.blockDim.x
+        V, H, W = dist.shape[0], dist.shape[1], dist.shape[2]
+        h, w = comp.shape[1], comp.shape[2]
+        v = c % V
+        n_pixels = h * w
+        key = keys[c]
+        nrm = comp[c]
+        row = cuda.local.array(12, numba.float32)
+        # 1. the z-buffer: exact keys (the CPU's rule for packed meshes)
+        scan_canvas_exact(c, tid, threads, canvas, fused, z_range, near, 0, 0, h, w, key, row)
+        # 2. shade and composite over the other parts (window_kernel._composite_costs)
+        has_other = other_depth.shape[0] > 0
+        zero = np.float32(0.0)
+        for p in range(tid, n_pixels, threads):
+            i = p // w
+            j = p - i * w
+            d = zero
+            n0 = n1 = n2 = zero
+            k = key[p]
+            if k >= 0:
+                d, n0, n1, n2 = shade_key(c, k, i, j, 0, 0, canvas, fused, row)
+            o = other_depth[v, i, j] if has_other else zero
+            if not (d > 0 and (o == 0 or d < o)):
+                n0 = other_normals[v, i, j, 0] if has_other else zero
+                n1 = other_normals[v, i, j, 1] if has_other else zero
+                n2 = other_normals[v, i, j, 2] if has_other else zero
+            nrm[i, j, 0] = n0
+            nrm[i, j, 1] = n1
+            nrm[i, j, 2] = n2
+        cuda.syncthreads()
+        # 3. curvature, forward sums, own edges (the key array now holds 0 at an own edge, `far` elsewhere)
+        top, left = offsets[v, 0], offsets[v, 1]
+        far = 2 * (h + w)
+        num = 0.0
+        den = 0.0
+        own = 0.0
+        for p in range(tid, n_pixels, threads):
+            i = p // w
+            j = p - i * w
+            curv = pixel_curvature(nrm, max(i - 1, 0), i, min(i + 1, h - 1), max(j - 1, 0), j, min(j + 1, w - 1), fused)
+            r, s = top + i, left + j
+            if 0 <= r < H and 0 <= s < W:
+                num += np.float64(curv) * np.float64(dist[v, r, s])
+                den += np.float64(curv)
+            if curv > threshold:
+                key[p] = 0
+                own += 1.0
+            else:
+                key[p] = far
+        sums = cuda.shared.array((2, BLOCK_THREADS), numba.float64)
+        block_sum_pair(sums, tid, threads, num, den)
+        forward = sums[0, 0] / sums[1, 0] if sums[1, 0] > 0.0 else math.hypot(np.float64(H), np.float64(W))
+        counts = cuda.shared.array((2, BLOCK_THREADS), numba.float64)
+        block_sum_pair(counts, tid, threads, own, 0.0)  # also the barrier before the rows
+        own_edges = counts[0, 0]
+        # 4a. each row's distance to its nearest own edge (`far` where the row has none)
+        for i in range(tid, h, threads):
+            row_distances(key, i * w, w)
+        cuda.syncthreads()
+        # 4b. at each target edge, the nearest own edge over the rows
+        total = 0.0
+        targets = 0.0
+        for p in range(tid, n_pixels, threads):
+            i = p // w
+            j = p - i * w
+            if target_edges[v, i, j] != 0:
+                targets += 1.0
+                if own_edges > 0.0:
+                    total += np.float64(sqrt32(np.float32(nearest_edge_sq(key, i, j, h, w, far))))
+        sums2 = cuda.shared.array((2, BLOCK_THREADS), numba.float64)
+        block_sum_pair(sums2, tid, threads, total, targets)
+        if tid == 0:
+            backward = 0.0
+            if sums2[1, 0] > 0.0:
+                backward = sums2[0, 0] / sums2[1, 0] if own_edges > 0.0 else np.float64(np.float32(math.hypot(h, w)))
+            out[c] = forward + backward
+
+    return window_costs
 
 
 @cache
-def _namespace() -> dict:
-    """The rasteriser's device functions with exact keys, and the backward term's distances
-    (:data:`~bop_cender.pose.window_kernel.SHARED_FUNCTIONS`: the CPU loop's own source) as device functions."""
-    from bop_cender.pose.window_kernel import SHARED_FUNCTIONS
-
-    return device_functions(SHARED_FUNCTIONS, {**device_namespace(exact_keys=True), "BLOCK_THREADS": BLOCK_THREADS})
+def _distances() -> DistanceArithmetic:
+    """The backward term's distances as this process's CUDA device functions (plain in numba's simulator)."""
+    return distance_arithmetic((lambda f: f) if simulator_enabled() else cuda.jit(device=True))
 
 
 def kernel_function():
-    """The kernel's Python function with the device functions as its globals (not compiled yet:
-    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
-    return clone(_window_kernel, _namespace())
+    """The kernel's Python function on this process's device functions (not compiled yet:
+    ``scripts/check_cuda_compile.py`` compiles it to PTX)."""
+    return window_kernel(device_functions(exact_keys=True), _distances())
 
 
 #: The kernel's standing in this process (compiled on first use; where it cannot run, the callers' torch steps).
@@ -173,7 +186,7 @@ def cuda_window_costs(
     window: SceneWindow, T_world_model: np.ndarray, threads: int = WINDOW_THREADS
 ) -> np.ndarray | None:
     """``(m,)`` windowed scene costs of trial poses ``T_world_model (m, 4, 4)`` of the window's part, as
-    :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` gives them on the CPU, by the CUDA kernel; None where a
+    :meth:`~bop_cender.pose.backend.Backend.window_costs` gives them on the CPU, by the CUDA kernel; None where a
     vertex lies behind the near plane in some canvas (use the torch steps, whose renderer cuts the faces there).
 
     Args:
@@ -198,8 +211,6 @@ def window_canvases(window: SceneWindow, T_world_model: np.ndarray) -> tuple:
     """:func:`canvas_costs`' arguments (before ``threads``) for trial poses ``T_world_model (m, 4, 4)`` of a window's
     part: canvas ``c`` = trial ``c // V`` in view ``c % V``, the part as packed meshes as the CPU renders it (exact
     keys, the packed culling)."""
-    from bop_cender.render.mesh import pack_meshes
-
     device = window.dist.device
     m, V = len(T_world_model), len(window.T_cam_world)
     T_cm = np.einsum("vij,mjk->mvik", window.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
@@ -219,7 +230,7 @@ def cuda_scene_cost(
     edge_threshold: float,
     threads: int = FRAME_THREADS,
 ) -> float | None:
-    """The full scene cost (:func:`~bop_cender.pose.coverage.scene_cost`: every placed part rendered into every full
+    """The full scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`: every placed part rendered into every full
     frame, forward plus backward, the mean over the views) by the same kernel, each view one canvas, the frame its
     window, nothing else in it; None where a vertex lies behind the near plane (use the torch steps).
 
@@ -228,8 +239,6 @@ def cuda_scene_cost(
             edge_threshold: as ``scene_cost``, the tensors on a CUDA device (or the CPU under the simulator).
         threads: as :func:`cuda_window_costs`.
     """
-    from bop_cender.render.mesh import pack_meshes
-
     device = dist_maps.device
     V, H, W = (int(x) for x in target_edges.shape)
     if V == 0 or not meshes:
@@ -269,8 +278,6 @@ def canvas_costs(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torc
     Raises:
         ValueError: ``threads`` out of range, or CPU tensors outside the simulator.
     """
-    from bop_cender.render.raster import DEFAULT_NEAR
-
     device = dist.device
     _check_launch(device, threads)
     arguments, z_min = kernel_arguments(packed, R, t, K, size, offsets, other_depth, other_normals, dist, target_edges,
@@ -288,8 +295,6 @@ def kernel_arguments(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: 
     """The kernel's arguments (:func:`canvas_costs`' inputs on their device, in the kernel's order, scratch
     allocated, the last one ``out (C,)`` float64, which the launch fills) and the least vertex z over the canvases
     (:func:`~bop_cender.render.cuda_loops.exact_key_inputs`; nothing is read back here)."""
-    from bop_cender.render.raster import DEFAULT_NEAR
-
     device = dist.device
     C = int(R.shape[0])
     h, w = size

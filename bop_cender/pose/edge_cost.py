@@ -29,21 +29,21 @@ the render cost (a render-cost polish is optional, ``PoseConfig.polish_maxfev``,
 back onto the pixel grid). Being continuous in the pose (bilinear lookups, no pixel
 snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
 
-Three layouts of the same arithmetic (:func:`edge_costs`' ``layout``), which agree to float rounding
-(``tests/pose/test_edge_cost.py``):
+Four layouts of the same arithmetic, which agree to float rounding (``tests/pose/test_edge_cost.py``); the backend
+chooses (:meth:`~bop_cender.pose.backend.Backend.edge_costs`, ``poses.backend``):
 
-- ``kernel``, the CPU's default: one compiled loop over canvases, edges and segments
+- numba on the CPU (``numba``, ``auto``): one compiled loop over canvases, edges and segments
   (:mod:`bop_cender.pose.edge_kernel`), nothing allocated per segment. A Nelder-Mead step of 3 poses took
   2.6 ms in the compacted torch layout (~430 operators) and takes 0.6 ms here on one 2-core Intel Xeon thread;
-- ``compacted`` (torch): the drawn segments gathered first (``nonzero``: of a part's segments only the
-  contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
+- numba on CUDA (``numba``, ``auto`` where numba's CUDA target works): the same loop as one CUDA kernel (a block
+  per canvas, :mod:`bop_cender.pose.cuda_edge_kernel`), one launch per call instead of dozens of torch kernels;
+- compacted (torch, here: ``torch`` on the CPU): the drawn segments gathered first (``nonzero``: of a part's segments
+  only the contour and the creases facing the camera are drawn, often under a tenth, so compaction saves most of
   the work); the CPU's layout before the kernel, kept as its reference;
-- ``dense`` (torch), CUDA's fallback: every segment of every canvas costed with a 0/1 weight. That costs
-  several times the arithmetic but has fixed shapes: no ``nonzero`` or data-dependent ``repeat_interleave``,
-  so a call never waits for the device until its result is read, which is what bounds the small calls of
-  Nelder-Mead on a GPU (``results/bench/``);
-- ``cuda``, CUDA's default where numba's CUDA target works: the kernel layout's loop as one CUDA kernel (a block
-  per canvas, :mod:`bop_cender.pose.cuda_edge_kernel`), one launch per call instead of dozens of torch kernels.
+- dense (torch, here: ``torch`` on CUDA, and ``auto``'s there where the kernel cannot run): every segment of every
+  canvas costed with a 0/1 weight. That costs several times the arithmetic but has fixed shapes: no ``nonzero`` or
+  data-dependent ``repeat_interleave``, so a call never waits for the device until its result is read, which is what
+  bounds the small calls of Nelder-Mead on a GPU (``results/bench/``).
 
 Measured (``scripts/bench_run.py``): see ``results/bench/``.
 """
@@ -51,18 +51,11 @@ Measured (``scripts/bench_run.py``): see ``results/bench/``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from functools import cached_property
 
-import numpy as np
 import torch
 
 from bop_cender.geometry.check import check_shape
-from bop_cender.render.mesh import RenderMesh, face_planes_of
-
-#: Edges whose faces' normals differ by more than this are creases (the renderer's default crease angle,
-#: :func:`bop_cender.render.mesh.prepare_mesh`: smoother edges are shaded smoothly and draw no curvature).
-DEFAULT_CREASE_ANGLE_DEG = 30.0
+from bop_cender.pose.edge_model import EdgeModel, ranks
 
 #: Points sampled on each drawn segment's projection (segments are at most ``segment_mm`` long).
 SAMPLES_PER_SEGMENT = 2
@@ -73,9 +66,6 @@ SAMPLES_PER_SEGMENT = 2
 #: 1 mm deeper than the point on the same surface).
 EDGE_COINCIDENCE_MM = 1.0
 
-#: The layouts of :func:`edge_costs` (module docstring).
-LAYOUTS = ("kernel", "compacted", "dense", "cuda")
-
 #: Canvases (candidate x view) costed together in the compacted layout: bounds the memory of the per-segment arrays.
 CANVAS_CHUNK = 512
 
@@ -84,302 +74,21 @@ CANVAS_CHUNK = 512
 DENSE_CHUNK_SEGMENTS = 1 << 22
 
 
-@dataclass(frozen=True, eq=False)
-class EdgeModel:
-    """A mesh's edges, cut into short segments, and what decides whether each is drawn (model frame, mm).
-
-    Attributes:
-        vertices: ``(N, 3)`` float32 segment end points (the mesh's distinct vertex positions, then the
-            points that cut long edges).
-        segments: ``(S, 2)`` int64 end points of each segment, edge after edge.
-        planes: ``(E, 2, 4)`` float32 the two faces of each edge: unit normal and ``n . v``; a boundary
-            edge (one face) repeats its face.
-        crease: ``(E,)`` bool: drawn whenever one of its faces faces the camera (creases, boundaries);
-            the other edges only where they are on the contour.
-        edge_segments: ``(E, 2)`` int64 first segment and number of segments of each edge.
-    """
-
-    vertices: torch.Tensor
-    segments: torch.Tensor
-    planes: torch.Tensor
-    crease: torch.Tensor
-    edge_segments: torch.Tensor
-
-    @property
-    def device(self) -> torch.device:
-        return self.vertices.device
-
-    @cached_property
-    def projection(self) -> SegmentProjection:
-        """Tables that place every segment on its edge (built once per model; see :class:`SegmentProjection`)."""
-        return SegmentProjection.of(self)
-
-    @property
-    def num_segments(self) -> int:
-        return int(self.segments.shape[0])
-
-    @property
-    def num_edges(self) -> int:
-        return int(self.crease.shape[0])
-
-    def to(self, device: torch.device | str) -> EdgeModel:
-        return EdgeModel(*(getattr(self, f.name).to(device) for f in fields(self)))
-
-    def sparse(self, max_segments: int) -> EdgeModel:
-        """A model of every k-th edge, with at most about ``max_segments`` segments: a cheaper proxy for
-        ranking many candidates (the cost is a mean over the drawn points, so a uniform subset of the
-        edges estimates it). Returns ``self`` when it is small enough already."""
-        if self.num_segments <= max_segments:
-            return self
-        stride = -(-self.num_segments // max_segments)
-        edges = torch.arange(0, self.num_edges, stride, device=self.device)
-        first, count = self.edge_segments.index_select(0, edges).unbind(1)
-        seg = torch.repeat_interleave(first, count) + _ranks(count)
-        ends = self.segments.index_select(0, seg)
-        used, remap = torch.unique(ends, return_inverse=True)
-        return EdgeModel(
-            self.vertices.index_select(0, used),
-            remap.view(-1, 2),
-            self.planes.index_select(0, edges),
-            self.crease.index_select(0, edges),
-            torch.stack([torch.cumsum(count, 0) - count, count], 1),
-        )
-
-
-@dataclass(frozen=True, eq=False)
-class SegmentProjection:
-    """Every segment as a stretch ``[frac_a, frac_b]`` of its edge, whose ends are mesh vertices.
-
-    Why: projecting every segment end (a part's cut points outnumber its vertices 10-40 times) was a quarter
-    of a cost call. Homogeneous pixel coordinates ``K (R X + t)`` are linear in ``X``, so a segment end's are
-    the lerp of its edge ends' at the segment's fraction along the edge (to float rounding; the perspective
-    division comes after), and only the edge ends need a matrix product.
-
-    Attributes:
-        ends: ``(4, M)`` float32 the edges' end vertices as contiguous homogeneous columns.
-        seg_from, seg_to: ``(S,)`` int64 column in ``ends`` of the start and end of each segment's edge.
-        seg_edge: ``(S,)`` int64 edge of each segment.
-        frac_a, frac_b: ``(S,)`` float32 where each segment starts and ends along its edge (0 at its start,
-            1 at its end).
-    """
-
-    ends: torch.Tensor
-    seg_from: torch.Tensor
-    seg_to: torch.Tensor
-    seg_edge: torch.Tensor
-    frac_a: torch.Tensor
-    frac_b: torch.Tensor
-
-    @staticmethod
-    def of(model: EdgeModel) -> SegmentProjection:
-        """The tables of ``model``: each edge's segments are a straight chain of equal pieces from its first
-        segment's start to its last segment's end (:func:`edge_model`; :meth:`EdgeModel.sparse` keeps whole edges)."""
-        first, count = model.edge_segments.unbind(1)
-        edge_from = model.segments[first, 0]
-        edge_to = model.segments[first + count - 1, 1]
-        used, column = torch.unique(torch.cat([edge_from, edge_to]), return_inverse=True)
-        E = int(first.shape[0])
-        seg_edge = torch.repeat_interleave(torch.arange(E, device=model.device), count)
-        rank = _ranks(count).double()
-        pieces = count.double().index_select(0, seg_edge)
-        vertices = model.vertices.index_select(0, used)
-        ones = torch.ones((vertices.shape[0], 1), device=model.device, dtype=vertices.dtype)
-        return SegmentProjection(
-            ends=torch.cat([vertices, ones], 1).T.contiguous(),
-            seg_from=column[:E].index_select(0, seg_edge),
-            seg_to=column[E:].index_select(0, seg_edge),
-            seg_edge=seg_edge,
-            frac_a=(rank / pieces).float(),
-            frac_b=((rank + 1) / pieces).float(),
-        )
-
-
-def edge_model(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    segment_mm: float = 3.0,
-    crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG,
-    device: torch.device | str | None = None,
-) -> EdgeModel:
-    """The edges of a triangle mesh ``vertices (N, 3)``, ``faces (F, 3)`` (mm, outward faces).
-
-    Vertices at the same position are one vertex (PLY files often repeat them per face), so the faces
-    of a closed mesh share edges. An edge longer than ``segment_mm`` is cut into ``ceil(length /
-    segment_mm)`` equal segments, so that a segment's projection is short and
-    :data:`SAMPLES_PER_SEGMENT` points cover it. Degenerate (zero-area) faces are left out.
-    """
-    if not (math.isfinite(segment_mm) and segment_mm > 0):
-        raise ValueError(f"segment_mm must be a positive number, got {segment_mm}")
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    unique, same = np.unique(np.round(v, 6), axis=0, return_inverse=True)
-    same = same.reshape(-1)
-    merged = same[f]  # (F, 3) ids of distinct positions
-    plane = face_planes_of(v, f)  # (F, 4): the renderer's face planes, a zero normal for a degenerate face
-    keep = np.abs(plane[:, :3]).sum(1) > 0
-    merged, plane = merged[keep], plane[keep]
-    if len(merged) == 0:
-        raise ValueError("the mesh has no face of non-zero area")
-    # Position of each distinct vertex: the first original vertex at it (exact, not the rounded key).
-    position = np.zeros((len(unique), 3))
-    position[same[::-1]] = v[::-1]
-    a = merged.reshape(-1)
-    b = merged[:, [1, 2, 0]].reshape(-1)
-    face = np.repeat(np.arange(len(merged)), 3)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    key = lo * len(unique) + hi
-    order = np.argsort(key, kind="stable")
-    key, face, lo, hi = key[order], face[order], lo[order], hi[order]
-    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    count = np.diff(np.r_[first, len(key)])
-    f1 = face[first]
-    f2 = np.where(count >= 2, face[np.minimum(first + 1, len(key) - 1)], f1)
-    cos = np.einsum("ij,ij->i", plane[f1, :3], plane[f2, :3])
-    crease = (count < 2) | (cos < math.cos(math.radians(crease_angle_deg)))
-    p, q = lo[first], hi[first]
-    length = np.linalg.norm(position[q] - position[p], axis=1)
-    pieces = np.maximum(1, np.ceil(length / segment_mm)).astype(np.int64)
-    # Edge e becomes the chain p, its pieces[e] - 1 cut points (new vertices), q.
-    n_edges = len(p)
-    edge_of_cut = np.repeat(np.arange(n_edges), pieces - 1)
-    cut_rank = np.arange(len(edge_of_cut)) - np.repeat(np.cumsum(pieces - 1) - (pieces - 1), pieces - 1)
-    frac = (cut_rank + 1) / pieces[edge_of_cut]
-    cuts = position[p[edge_of_cut]] + frac[:, None] * (position[q] - position[p])[edge_of_cut]
-    chain_start = np.cumsum(pieces + 1) - (pieces + 1)
-    chain = np.empty(int((pieces + 1).sum()), dtype=np.int64)
-    chain[chain_start] = p
-    chain[chain_start + pieces] = q
-    chain[chain_start[edge_of_cut] + 1 + cut_rank] = len(position) + np.arange(len(cuts))
-    seg_edge = np.repeat(np.arange(n_edges), pieces)
-    seg_at = np.arange(len(seg_edge)) + seg_edge  # position of each segment's start in the chain
-    start, end = chain[seg_at], chain[seg_at + 1]
-
-    def tensor(x: np.ndarray, dtype: torch.dtype) -> torch.Tensor:
-        return torch.as_tensor(np.ascontiguousarray(x), dtype=dtype, device=device)
-
-    return EdgeModel(
-        vertices=tensor(np.concatenate([position, cuts]), torch.float32),
-        segments=tensor(np.stack([start, end], axis=1), torch.int64),
-        planes=tensor(np.stack([plane[f1], plane[f2]], axis=1), torch.float32),
-        crease=tensor(crease, torch.bool),
-        edge_segments=tensor(np.stack([np.cumsum(pieces) - pieces, pieces], axis=1), torch.int64),
-    )
-
-
-def edge_model_of(mesh: RenderMesh, segment_mm: float = 3.0) -> EdgeModel:
-    """:func:`edge_model` of a prepared render mesh, with its crease angle, on its device."""
-    return edge_model(
-        mesh.vertices.double().cpu().numpy(),
-        mesh.faces.cpu().numpy(),
-        segment_mm,
-        mesh.crease_angle_deg,
-        device=mesh.device,
-    )
-
-
-def edge_costs(
-    model: EdgeModel,
-    T_cam_model: torch.Tensor,
-    K: torch.Tensor,
-    dist_maps: torch.Tensor,
-    view_weights: torch.Tensor,
-    occluder_depth: torch.Tensor | None = None,
-    near: float = 1.0,
-    layout: str | None = None,
-) -> torch.Tensor:
-    """Edge-point cost ``(B,)`` of B candidates over V views (see the module docstring).
-
-    Args:
-        model: the object's edges (:func:`edge_model`), on the device of ``T_cam_model``.
-        T_cam_model: ``(B, V, 4, 4)`` candidate poses in each view's camera frame (mm).
-        K: ``(V, 3, 3)`` intrinsics of the distance maps' resolution (a pinhole K: last row ``[0, 0, 1]``,
-            so that the third homogeneous coordinate is the camera depth that ``near`` is compared with).
-        dist_maps: ``(V, H, W)`` float32 distance maps of the target curvature (pixels).
-        view_weights: ``(V,)``.
-        occluder_depth: ``(V, H, W)`` depth (mm) of the objects already placed, 0 where none, widened by
-            :func:`edge_occluder`; None: none.
-        near: points closer to the camera plane than this (mm) are not drawn.
-        layout: ``kernel`` (CPU only: one compiled loop, :mod:`bop_cender.pose.edge_kernel`), ``cuda`` (CUDA only,
-            or numba's simulator: the same loop as one CUDA kernel, :mod:`bop_cender.pose.cuda_edge_kernel`),
-            ``compacted`` (torch: the drawn segments gathered first) or ``dense`` (torch: every segment costed with a
-            0/1 weight, fixed shapes, no wait for the device); None (default): the kernel on the CPU, the CUDA kernel
-            on CUDA where numba's CUDA target works, else dense (warned once; the module docstring says why).
-
-    Returns:
-        ``(B,)`` float32 ``sum_v w_v cost_v`` on the device of ``T_cam_model``.
-    """
-    sizes = check_shape(T_cam_model, "B V 4 4", "T_cam_model")
-    check_shape(K, "V 3 3", "K", sizes)
-    check_shape(dist_maps, "V H W", "dist_maps", sizes)
-    check_shape(view_weights, "V", "view_weights", sizes)
-    if occluder_depth is not None:
-        check_shape(occluder_depth, "V H W", "occluder_depth", sizes)
-    device = T_cam_model.device
-    fallback = layout is None and device.type == "cuda"  # the CUDA kernel where numba's CUDA target works
-    if layout is None:
-        layout = "kernel" if device.type != "cuda" else _cuda_default()
-    if layout not in LAYOUTS:
-        raise ValueError(f"unknown edge-cost layout {layout!r}; expected one of {', '.join(LAYOUTS)}")
-    if layout == "kernel" and device.type != "cpu":
-        raise ValueError(f"the kernel layout runs on the CPU only, not on {device}")
-    if layout == "cuda":
-        from bop_cender.render.cuda_loops import check_device
-
-        check_device(device, "the cuda layout (the CUDA edge kernel)")
-    T = T_cam_model.to(torch.float32)
-    B, V = sizes["B"], sizes["V"]
-    flat_T = T.reshape(B * V, 4, 4)
-    Ks = K.to(device, torch.float32)
-    dist = dist_maps.to(device, torch.float32)
-    occ = None if occluder_depth is None else occluder_depth.to(device, torch.float32)
-    per_view = None
-    if layout == "kernel":
-        from bop_cender.pose.edge_kernel import kernel_canvas_costs  # numba: imported where it is used
-
-        view = torch.arange(B * V) % V
-        per_view = kernel_canvas_costs(
-            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
-        )
-    elif layout == "cuda":
-        per_view = _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback)
-        if per_view is None:  # the kernel failed where it was the default: the torch layout serves
-            layout = "dense"
-    if per_view is None:
-        dense = layout == "dense"
-        per_view = torch.empty(B * V, dtype=torch.float32, device=device)
-        chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
-        for start in range(0, B * V, chunk):
-            stop = min(B * V, start + chunk)
-            view = torch.arange(start, stop, device=device) % V
-            per_view[start:stop] = _canvas_costs(model, flat_T[start:stop], view, Ks, dist, occ, near, dense)
-    return (per_view.view(B, V) * view_weights.to(device, torch.float32)).sum(1)
-
-
-def _cuda_default() -> str:
-    """CUDA's default layout: the CUDA kernel (:mod:`bop_cender.pose.cuda_edge_kernel`) where numba's CUDA target
-    works, else ``dense`` (with one warning saying why)."""
-    from bop_cender.pose import cuda_edge_kernel
-
-    reason = cuda_edge_kernel.GUARD.unavailable()
-    if reason is None:
-        return "cuda"
-    cuda_edge_kernel.GUARD.warn_once(f"{cuda_edge_kernel.GUARD.fallback}: {reason}")
-    return "dense"
-
-
-def _cuda_kernel_costs(model, flat_T, V, Ks, dist, occ, near, fallback) -> torch.Tensor | None:
-    """The CUDA kernel's per-canvas costs; None where it failed and ``fallback`` lets the torch layout serve (the
-    default on CUDA: warned once; after a failure of numba or the driver, later calls take the torch layout); where the
-    kernel was asked for by name, its failure is raised (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`)."""
-    from bop_cender.pose import cuda_edge_kernel
-
-    view = torch.arange(flat_T.shape[0], device=flat_T.device) % V
-    return cuda_edge_kernel.GUARD.run(
-        lambda: cuda_edge_kernel.cuda_canvas_costs(
-            model, flat_T, view, Ks, dist, occ, near, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM
-        ),
-        None if fallback else True,
-    )
+def torch_edge_view_costs(model: EdgeModel, T: torch.Tensor, V: int, K: torch.Tensor, dist: torch.Tensor,
+                          occ: torch.Tensor | None, near: float, dense: bool) -> torch.Tensor:  # fmt: skip
+    """Unweighted edge-point costs ``(C,)`` float32 of C canvases (canvas ``c`` in view ``c % V``) in a torch layout:
+    ``dense`` (every segment costed with a 0/1 weight, fixed shapes, no wait for the device) or compacted (the drawn
+    segments gathered first). Inputs on one device, float32: ``T (C, 4, 4)`` poses in each canvas's camera frame,
+    ``K (V, 3, 3)``, ``dist (V, H, W)``, ``occ (V, H, W)`` (:func:`edge_occluder`; None: no occluder); ``near`` (mm):
+    points closer to the camera plane are not drawn."""
+    C, device = int(T.shape[0]), T.device
+    per_view = torch.empty(C, dtype=torch.float32, device=device)
+    chunk = max(1, DENSE_CHUNK_SEGMENTS // max(1, model.num_segments)) if dense else CANVAS_CHUNK
+    for start in range(0, C, chunk):
+        stop = min(C, start + chunk)
+        view = torch.arange(start, stop, device=device) % V
+        per_view[start:stop] = _canvas_costs(model, T[start:stop], view, K, dist, occ, near, dense)
+    return per_view
 
 
 def _drawn_edges(model: EdgeModel, T: torch.Tensor) -> torch.Tensor:
@@ -432,7 +141,7 @@ def _canvas_costs(
     else:
         c_edge, edge = drawn.nonzero(as_tuple=True)
         first, count = model.edge_segments.index_select(0, edge).unbind(1)
-        s_idx = torch.repeat_interleave(first, count) + _ranks(count)
+        s_idx = torch.repeat_interleave(first, count) + ranks(count)
         c_idx = torch.repeat_interleave(c_edge, count)
     M = proj.ends.shape[1]
     hom = _projected_ends(model, T, view, Ks).reshape(-1)  # (C 3 M): row c 3 + k, column m
@@ -496,7 +205,7 @@ def _segment_weights(
 
 
 def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:
-    """The occluder depth ``(V, H, W)`` that :func:`edge_costs` wants: each pixel the nearest placed surface
+    """The occluder depth ``(V, H, W)`` that :meth:`~bop_cender.pose.backend.Backend.edge_costs` wants: each pixel the nearest placed surface
     in its 3 x 3 neighbourhood (0 where none).
 
     Why: a candidate that duplicates a placed object has its contour exactly on the placed object's
@@ -508,13 +217,6 @@ def edge_occluder(occluder_depth: torch.Tensor) -> torch.Tensor:
     far = torch.where(occluder_depth > 0, occluder_depth, torch.full_like(occluder_depth, float("inf")))
     near = -torch.nn.functional.max_pool2d(-far[:, None], 3, stride=1, padding=1)[:, 0]
     return torch.where(torch.isfinite(near), near, torch.zeros_like(near))
-
-
-def _ranks(count: torch.Tensor) -> torch.Tensor:
-    """``0 .. count[i] - 1`` for each i, concatenated: ``(sum(count),)`` int64."""
-    total = int(count.sum())
-    starts = torch.repeat_interleave(torch.cumsum(count, 0) - count, count, output_size=total)
-    return torch.arange(total, device=count.device) - starts
 
 
 def _bilinear(maps: torch.Tensor, view: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:

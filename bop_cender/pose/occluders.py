@@ -13,16 +13,20 @@ import numpy as np
 import torch
 
 from bop_cender.pose.types import PlacedObject, SceneCameras
+from bop_cender.render.backend import RenderBackend
 from bop_cender.render.candidate_curvature import occluded
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
 
 
 def occluder_depth(
-    placed: Sequence[PlacedObject], cameras: SceneCameras, meshes: Callable[[int], RenderMesh]
+    placed: Sequence[PlacedObject],
+    cameras: SceneCameras,
+    meshes: Callable[[int], RenderMesh],
+    backend: RenderBackend,
 ) -> torch.Tensor:
-    """``(V, H, W)`` depth (mm) of the placed objects rendered together in every view (0: nothing), on the device of
-    their meshes."""
+    """``(V, H, W)`` depth (mm) of the placed objects rendered together in every view by ``backend`` (0: nothing), on
+    the device of their meshes."""
     T_wm = np.stack([p.T_world_model for p in placed])
     T_cm = np.einsum("vij,mjk->vmik", cameras.T_cam_world, T_wm)
     placed_meshes = [meshes(p.obj_id) for p in placed]
@@ -33,6 +37,7 @@ def occluder_depth(
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=device),
         cameras.height,
         cameras.width,
+        backend=backend,
     )
     return render.depth
 
@@ -43,6 +48,7 @@ def hidden_pixels_differ(
     after: torch.Tensor | None,
     cameras: SceneCameras,
     meshes: Callable[[int], RenderMesh],
+    backend: RenderBackend,
 ) -> bool:
     """Whether the occluder depth ``after (V, H, W)`` hides other pixels of ``obj`` than ``before`` did
     (the render cost's rule; None: no occluder). Where it hides the same ones, the object's cost and its
@@ -57,6 +63,7 @@ def hidden_pixels_differ(
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=mesh.device),
         cameras.height,
         cameras.width,
+        backend=backend,
     ).depth
 
     def hidden(occ: torch.Tensor | None) -> torch.Tensor:

@@ -42,7 +42,7 @@ def polish_on_scene(
         window = scene_window(
             meshes(obj.obj_id), obj.T_world_model, [(meshes(o.obj_id), o.T_world_model) for o in others],
             maps.cameras.Ks, maps.cameras.T_cam_world, maps.edges, maps.dist, context.edge_threshold,
-            config.scene_polish.margin_px,
+            config.scene_polish.margin_px, context.backend,
         )  # fmt: skip
         # the occluders only matter for the final cost of a kept pose: rendered then, not for every part
         problem = Refinement(context, judge.targets[idx], obj.obj_id)
@@ -54,7 +54,7 @@ def polish_on_scene(
         spent = obj.evaluations + fev + 1
         if cost < scene_now:
             if config.occlusion and others:
-                problem = replace(problem, occluder_depth=occluder_depth(others, maps.cameras, meshes))
+                problem = replace(problem, occluder_depth=occluder_depth(others, maps.cameras, meshes, context.backend))
             final = problem.cost(T_new) + problem.center_term(T_new)
             placed[idx] = PlacedObject(obj.obj_id, T_new[0], float(final[0]), spent + 1)
             scene_now = cost
@@ -70,4 +70,5 @@ class _WindowCost:
         self.window, self.problem = window, problem
 
     def __call__(self, T_world_model: np.ndarray) -> np.ndarray:
-        return self.window.costs(T_world_model) + self.problem.center_term(T_world_model)
+        backend = self.problem.context.backend
+        return backend.window_costs(self.window, T_world_model) + self.problem.center_term(T_world_model)

@@ -1,7 +1,7 @@
 """One object's fit: what its candidates and refinement are costed against (:class:`Refinement`).
 
 The paper's render cost (:func:`render_costs`: the pose's curvature rendered in every view, its distance to the
-target edges) and the edge-point proxy (:func:`~bop_cender.pose.edge_cost.edge_costs`) of poses of one object
+target edges) and the edge-point proxy (:meth:`~bop_cender.pose.backend.Backend.edge_costs`) of poses of one object
 id at one target, under the occluder depth of the objects placed before it, each view weighted by the target's
 center score in it (:func:`view_weights`), plus the centre term (:func:`~bop_cender.pose.center_term.center_term`).
 """
@@ -14,11 +14,12 @@ from functools import cached_property
 import numpy as np
 import torch
 
+from bop_cender.pose.backend import Backend
 from bop_cender.pose.center_term import center_term
 from bop_cender.pose.config import PoseConfig
 from bop_cender.pose.context import SceneContext
-from bop_cender.pose.cost import candidate_costs
-from bop_cender.pose.edge_cost import EdgeModel, edge_costs, edge_occluder
+from bop_cender.pose.edge_cost import edge_occluder
+from bop_cender.pose.edge_model import EdgeModel
 from bop_cender.pose.types import PoseTarget, SceneCameras
 from bop_cender.render.mesh import RenderMesh
 
@@ -79,17 +80,19 @@ class Refinement:
     def cost(self, T_world_model: np.ndarray) -> np.ndarray:
         """``(n,)`` render costs of poses ``(n, 4, 4)`` (pixels)."""
         fine = self.context.fine
-        return render_costs(self.mesh, T_world_model, fine.cameras, fine.dist, self.weights, self.occluder_depth)
+        return render_costs(
+            self.mesh, T_world_model, fine.cameras, fine.dist, self.weights, self.occluder_depth, self.context.backend
+        )
 
     def search_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
         """``(n,)`` what the edge search ranks and refines poses ``(n, 4, 4)`` by: the edge cost plus the centre term."""
         return self.edge_cost(T_world_model, model) + self.center_term(T_world_model)
 
     def edge_cost(self, T_world_model: np.ndarray, model: EdgeModel) -> np.ndarray:
-        """``(n,)`` edge-point costs (:func:`~bop_cender.pose.edge_cost.edge_costs`) of poses ``(n, 4, 4)``."""
+        """``(n,)`` edge-point costs (:meth:`~bop_cender.pose.backend.Backend.edge_costs`) of poses ``(n, 4, 4)``."""
         fine = self.context.fine
         T_cm = np.einsum("vij,njk->nvik", fine.cameras.T_cam_world, T_world_model)
-        out = edge_costs(
+        out = self.context.backend.edge_costs(
             model,
             torch.as_tensor(T_cm, dtype=torch.float32, device=fine.dist.device),
             torch.as_tensor(fine.cameras.Ks, dtype=torch.float32, device=fine.dist.device),
@@ -107,11 +110,13 @@ def render_costs(
     dist: torch.Tensor,
     weights: torch.Tensor,
     occluder_depth: torch.Tensor | None,
+    backend: Backend,
     threads: int = 1,
 ) -> np.ndarray:
-    """``(n,)`` float64 render costs of ``T_world_model (n, 4, 4)`` in all views (``threads``: chunk threads)."""
+    """``(n,)`` float64 render costs of ``T_world_model (n, 4, 4)`` in all views, by ``backend`` (``threads``: chunk
+    threads)."""
     T_cm = np.einsum("vij,njk->nvik", cameras.T_cam_world, T_world_model)
-    out = candidate_costs(
+    out = backend.candidate_costs(
         mesh,
         torch.as_tensor(T_cm, dtype=torch.float32, device=dist.device),
         torch.as_tensor(cameras.Ks, dtype=torch.float32, device=dist.device),

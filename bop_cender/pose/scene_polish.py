@@ -2,7 +2,7 @@
 
 Why. After the sweeps every object sits where the edge proxy (:mod:`bop_cender.pose.edge_cost`) is
 smallest, and the sweeps only choose *between* refined poses by the scene cost
-(:func:`~bop_cender.pose.coverage.scene_cost`: the whole placement rendered together, forward plus backward
+(:meth:`~bop_cender.pose.backend.Backend.scene_cost`: the whole placement rendered together, forward plus backward
 edge distance). Where the proxy's minimum and the scene's differ by a little, nothing moves the object
 to the scene's. Measured on oracle heatmaps (DIMO-layout seed 4242, scene 000019_00, five 53 mm discs):
 a fully visible disc placed 6 degrees from its symmetric pose (MSSD 5.5 % of its diameter: a miss at
@@ -16,11 +16,12 @@ views on one CPU thread, against 4.5 ms for the windowed cost: ``python scripts/
 polish"). Only one object moves, so the cost is taken in a window around it in each view
 (its bounding sphere's projection plus a margin): the other objects are rendered once into the windows,
 each trial pose of the moving one is rendered into them alone and composited by depth, and the forward and
-backward terms are those of :func:`~bop_cender.pose.coverage.scene_cost` inside the windows (normalised
+backward terms are those of :meth:`~bop_cender.pose.backend.Backend.scene_cost` inside the windows (normalised
 over the window's pixels, and a window without any composite edge costs the image diagonal as a frame
 does: a constant offset against the full cost, the same ranking). A pose the window polish finds is kept
-only where the full scene cost falls. On the CPU the steps after the render (composite, curvature, both terms)
-run as one compiled pass (:mod:`bop_cender.pose.window_kernel`; ``python scripts/bench_run.py``, section "Scene
+only where the full scene cost falls. The backend computes it (:meth:`~bop_cender.pose.backend.Backend.window_costs`;
+here: the ``auto`` and ``numba`` backends'; ``torch``: torch operators throughout). On the CPU the steps after the
+render (composite, curvature, both terms) run as one compiled pass (:mod:`bop_cender.pose.window_kernel`; ``python scripts/bench_run.py``, section "Scene
 polish", times a call both ways), and the render itself is the compiled loop of
 :mod:`bop_cender.render.compiled_raster` (the torch pipeline's bits without its fixed cost of about 2,000
 operators a call: ``scripts/bench_run.py``, section "Scene polish", times both renders). On CUDA the whole call, render
@@ -50,6 +51,7 @@ import torch
 
 from bop_cender.pose.cost import view_costs
 from bop_cender.pose.coverage import mean_distance_to_own_edges
+from bop_cender.render.backend import RenderBackend
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
 from bop_cender.render.rasterizer import render_scene
@@ -76,50 +78,30 @@ class SceneWindow:
     edge_threshold: float
     packed: PackedMeshes | None = None
 
-    def costs(self, T_world_model: np.ndarray, compiled: bool | None = None) -> np.ndarray:
-        """``(m,)`` windowed scene costs (pixels, the mean over the views of forward plus backward, as
-        :func:`~bop_cender.pose.coverage.scene_cost`) of poses ``(m, 4, 4)`` of the object.
 
-        ``compiled``: on the CPU, after the render, composite and cost in one compiled pass
-        (:func:`~bop_cender.pose.window_kernel.window_costs`); on CUDA, all of it in one kernel
-        (:func:`~bop_cender.pose.cuda_window_kernel.cuda_window_costs`); False: the torch steps. None (default): the
-        compiled pass on the CPU, the kernel on CUDA where numba's CUDA target works (else the torch steps, with one
-        warning saying why). They agree to float32 rounding.
+def torch_window_costs(window: SceneWindow, depth: torch.Tensor, normals: torch.Tensor, m: int) -> np.ndarray:
+    """``(m,)`` windowed scene costs (pixels: the mean over the views of forward plus backward, as
+    :meth:`~bop_cender.pose.backend.Backend.scene_cost` inside the windows) of m trial poses of the window's part, from
+    its render into the windows, ``depth (m V, h, w)`` and ``normals (m V, h, w, 3)`` (canvas ``c`` = trial ``c // V``
+    in view ``c % V``), by torch operators: the part composited over the other parts by depth, the curvature of the
+    composite, the forward and the backward terms. What :meth:`~bop_cender.pose.backend.Backend.window_costs` is in the
+    ``torch`` backend."""
+    V = len(window.T_cam_world)
+    other_depth = window.other_depth.repeat(m, 1, 1)
+    front = (depth > 0) & ((other_depth == 0) | (depth < other_depth))
+    composite = torch.where(front[..., None], normals, window.other_normals.repeat(m, 1, 1, 1))
+    curv = curvature(composite)  # (m V, h, w)
+    forward = view_costs(curv, window.dist, window.offsets.repeat(m, 1))
+    backward = mean_distance_to_own_edges(curv, window.target_edges.repeat(m, 1, 1), window.edge_threshold)
+    return (forward + backward).view(m, V).mean(1).double().cpu().numpy()
 
-        Raises:
-            RuntimeError: ``compiled=True`` on CUDA where the kernel cannot run.
-        """
-        on_cuda = self.dist.device.type == "cuda"
-        if on_cuda and compiled is not False:
-            costs = self._kernel_costs(T_world_model, compiled)
-            if costs is not None:
-                return costs
-            compiled = False  # the torch steps, the render too (the kernel declined, or none)
-        m, V = len(T_world_model), len(self.T_cam_world)
-        h, w = self.size
-        T_cm = np.einsum("vij,mjk->mvik", self.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
-        T = torch.as_tensor(T_cm, dtype=torch.float32, device=self.dist.device)
-        render = render_scene([self.mesh], T, self.K.repeat(m, 1, 1), h, w, compiled=False if on_cuda else None)
-        if compiled if compiled is not None else self.dist.device.type == "cpu":
-            from bop_cender.pose.window_kernel import window_costs  # numba: imported where it is used
 
-            total = window_costs(render.depth, render.normals, self.other_depth, self.other_normals, self.dist,
-                                 self.offsets, self.target_edges, self.edge_threshold)  # fmt: skip
-            return total.view(m, V).mean(1).numpy()
-        other_depth = self.other_depth.repeat(m, 1, 1)
-        front = (render.depth > 0) & ((other_depth == 0) | (render.depth < other_depth))
-        normals = torch.where(front[..., None], render.normals, self.other_normals.repeat(m, 1, 1, 1))
-        curv = curvature(normals)  # (m V, h, w)
-        forward = view_costs(curv, self.dist, self.offsets.repeat(m, 1))
-        backward = mean_distance_to_own_edges(curv, self.target_edges.repeat(m, 1, 1), self.edge_threshold)
-        return (forward + backward).view(m, V).mean(1).double().cpu().numpy()
-
-    def _kernel_costs(self, T_world_model: np.ndarray, compiled: bool | None) -> np.ndarray | None:
-        """The CUDA kernel's costs; None where the torch steps are to run
-        (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`)."""
-        from bop_cender.pose import cuda_window_kernel
-
-        return cuda_window_kernel.GUARD.run(lambda: cuda_window_kernel.cuda_window_costs(self, T_world_model), compiled)
+def window_poses(window: SceneWindow, T_world_model: np.ndarray) -> torch.Tensor:
+    """``T_cam_model (m V, 1, 4, 4)`` float32 on the window's device of trial poses ``T_world_model (m, 4, 4)`` of its
+    part: canvas ``c`` = trial ``c // V`` in view ``c % V``, as the render of the part into the windows takes them."""
+    m, V = len(T_world_model), len(window.T_cam_world)
+    T_cm = np.einsum("vij,mjk->mvik", window.T_cam_world, T_world_model).reshape(m * V, 1, 4, 4)
+    return torch.as_tensor(T_cm, dtype=torch.float32, device=window.dist.device)
 
 
 def scene_window(
@@ -132,13 +114,15 @@ def scene_window(
     dist: torch.Tensor,
     edge_threshold: float,
     margin_px: int,
+    backend: RenderBackend | None = None,
 ) -> SceneWindow:
     """The :class:`SceneWindow` of an object at ``T_world_model (4, 4)`` among ``others`` (mesh, pose) pairs.
 
     The window of a view is the projection of the object's bounding sphere (``mesh.radius`` about the model
     origin) plus ``margin_px``, one size for all views (the largest, at most the image), placed around the
     projected centre and kept inside the image. ``Ks (V, 3, 3)``, ``T_cam_world (V, 4, 4)``, the target's
-    ``target_edges (V, H, W)`` and their distance maps ``dist (V, H, W)``."""
+    ``target_edges (V, H, W)`` and their distance maps ``dist (V, H, W)``; ``backend`` renders the others
+    (:mod:`bop_cender.render.backend`; None: ``auto``)."""
     V, H, W = target_edges.shape
     device = dist.device
     origin = T_cam_world[:, :3, :3] @ T_world_model[:3, 3] + T_cam_world[:, :3, 3]  # (V, 3) model origin in cameras
@@ -162,7 +146,7 @@ def scene_window(
     if others:
         T_cm = np.einsum("vij,mjk->vmik", T_cam_world, np.stack([T for _, T in others]))
         T = torch.as_tensor(T_cm, dtype=torch.float32, device=device)
-        render = render_scene([mesh for mesh, _ in others], T, K, h, w)
+        render = render_scene([mesh for mesh, _ in others], T, K, h, w, backend=backend)
         other_depth, other_normals = render.depth, render.normals
     else:
         other_depth = torch.zeros((V, h, w), device=device)

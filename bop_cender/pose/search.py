@@ -145,7 +145,7 @@ def search_on_render(
     context = problem.context
     coarse = context.coarse
     costs = render_costs(problem.mesh, T, coarse.cameras, coarse.dist, problem.weights, coarse_occluder_depth,
-                         context.cost_threads)  # fmt: skip
+                         context.backend, context.cost_threads)  # fmt: skip
     starts = T[np.argsort(costs, kind="stable")[: max(1, context.config.candidates.top_k)]]
     starts = starts if extra is None else np.concatenate([starts, extra])
     T_ref, c_ref, fev = refine(starts, problem)

@@ -44,7 +44,11 @@ def optimise_scene(
     placed: list[PlacedObject] = []
     fitted_under: list[torch.Tensor | None] = []  # the occluder depth each object was last fitted under
     for n, i in enumerate(order):
-        occ = occluder_depth(placed, context.cameras, context.meshes) if config.occlusion and placed else None
+        occ = (
+            occluder_depth(placed, context.cameras, context.meshes, context.backend)
+            if config.occlusion and placed
+            else None
+        )
         placed.append(fit(context, targets[i], i, placed, occ, 0))
         fitted_under.append(occ)
         if progress is not None:
@@ -54,9 +58,15 @@ def optimise_scene(
     for sweep in range(1, config.sweeps.passes):
         for idx, i in enumerate(order):
             others = placed[:idx] + placed[idx + 1 :]
-            occ = occluder_depth(others, context.cameras, context.meshes) if config.occlusion and others else None
+            occ = (
+                occluder_depth(others, context.cameras, context.meshes, context.backend)
+                if config.occlusion and others
+                else None
+            )
             # where nothing hides it differently from when it was fitted, the same search would be repeated
-            if hidden_pixels_differ(placed[idx], fitted_under[idx], occ, context.cameras, context.meshes):
+            if hidden_pixels_differ(
+                placed[idx], fitted_under[idx], occ, context.cameras, context.meshes, context.backend
+            ):
                 pool: list[PlacedObject] = []
                 moved = fit(context, targets[i], i, others, occ, sweep, placed[idx], pool)
                 if scene_now is None:
@@ -90,7 +100,7 @@ def fit(
     :func:`~bop_cender.pose.search.optimise_object`."""
     occ_coarse = occ
     if occ is not None and context.coarse is not context.fine:
-        occ_coarse = occluder_depth(others, context.coarse.cameras, context.meshes)
+        occ_coarse = occluder_depth(others, context.coarse.cameras, context.meshes, context.backend)
     return optimise_object(context, target, context.rng(index, sweep), occ, occ_coarse, incumbent, finalists)
 
 

@@ -1,6 +1,6 @@
 """The scene polish's windowed cost after the render, as one compiled loop per canvas (CPU).
 
-Why. :meth:`~bop_cender.pose.scene_polish.SceneWindow.costs` renders the moving part into its windows, then
+Why. :meth:`~bop_cender.pose.backend.Backend.window_costs` renders the moving part into its windows, then
 composites it over the other parts by depth, takes the curvature of the composite normals
 (:func:`~bop_cender.render.curvature.curvature`), the forward cost (:func:`~bop_cender.pose.cost.view_costs`)
 and the backward one (:func:`~bop_cender.pose.coverage.mean_distance_to_own_edges`). In torch those steps are
@@ -22,6 +22,8 @@ binarisation at the edge threshold sees the same values) and float64 for the sum
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -32,47 +34,56 @@ from bop_cender.render.numba_cache import cached_njit
 from bop_cender.render.numba_loops import as_numpy as _np
 from bop_cender.render.numba_loops import canvas_loop
 
-#: The plain Python functions of the backward term's distances, by name: compiled here for the CPU and by
-#: :mod:`bop_cender.pose.cuda_window_kernel` as CUDA device functions (one source for both targets).
-SHARED_FUNCTIONS: dict[str, object] = {}
+
+class DistanceArithmetic(NamedTuple):
+    """The backward term's exact distances compiled for one target (:func:`distance_arithmetic`)."""
+
+    row_distances: Callable
+    nearest_edge_sq: Callable
 
 
-def _shared(py_func):
-    """Compile ``py_func`` for the CPU and record its source function in :data:`SHARED_FUNCTIONS`."""
-    SHARED_FUNCTIONS[py_func.__name__] = py_func
-    return cached_njit(nogil=True, inline="always")(py_func)
+def distance_arithmetic(jit: Callable) -> DistanceArithmetic:
+    """The backward term's distance steps compiled by ``jit``: numba's CPU ``njit`` (inlined in the CPU loop), numba's
+    CUDA ``jit(device=True)`` (:mod:`bop_cender.pose.cuda_window_kernel`), or the identity (numba's CUDA simulator):
+    one source for both targets."""
+
+    @jit
+    def row_distances(g, base, w):
+        """Row ``g[base : base + w]`` (0 at an own edge, a large value elsewhere) to each pixel's distance to its row's
+        nearest own edge, in place (pixels of a row without an edge keep the large value): a sweep each way."""
+        last = -1
+        for j in range(w):
+            if g[base + j] == 0:
+                last = j
+            elif last >= 0:
+                g[base + j] = j - last
+        nxt = -1
+        for j in range(w - 1, -1, -1):
+            if g[base + j] == 0:
+                nxt = j
+            elif nxt >= 0 and nxt - j < g[base + j]:
+                g[base + j] = nxt - j
+
+    @jit
+    def nearest_edge_sq(g, i, j, h, w, far):
+        """The squared Euclidean distance from pixel ``(i, j)`` to the nearest own edge, from the row distances ``g``
+        (flat, row-major, :func:`row_distances`): the least ``g[k, j]^2 + (i - k)^2`` over the rows ``k`` (``far^2``
+        where there is none)."""
+        best = far * far
+        for k in range(h):
+            gk = g[k * w + j]
+            d2 = gk * gk + (i - k) * (i - k)
+            if d2 < best:
+                best = d2
+        return best
+
+    return DistanceArithmetic(row_distances, nearest_edge_sq)
 
 
-@_shared
-def row_distances(g, base, w):
-    """Row ``g[base : base + w]`` (0 at an own edge, a large value elsewhere) to each pixel's distance to its row's
-    nearest own edge, in place (pixels of a row without an edge keep the large value): a sweep each way."""
-    last = -1
-    for j in range(w):
-        if g[base + j] == 0:
-            last = j
-        elif last >= 0:
-            g[base + j] = j - last
-    nxt = -1
-    for j in range(w - 1, -1, -1):
-        if g[base + j] == 0:
-            nxt = j
-        elif nxt >= 0 and nxt - j < g[base + j]:
-            g[base + j] = nxt - j
-
-
-@_shared
-def nearest_edge_sq(g, i, j, h, w, far):
-    """The squared Euclidean distance from pixel ``(i, j)`` to the nearest own edge, from the row distances ``g``
-    (flat, row-major, :func:`row_distances`): the least ``g[k, j]^2 + (i - k)^2`` over the rows ``k`` (``far^2``
-    where there is none)."""
-    best = far * far
-    for k in range(h):
-        gk = g[k * w + j]
-        d2 = gk * gk + (i - k) * (i - k)
-        if d2 < best:
-            best = d2
-    return best
+#: The steps compiled for the CPU, inlined where they are called.
+CPU_ARITHMETIC = distance_arithmetic(cached_njit(nogil=True, inline="always"))
+row_distances = CPU_ARITHMETIC.row_distances
+nearest_edge_sq = CPU_ARITHMETIC.nearest_edge_sq
 
 
 @canvas_loop

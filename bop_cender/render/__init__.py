@@ -8,10 +8,12 @@ Public API:
 - :func:`curvature` (the paper's curvature map of rendered normals).
 
 The cost function's tight-window path is :mod:`bop_cender.render.candidate_curvature`, used by
-:func:`bop_cender.pose.cost.candidate_costs`. On the CPU, :func:`render_scene` renders through the compiled loop
-of :mod:`bop_cender.render.compiled_raster` (the torch pipeline's bits, without its per-call operators); the torch
-pipeline (:mod:`bop_cender.render.raster`, :mod:`bop_cender.render.scanline`, :mod:`bop_cender.render.resolve`) is
-CUDA's, and the CPU's where geometry crosses the near plane.
+:meth:`bop_cender.pose.backend.Backend.candidate_costs`. Which code draws is a backend object
+(:mod:`bop_cender.render.backend`, the ``backend`` argument of the entry points): by default (``auto``) the compiled
+loop of :mod:`bop_cender.render.compiled_raster` on the CPU (the torch pipeline's bits, without its per-call
+operators) and the kernel of :mod:`bop_cender.render.cuda_render` on CUDA; the torch pipeline
+(:mod:`bop_cender.render.raster`, :mod:`bop_cender.render.scanline`, :mod:`bop_cender.render.resolve`) where they
+cannot run and where geometry crosses the near plane (``torch``: always).
 """
 
 from bop_cender.render.curvature import curvature

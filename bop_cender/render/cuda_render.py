@@ -7,7 +7,7 @@ placed parts as occluders of every object it searches, and the scene polish rend
 windows: on CUDA those renders are the last torch pipeline left in a search's loop. Here a call is one launch,
 block ``c`` drawing canvas ``c`` as the CPU's compiled loop does (:func:`~bop_cender.render.compiled_raster.
 raster_window` with exact keys: 1/z, ties to the larger face id), with its source
-(:func:`~bop_cender.render.cuda_loops.device_namespace`): the window's z-buffer as 64-bit atomic maxima, then the
+(:mod:`bop_cender.render.cuda_device`): the window's z-buffer as 64-bit atomic maxima, then the
 covered pixels shaded at their centres.
 
 Rounding. On a GPU NVVM contracts float32 multiply-adds, as nvcc does for torch's CUDA kernels: the maps agree with
@@ -18,18 +18,18 @@ maps are the CPU's bit for bit.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import torch
 
-from bop_cender.render.cuda_loops import (
-    KernelGuard,
-    check_device,
-    check_threads,
-    clone,
-    device_namespace,
-    exact_key_inputs,
-)
+from bop_cender.render.cuda_device import FACE_ID_MASK, DeviceFunctions, device_functions
+from bop_cender.render.cuda_loops import CanvasArrays, KernelGuard, check_device, check_threads, exact_key_inputs
 from bop_cender.render.mesh import PackedMeshes
+
+try:  # numba's CUDA target: where it is missing, the guard says so and render_scene takes the torch pipeline
+    from numba import cuda
+except ImportError:  # pragma: no cover
+    cuda = None
 
 #: Most threads per block (one block per canvas).
 BLOCK_THREADS = 512
@@ -40,59 +40,50 @@ WINDOW_THREADS, FRAME_THREADS = 128, 512
 CHUNK_PIXELS = 1 << 25
 
 
-def _render_kernel(cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv, fused, z_range, near,
-                   offsets, keys, depth, normals, face_map):  # fmt: skip
-    """Canvas ``c = blockIdx.x`` into ``depth[c] (h, w)``, ``normals[c] (h, w, 3)`` and ``face_map[c] (h, w)`` (0, 0
-    and -1 where nothing is drawn), its window at ``offsets[c]`` (row, column). The first nine arguments:
-    :func:`~bop_cender.render.compiled_raster.loop_tensors`; ``z_range (C, 2)`` the canvas's least and greatest vertex
-    z; scratch ``keys (C, h * w)`` int64."""
-    c = cuda.blockIdx.x  # noqa: F821 (the names of this function are bound by device_namespace)
-    tid = cuda.threadIdx.x  # noqa: F821
-    threads = cuda.blockDim.x  # noqa: F821
-    h, w = depth.shape[1], depth.shape[2]
-    v0, u0 = offsets[c, 0], offsets[c, 1]
-    key = keys[c]
-    row = cuda.local.array(12, numba.float32)  # noqa: F821
-    scan_canvas_exact(c, tid, threads, cam_all, px_all, py_all, draw, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
-                      fused, z_range, near, v0, u0, h, w, key, row)  # fmt: skip
-    zero = np.float32(0.0)
-    for p in range(tid, h * w, threads):
-        i = p // w
-        j = p - i * w
-        k = key[p]
-        d = n0 = n1 = n2 = zero
-        f = -1
-        if k >= 0:
-            d, n0, n1, n2 = shade_key(c, k, i, j, v0, u0, cam_all, faces, face_instance, corner_normals, R, K_inv,  # noqa: F821
-                                      fused, row)  # fmt: skip
-            f = k & FACE_ID_MASK  # noqa: F821
-        depth[c, i, j] = d
-        normals[c, i, j, 0] = n0
-        normals[c, i, j, 1] = n1
-        normals[c, i, j, 2] = n2
-        face_map[c, i, j] = f
+def render_kernel(functions: DeviceFunctions):
+    """The render kernel's Python function on ``functions`` (:func:`~bop_cender.render.cuda_device.device_functions`
+    with exact keys; ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it)."""
+    scan_canvas_exact, shade_key = functions.scan_canvas_exact, functions.shade_key
+
+    def render_canvases(canvas: CanvasArrays, fused, z_range, near, offsets, keys, depth, normals, face_map):
+        """Canvas ``c = blockIdx.x`` into ``depth[c] (h, w)``, ``normals[c] (h, w, 3)`` and ``face_map[c] (h, w)`` (0,
+        0 and -1 where nothing is drawn), its window at ``offsets[c]`` (row, column); ``z_range (C, 2)`` the canvas's
+        least and greatest vertex z; scratch ``keys (C, h * w)`` int64."""
+        c = cuda.blockIdx.x
+        tid = cuda.threadIdx.x
+        threads = cuda.blockDim.x
+        h, w = depth.shape[1], depth.shape[2]
+        v0, u0 = offsets[c, 0], offsets[c, 1]
+        key = keys[c]
+        row = cuda.local.array(12, numba.float32)
+        scan_canvas_exact(c, tid, threads, canvas, fused, z_range, near, v0, u0, h, w, key, row)
+        zero = np.float32(0.0)
+        for p in range(tid, h * w, threads):
+            i = p // w
+            j = p - i * w
+            k = key[p]
+            d = n0 = n1 = n2 = zero
+            f = -1
+            if k >= 0:
+                d, n0, n1, n2 = shade_key(c, k, i, j, v0, u0, canvas, fused, row)
+                f = k & FACE_ID_MASK
+            depth[c, i, j] = d
+            normals[c, i, j, 0] = n0
+            normals[c, i, j, 1] = n1
+            normals[c, i, j, 2] = n2
+            face_map[c, i, j] = f
+
+    return render_canvases
 
 
 def kernel_function():
-    """The kernel's Python function with the device functions as its globals (not compiled yet:
-    ``numba.cuda.jit`` or ``numba.cuda.compile_ptx`` take it; ``scripts/check_cuda_compile.py`` does the latter)."""
-    return clone(_render_kernel, dict(device_namespace(exact_keys=True)))
+    """The kernel's Python function on this process's device functions (not compiled yet:
+    ``scripts/check_cuda_compile.py`` compiles it to PTX)."""
+    return render_kernel(device_functions(exact_keys=True))
 
 
 #: The kernel's standing in this process (compiled on first use; where it cannot run, the torch pipeline).
 GUARD = KernelGuard("the CUDA render kernel", "render_scene runs the torch pipeline on CUDA", kernel_function)
-
-
-def render_or_none(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,
-                   near: float, compiled: bool | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:  # fmt: skip
-    """:func:`cuda_render` as ``render_scene`` takes it on CUDA: None where the torch pipeline is to run instead
-    (:meth:`~bop_cender.render.cuda_loops.KernelGuard.run`: a vertex behind the near plane, or, with
-    ``compiled=None``, the kernel unavailable or failed).
-
-    Raises:
-        RuntimeError: ``compiled=True`` and the kernel cannot run here.
-    """
-    return GUARD.run(lambda: cuda_render(packed, R, t, K, height, width, near), compiled)
 
 
 def cuda_render(packed: PackedMeshes, R: torch.Tensor, t: torch.Tensor, K: torch.Tensor, height: int, width: int,

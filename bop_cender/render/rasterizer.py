@@ -16,15 +16,11 @@ import numpy as np
 import torch
 
 from bop_cender.geometry.check import check_shape
+from bop_cender.render.backend import RenderBackend, render_backend_named
 from bop_cender.render.mesh import PackedMeshes, RenderMesh, pack_meshes
-from bop_cender.render.raster import DEFAULT_NEAR, rasterize
-from bop_cender.render.resolve import WindowMaps, resolve
-from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS
-from bop_cender.render.window import Windows, window_offsets, window_size
-
-#: Window pixels rendered per chunk (all canvases of a chunk together); bounds the z-buffer and the
-#: fragment arrays. 2^21 pixels is about 16 MB of int64 keys.
-DEFAULT_CHUNK_PIXELS = DEFAULT_RENDER_SETTINGS.scene_chunk_pixels
+from bop_cender.render.raster import DEFAULT_NEAR
+from bop_cender.render.resolve import WindowMaps
+from bop_cender.render.window import window_offsets, window_size
 
 TensorLike = torch.Tensor | np.ndarray
 
@@ -114,7 +110,7 @@ def render_scene(
     height: int,
     width: int,
     near: float = DEFAULT_NEAR,
-    compiled: bool | None = None,
+    backend: RenderBackend | None = None,
 ) -> SceneRender:
     """Render M objects (each its own mesh) together in V views, with occlusion between them.
 
@@ -124,12 +120,9 @@ def render_scene(
         K: ``(V, 3, 3)`` intrinsics.
         height, width: image size.
         near: near plane (mm); nothing closer is drawn.
-        compiled: on the CPU, render with the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same
-            bits, without the torch pipeline's fixed cost of about 2,000 operators a call), on CUDA with its kernel
-            (:mod:`bop_cender.render.cuda_render`: one launch, the same maps to float32 rounding); None (default): on
-            the CPU where the loops can repeat torch's rounding (``compiled_raster.AVAILABLE``), on CUDA where numba's
-            CUDA target works (else warned once), unless a vertex is behind the near plane (the torch pipeline cuts
-            faces there); False: the torch pipeline.
+        backend: which code draws (:mod:`bop_cender.render.backend`); None: ``auto``, the compiled loop on the CPU
+            (the torch pipeline's bits without its fixed cost of about 2,000 operators a call), the CUDA kernel on
+            CUDA (the same maps to float32 rounding), each where it can run, else the torch pipeline.
 
     Returns:
         Depth, normals, instance and face maps ``(V, H, W, ...)``.
@@ -141,39 +134,13 @@ def render_scene(
     packed = _packed_to(packed, device)
     T = _as_f32(T_cam_model, device)
     Ks = _as_f32(K, device)
-    V, M = int(T.shape[0]), int(T.shape[1])
+    M = int(T.shape[1])
     if packed.num_meshes != M:
         raise ValueError(f"T_cam_model has {M} objects but {packed.num_meshes} meshes were given")
     R, t = T[..., :3, :3], T[..., :3, 3]
-    from bop_cender.render import compiled_raster  # numba: imported where it is used
-
-    if device.type == "cuda" and compiled is not False:
-        if V > 0:
-            from bop_cender.render import cuda_render  # numba: imported where it is used
-
-            maps = cuda_render.render_or_none(packed, R, t, Ks, height, width, near, compiled)
-            if maps is not None:
-                return SceneRender(*maps, packed.face_instance, packed.face_local)
-            compiled_raster.behind_near_plane(compiled)  # compiled=True: the kernel declined (the near plane)
-        compiled = False  # the torch pipeline (a vertex behind the near plane, no kernel, or nothing to draw)
-
-    if compiled_raster.use_compiled(compiled, device) and V > 0:
-        maps = compiled_raster.render_compiled(packed, R, t, Ks, height, width, near)
-        if maps is not None:
-            return SceneRender(*maps, packed.face_instance, packed.face_local)
-        compiled_raster.behind_near_plane(compiled)
-    chunks = _chunks(V, max(1, DEFAULT_CHUNK_PIXELS // (height * width)))
-    # one chunk: its maps are the maps (no copy)
-    merged = None if len(chunks) == 1 and V > 0 else _empty_maps(V, height, width, device)
-    for views in chunks:
-        n = views.stop - views.start
-        windows = Windows.uniform(torch.zeros((n, 2), dtype=torch.int64, device=device), height, width)
-        maps = resolve(rasterize(packed, R[views], t[views], Ks[views], windows, near))
-        if merged is None:
-            merged = maps
-        else:
-            _copy_maps(merged, views, maps)
-    return SceneRender(merged.depth, merged.normals, merged.face, packed.face_instance, packed.face_local)
+    backend = render_backend_named("auto") if backend is None else backend
+    depth, normals, face = backend.scene_maps(packed, R, t, Ks, height, width, near)
+    return SceneRender(depth, normals, face, packed.face_instance, packed.face_local)
 
 
 def render_objects_separately(
@@ -183,6 +150,7 @@ def render_objects_separately(
     height: int,
     width: int,
     near: float = DEFAULT_NEAR,
+    backend: RenderBackend | None = None,
 ) -> ObjectsRender:
     """Render each of M objects alone in V views (no occlusion between them): depth ``(V, M, H, W)``.
 
@@ -198,7 +166,8 @@ def render_objects_separately(
         raise ValueError(f"T_cam_model has {M} objects but {len(meshes)} meshes were given")
     depth = torch.zeros((V, M, height, width), dtype=torch.float32, device=device)
     for m, mesh in enumerate(meshes):
-        maps = _render_windows(mesh.to(device), T[:, m], Ks, None, (height, width), near, normals=False, faces=False)
+        maps = _render_windows(mesh.to(device), T[:, m], Ks, None, (height, width), near, backend, normals=False,
+                               faces=False)  # fmt: skip
         depth[:, m] = maps.depth
     return ObjectsRender(depth=depth)
 
@@ -213,6 +182,7 @@ def render_candidates(
     near: float = DEFAULT_NEAR,
     depth: bool = True,
     normals: bool = True,
+    backend: RenderBackend | None = None,
 ) -> CandidateRender:
     """Render B pose candidates of one mesh in V views, each in a square window around its origin.
 
@@ -226,6 +196,7 @@ def render_candidates(
         near: near plane (mm).
         depth: also return depth (the cost function needs only normals).
         normals: also return normals (VSD needs only depth: skipping them saves 10-20 %).
+        backend: as :func:`render_scene`.
 
     Returns:
         Normals (None when not asked for), mask, depth in the windows ``(B, V, S, S, ...)`` and the windows' offsets ``(B, V, 2)``.
@@ -246,6 +217,7 @@ def render_candidates(
         offsets.reshape(B * V, 2),
         (S, S),
         near,
+        backend,
         depth,
         normals=normals,
         faces=False,
@@ -265,51 +237,17 @@ def _render_windows(
     offsets: torch.Tensor | None,
     size: tuple[int, int],
     near: float,
+    backend: RenderBackend | None,
     depth: bool = True,
     normals: bool = True,
     faces: bool = True,
 ) -> WindowMaps:
-    """One mesh in C canvases ``T (C, 4, 4)``, ``K (C, 3, 3)``, windows at ``offsets (C, 2)`` (None: 0).
-
-    On the CPU through the compiled loop (:mod:`bop_cender.render.compiled_raster`: the same bits) where it can."""
-    C = int(T.shape[0])
+    """One mesh in C canvases ``T (C, 4, 4)``, ``K (C, 3, 3)``, windows at ``offsets (C, 2)`` (None: 0), drawn by
+    ``backend`` (None: ``auto``, the compiled loop on the CPU)."""
     if offsets is None:
-        offsets = torch.zeros((C, 2), dtype=torch.int64, device=T.device)
-    from bop_cender.render import compiled_raster  # numba: imported where it is used
-
-    if compiled_raster.use_compiled(None, T.device) and C > 0:
-        maps = compiled_raster.render_compiled(mesh, T[:, None, :3, :3], T[:, None, :3, 3], K, *size, near, offsets)
-        if maps is not None:
-            d, n, f = maps
-            return WindowMaps(f >= 0, f if faces else None, d if depth else None, n if normals else None)
-    out = _empty_maps(C, size[0], size[1], T.device, depth, normals, faces)
-    for rows in _chunks(C, max(1, DEFAULT_CHUNK_PIXELS // (size[0] * size[1]))):
-        windows = Windows.uniform(offsets[rows], size[0], size[1])
-        raster = rasterize(mesh, T[rows, None, :3, :3], T[rows, None, :3, 3], K[rows], windows, near, normals=normals)
-        _copy_maps(out, rows, resolve(raster, depth=depth, normals=normals, faces=faces))
-    return out
-
-
-def _chunks(n: int, size: int) -> list[slice]:
-    return [slice(i, min(n, i + size)) for i in range(0, n, size)] or [slice(0, 0)]
-
-
-def _empty_maps(
-    C: int, h: int, w: int, device: torch.device, depth: bool = True, normals: bool = True, faces: bool = True
-) -> WindowMaps:
-    return WindowMaps(
-        mask=torch.zeros((C, h, w), dtype=torch.bool, device=device),
-        face=torch.full((C, h, w), -1, dtype=torch.int64, device=device) if faces else None,
-        depth=torch.zeros((C, h, w), dtype=torch.float32, device=device) if depth else None,
-        normals=torch.zeros((C, h, w, 3), dtype=torch.float32, device=device) if normals else None,
-    )
-
-
-def _copy_maps(out: WindowMaps, rows: slice, part: WindowMaps) -> None:
-    for name in ("mask", "face", "depth", "normals"):
-        dst = getattr(out, name)
-        if dst is not None:
-            dst[rows] = getattr(part, name)
+        offsets = torch.zeros((int(T.shape[0]), 2), dtype=torch.int64, device=T.device)
+    backend = render_backend_named("auto") if backend is None else backend
+    return backend.window_maps(mesh, T, K, offsets, size, near, depth, normals, faces)
 
 
 def _device(T: TensorLike, default: torch.device) -> torch.device:

@@ -2,7 +2,7 @@
 
 Every module of the renderer takes its defaults from :data:`DEFAULT_RENDER_SETTINGS`, so the near plane
 and the chunk sizes per job and device are stated once; callers that want others pass their own
-:class:`RenderSettings` where a function takes one (:func:`bop_cender.pose.cost.candidate_costs`).
+:class:`RenderSettings` where a function takes one (:meth:`~bop_cender.pose.backend.Backend.candidate_costs`).
 """
 
 from __future__ import annotations

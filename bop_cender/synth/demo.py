@@ -23,11 +23,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bop_cender.errors import ConfigError
+from bop_cender.synth.record import GENERATOR_VERSION
 
-#: Bump when the synthetic generator's output changes, so cached demos are regenerated.
-#: v2: the T-LESS layout has one 30-object catalogue (the DIMO demo is byte-identical to v1's, plus the
-#: root record bop_cender_synth.json).
-DEMO_VERSION = "v2"
+#: The generator's version names the demo's cache folder: a change of the generator regenerates it.
+DEMO_VERSION = GENERATOR_VERSION
 DEMO_SEED = 20221023
 
 CACHE_ENV = "BOP_CENDER_CACHE"

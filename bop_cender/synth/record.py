@@ -18,9 +18,13 @@ from typing import Any
 from bop_cender.data.bop_io import check_output_dir, save_json
 from bop_cender.data.layout import SYNTH_RECORD
 from bop_cender.errors import ConfigError, DatasetError
-from bop_cender.synth.demo import DEMO_VERSION
 
 RECORD_FILE = SYNTH_RECORD
+#: The synthetic generator's version, in every record (and the demo's cache folder's name,
+#: :mod:`bop_cender.synth.demo`): bump it when the generator's output changes, so cached demos are regenerated.
+#: v2: the T-LESS layout has one 30-object catalogue (the DIMO demo is byte-identical to v1's, plus the root record
+#: bop_cender_synth.json).
+GENERATOR_VERSION = "v2"
 #: The fields a resumed run must match (the others, the generator version, only inform).
 CHECKED_FIELDS = ("layout", "seed", "catalogue_seed")
 #: Checked fields a record may lack, with the value their absence means: records written before the field
@@ -34,7 +38,7 @@ def dataset_record(layout: str, spec: Any) -> dict[str, Any]:
     """What the record holds for a generation of ``layout`` with ``spec`` (a DimoSpec or TlessSpec)."""
     record = {
         "generator": "bop-cender synth",
-        "generator_version": DEMO_VERSION,
+        "generator_version": GENERATOR_VERSION,
         "layout": layout,
         "seed": int(spec.seed),
         "catalogue_seed": int(spec.catalogue_seed),

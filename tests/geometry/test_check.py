@@ -21,9 +21,10 @@ def test_fixed_and_named_sizes():
 def test_public_entries_name_the_argument():
     import trimesh
 
-    from bop_cender.pose.cost import candidate_costs
+    from bop_cender.pose.backend import backend_named
     from bop_cender.render.mesh import prepare_mesh
 
+    candidate_costs = backend_named("auto").candidate_costs
     mesh = prepare_mesh(trimesh.creation.box(extents=(10.0, 10.0, 10.0)))
     T = torch.eye(4).repeat(2, 3, 1, 1)
     T[..., 2, 3] = 100.0

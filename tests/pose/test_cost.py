@@ -8,10 +8,14 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from bop_cender.pose.cost import candidate_costs, distance_map, distance_maps, render_cost
+from bop_cender.pose.backend import backend_named
+from bop_cender.pose.cost import distance_map, distance_maps, render_cost
 from bop_cender.render.curvature import curvature
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.render.rasterizer import render_candidates, render_scene
+
+#: The default backend's render cost (:meth:`~bop_cender.pose.backend.Backend.candidate_costs`).
+candidate_costs = backend_named("auto").candidate_costs
 
 try:
     from tests.render.reference import K_matrix, bracket, pose
@@ -95,11 +99,12 @@ def test_candidate_costs_equal_the_window_and_full_frame_costs(device) -> None:
         curv = curvature(full.normals)
         per_view = (curv * dist).sum((1, 2)) / curv.sum((1, 2))
         assert torch.allclose(costs[b], (per_view * weights).sum(), rtol=1e-4)
-    for b in range(6):  # chunking and order do not matter (the torch atlases: the CPU's default is compiled)
-        one = candidate_costs(mesh, T[b : b + 1], Ks, H, W, dist, weights, chunk_pixels=4096, compiled=False)
+    atlases = backend_named("torch").candidate_costs  # the torch atlases: the CPU's default is compiled
+    for b in range(6):  # chunking and order do not matter
+        one = atlases(mesh, T[b : b + 1], Ks, H, W, dist, weights, chunk_pixels=4096)
         assert torch.allclose(one, costs[b : b + 1], rtol=1e-5)
-    small_chunks = candidate_costs(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192, compiled=False)
-    threaded = candidate_costs(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192, workers=2, compiled=False)
+    small_chunks = atlases(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192)
+    threaded = atlases(mesh, T, Ks, H, W, dist, weights, chunk_pixels=8192, workers=2)
     if device.type == "cpu":  # the chunks' threads give the same bits
         assert torch.equal(small_chunks, threaded)
     else:  # one stream (workers ignored); CUDA's atomic sums may order differently from call to call

@@ -1,4 +1,4 @@
-"""The compiled candidate cost (the CPU's default in ``candidate_costs``) against the torch atlases.
+"""The compiled candidate cost (the numba backend's on the CPU, and ``auto``'s) against the torch atlases.
 
 Same windows, occlusion rule and curvature; the sums are float64 in the compiled loop and float32 in torch's
 own order, so the costs agree to float32 rounding: candidates inside the images, cut by the border, out of
@@ -14,7 +14,7 @@ import pytest
 import torch
 import trimesh
 
-from bop_cender.pose.cost import candidate_costs
+from bop_cender.pose.backend import NumbaBackend, backend_named
 from bop_cender.render.mesh import prepare_mesh
 
 try:
@@ -27,6 +27,8 @@ except ImportError:  # pytest's default import mode puts each test folder on sys
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "render"))
     from reference import bracket, holed_plate, pose
     from test_cost import H, W, rig, target
+
+AUTO, NUMBA, TORCH = backend_named("auto"), backend_named("numba"), backend_named("torch")
 
 
 def _candidates(n: int, seed: int) -> np.ndarray:
@@ -53,13 +55,13 @@ def test_compiled_costs_agree_with_the_torch_atlases(make) -> None:
     occ[:, 30:70, 40:90] = 300.0  # a placed object's face through the middle of the rig's views
     occ[1, 40:60, 50:70] = 305.0  # ... and a patch 5 mm further back in view 1
     for occluder in (None, occ):
-        torch_costs = candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder, compiled=False)
-        compiled = candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder, compiled=True)
+        torch_costs = TORCH.candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder)
+        compiled = NUMBA.candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder)
         assert compiled.dtype == torch.float32 and compiled.shape == (12,)
         torch.testing.assert_close(compiled, torch_costs, rtol=2e-6, atol=1e-5)
         assert compiled[-1] == pytest.approx(float(weights.sum()) * math.hypot(H, W), rel=1e-6)  # nothing in view
-    assert candidate_costs(mesh, T, Ks, H, W, dist, weights).equal(  # the CPU's default
-        candidate_costs(mesh, T, Ks, H, W, dist, weights, compiled=True)
+    assert AUTO.candidate_costs(mesh, T, Ks, H, W, dist, weights).equal(  # the CPU's default
+        NUMBA.candidate_costs(mesh, T, Ks, H, W, dist, weights)
     )
 
 
@@ -68,18 +70,20 @@ def test_threads_give_the_serial_costs(on_one_and_two_threads) -> None:
     T_cw, Ks = rig()
     dist = target(mesh, T_cw, Ks)
     T = torch.as_tensor(np.einsum("vij,bjk->bvik", T_cw, _candidates(9, seed=8)), dtype=torch.float32)
-    serial, threaded = on_one_and_two_threads(lambda: candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3)))
+    serial, threaded = on_one_and_two_threads(lambda: AUTO.candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3)))
     assert torch.equal(serial, threaded)
 
 
 def test_a_candidate_behind_the_near_plane_is_left_to_the_torch_pipeline() -> None:
+    """The compiled loop does not clip at the near plane: a call with a vertex behind it takes the torch atlases in
+    every backend, the numba backend with one warning."""
     mesh = prepare_mesh(bracket(16))
     T_cw, Ks = rig()
     dist = target(mesh, T_cw, Ks)
     T_wm = _candidates(3, seed=2)
     T_wm[0, :3, 3] = [0.0, 0.0, -299.5]  # the first camera sits at world z = -300: inside the part
     T = torch.as_tensor(np.einsum("vij,bjk->bvik", T_cw, T_wm), dtype=torch.float32)
-    default = candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3))
-    assert torch.equal(default, candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3), compiled=False))
-    with pytest.raises(ValueError, match="behind the near plane"):
-        candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3), compiled=True)
+    default = AUTO.candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3))
+    assert torch.equal(default, TORCH.candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3)))
+    with pytest.warns(RuntimeWarning, match="the compiled render cost leaves geometry behind the near plane"):
+        assert torch.equal(default, NumbaBackend(insist=True).candidate_costs(mesh, T, Ks, H, W, dist, np.ones(3)))

@@ -12,7 +12,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
-from bop_cender.pose.cost import candidate_costs, distance_maps  # noqa: E402
+from bop_cender.pose.backend import backend_named  # noqa: E402
+from bop_cender.pose.cost import distance_maps  # noqa: E402
 from bop_cender.pose.coverage import two_sided_costs  # noqa: E402
 from bop_cender.pose.occluders import occluder_depth  # noqa: E402
 from bop_cender.pose.types import PlacedObject  # noqa: E402
@@ -48,7 +49,7 @@ def test_the_forward_term_is_the_papers_render_cost(mini):
     T_gt = gt_of(scene, 3).T_world_model
     poses = np.stack([T_gt, perturb(T_gt, 8.0, 3.0), perturb(T_gt, 20.0, 0.0)])
     T, K, edges, dist, w = _inputs(mini, poses)
-    render = candidate_costs(meshes(3), T, K, cams.height, cams.width, dist, w).double().numpy()
+    render = backend_named("auto").candidate_costs(meshes(3), T, K, cams.height, cams.width, dist, w).double().numpy()
     np.testing.assert_allclose(_costs(mini, poses).forward, render, rtol=1e-4, atol=1e-4)
 
 
@@ -90,7 +91,7 @@ def test_an_occluder_hides_the_target_edges_behind_it_from_the_coverage(mini):
     T_gt = gt_of(scene, 3).T_world_model
     # the part itself as the occluder, 2 mm nearer the cameras: it hides all of the candidate
     nearer = T_gt.copy()
-    occluder = occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes)
+    occluder = occluder_depth([PlacedObject(3, nearer, 0.0, 0)], cams, meshes, backend_named("auto"))
     occluder = torch.where(occluder > 0, occluder - 2.0, occluder)
     c = _costs(mini, T_gt[None], occ=occluder)
     assert c.coverage[0] == 0.0  # no pixel of the pose is visible: no edge inside it to explain
@@ -100,8 +101,7 @@ def test_an_occluder_hides_the_target_edges_behind_it_from_the_coverage(mini):
 
 def test_the_scene_cost_is_lowest_with_every_part_in_place(mini):
     """A part moved off its place, or left out, leaves its true edges unexplained: the whole placement costs more."""
-    from bop_cender.pose.coverage import scene_cost
-
+    scene_cost = backend_named("auto").scene_cost
     ds, scene, meshes, maps, cams, _ = mini
     parts = [g for g in scene.gt if ds.models[g.obj_id].is_target]
     edges = maps.curvature > BOX_T_B

@@ -3,7 +3,7 @@
 Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
 thread a Python thread, no multiply-add contraction), where it must repeat the CPU's compiled loops bit for bit:
 candidates inside the images, cut by the border, out of every view, behind placed objects. On a GPU (``-m cuda``)
-``candidate_costs`` takes it by default and must give the torch atlases' costs to float32 rounding.
+the ``auto`` backend takes it and must give the torch atlases' costs to float32 rounding.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import pytest
 import torch
 import trimesh
 
-from bop_cender.pose.cost import candidate_costs
+from bop_cender.pose.backend import backend_named
 from bop_cender.render.mesh import prepare_mesh
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -95,27 +95,38 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
         cuda_candidate_costs(mesh, torch.eye(4).repeat(1, 1, 1, 1), torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8))
 
 
-def test_the_kernel_is_taken_through_its_guard_and_says_where_it_does_not_apply(monkeypatch, kernel_standing) -> None:
-    """``compiled`` on CUDA: None takes the kernel where it runs, else the torch atlases (the guard's rules,
-    ``tests/render/test_kernel_guard.py``); True insists, and says why where the kernel does not apply."""
+def test_the_backends_take_the_kernel_through_its_guard_and_say_where_it_does_not_apply(monkeypatch, kernel_standing):
+    """On CUDA the ``auto`` and ``numba`` backends take the cost kernel where it runs (the guard's rules,
+    ``tests/render/test_kernel_guard.py``); where it declines a call (a vertex behind the near plane, a mesh of more
+    than 2^15 faces) both leave it to the torch atlases with one warning; where numba's CUDA target is missing ``auto``
+    warns once and takes the atlases, ``numba`` says why it cannot run."""
+    from types import SimpleNamespace
+
     from bop_cender.pose import cuda_cost
+    from bop_cender.pose.backend import NumbaBackend
 
     mesh = prepare_mesh(trimesh.creation.box((40.0, 30.0, 20.0)))
-    args = (mesh, torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
+    args = (torch.eye(4)[None, None], torch.eye(3)[None], 8, 8, 1.0, torch.zeros(1, 8, 8), None)
+    auto, numba = NumbaBackend(), NumbaBackend(insist=True)
     kernel_standing(cuda_cost.GUARD)
     monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: torch.ones(1))
-    assert cuda_cost.kernel_costs(*args, None).tolist() == [1.0] == cuda_cost.kernel_costs(*args, True).tolist()
+    assert (
+        auto.kernel_candidate_costs(mesh, *args).tolist() == [1.0] == numba.kernel_candidate_costs(mesh, *args).tolist()
+    )
     monkeypatch.setattr(cuda_cost, "cuda_candidate_costs", lambda *a, **k: None)  # does not apply
-    assert cuda_cost.kernel_costs(*args, None) is None
-    with pytest.raises(ValueError, match="does not apply here: a vertex behind the near plane"):
-        cuda_cost.kernel_costs(*args, True)
+    for backend in (auto, numba):
+        with pytest.warns(RuntimeWarning, match="the CUDA cost kernel leaves geometry behind the near plane"):
+            assert backend.kernel_candidate_costs(mesh, *args) is None
+        large = SimpleNamespace(faces=torch.zeros((1 << 15) + 1, 3))
+        with pytest.warns(RuntimeWarning, match="meshes of at most 2.15 faces"):
+            assert backend.kernel_candidate_costs(large, *args) is None
     kernel_standing(cuda_cost.GUARD, "numba.cuda finds no CUDA driver or device")
     with pytest.warns(RuntimeWarning, match="torch atlases on CUDA: numba.cuda finds no CUDA driver"):
-        assert cuda_cost.kernel_costs(*args, None) is None
+        assert auto.kernel_candidate_costs(mesh, *args) is None
     with pytest.raises(
         RuntimeError, match="needs the CUDA cost kernel, which cannot run here: numba.cuda finds no CUDA driver"
     ):
-        cuda_cost.kernel_costs(*args, True)
+        numba.kernel_candidate_costs(mesh, *args)
 
 
 def test_launch_groups_fit_the_scratch_and_cover_every_canvas_once() -> None:
@@ -157,13 +168,13 @@ def test_on_cuda_the_kernel_gives_the_atlases_costs() -> None:
     occ = torch.zeros((3, H, W))
     occ[:, 30:70, 40:90] = 300.0
     for occluder in (None, occ):
-        cpu = candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder)
+        cpu = backend_named("auto").candidate_costs(mesh, T, Ks, H, W, dist, weights, occluder_depth=occluder)
         args = (mesh.to("cuda"), T.cuda(), torch.as_tensor(Ks).cuda(), H, W, dist.cuda(), weights.cuda())
         occ_cuda = None if occluder is None else occluder.cuda()
-        kernel = candidate_costs(*args, occluder_depth=occ_cuda)
-        atlases = candidate_costs(*args, occluder_depth=occ_cuda, compiled=False)
+        kernel = backend_named("auto").candidate_costs(*args, occluder_depth=occ_cuda)
+        atlases = backend_named("torch").candidate_costs(*args, occluder_depth=occ_cuda)
         assert kernel.device.type == "cuda"
-        assert torch.equal(kernel, candidate_costs(*args, occluder_depth=occ_cuda, compiled=True))
+        assert torch.equal(kernel, backend_named("numba").candidate_costs(*args, occluder_depth=occ_cuda))
         torch.testing.assert_close(kernel.cpu(), atlases.cpu(), rtol=1e-4, atol=1e-3)
         torch.testing.assert_close(kernel.cpu(), cpu, rtol=1e-4, atol=1e-3)
 
@@ -172,21 +183,26 @@ def test_the_compile_check_records_a_real_calls_arguments_and_compiles_or_says_w
     """``scripts/check_cuda_compile.py`` types the kernel from a real call's arguments (one per kernel parameter) and
     compiles it for sm_90 where numba-cuda and NVVM are installed; elsewhere (CI) it says what is missing, exit 2."""
     import importlib.util
+    import inspect
 
-    from bop_cender.pose.cuda_cost import _costs_kernel
-    from bop_cender.pose.cuda_edge_kernel import _edge_kernel
-    from bop_cender.pose.cuda_window_kernel import _window_kernel
-    from bop_cender.render.cuda_render import _render_kernel
+    from bop_cender.pose import cuda_cost, cuda_edge_kernel, cuda_window_kernel
+    from bop_cender.render import cuda_render
 
     sys.path.insert(0, str(ROOT / "scripts"))
     import check_cuda_compile
 
-    for arguments, kernel in ((check_cuda_compile._launch_arguments(), _costs_kernel),
-                              (check_cuda_compile._edge_arguments(), _edge_kernel),
-                              (check_cuda_compile._window_arguments(), _window_kernel),
-                              (check_cuda_compile._render_arguments(), _render_kernel)):  # fmt: skip
-        assert len(arguments) == kernel.__code__.co_argcount, kernel.__name__
-        assert all(isinstance(a, np.ndarray) or np.isscalar(a) or isinstance(a, bool) for a in arguments)
+    def plain(x) -> bool:  # what a kernel takes: arrays, scalars, or a named tuple of arrays
+        if isinstance(x, tuple):
+            return hasattr(x, "_fields") and all(isinstance(y, np.ndarray) for y in x)
+        return isinstance(x, np.ndarray) or np.isscalar(x) or isinstance(x, bool)
+
+    for arguments, module in ((check_cuda_compile._launch_arguments(), cuda_cost),
+                              (check_cuda_compile._edge_arguments(), cuda_edge_kernel),
+                              (check_cuda_compile._window_arguments(), cuda_window_kernel),
+                              (check_cuda_compile._render_arguments(), cuda_render)):  # fmt: skip
+        kernel = module.kernel_function()
+        assert len(arguments) == len(inspect.signature(kernel).parameters) <= 15, module.__name__
+        assert all(plain(a) for a in arguments), module.__name__
     done = subprocess.run([sys.executable, str(ROOT / "scripts" / "check_cuda_compile.py")], capture_output=True,
                           text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})  # fmt: skip
     assert "Traceback" not in done.stderr

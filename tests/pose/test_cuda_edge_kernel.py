@@ -31,7 +31,8 @@ _SIMULATED = textwrap.dedent(
     import method_data
     from method_data import gt_of, perturb
     from bop_cender.pose.cuda_edge_kernel import cuda_canvas_costs
-    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT, edge_costs, edge_model_of
+    from bop_cender.pose.edge_cost import EDGE_COINCIDENCE_MM, SAMPLES_PER_SEGMENT
+    from bop_cender.pose.edge_model import edge_model_of
     from bop_cender.pose.edge_kernel import kernel_canvas_costs
 
     ds, scene, meshes, maps, cams, dist = method_data.mini_scene(Path(tempfile.mkdtemp()) / "dimo")
@@ -55,10 +56,9 @@ _SIMULATED = textwrap.dedent(
             cpu = kernel_canvas_costs(*args).numpy()
             sim = cuda_canvas_costs(*args, threads=4).numpy()
             print("ok", name, o_name, float(np.max(np.abs(sim - cpu))), sim.tolist())
-    w = torch.full((V,), 1.0 / V)
-    T4 = T.reshape(-1, V, 4, 4)[:2]
-    by_layout = edge_costs(model, T4, Ks, dist, w, layout="cuda")  # the default block size, through edge_costs
-    print("ok layout", float(torch.max(torch.abs(by_layout - edge_costs(model, T4, Ks, dist, w, layout="kernel")))))
+    first = (model, T[: 2 * V], view[: 2 * V], Ks, dist, None, 1.0, SAMPLES_PER_SEGMENT, EDGE_COINCIDENCE_MM)
+    by_default = cuda_canvas_costs(*first)  # the default block size
+    print("ok layout", float(torch.max(torch.abs(by_default - kernel_canvas_costs(*first)))))
     for threads in (0, 3, 128):
         try:
             cuda_canvas_costs(*args, threads=threads)
@@ -94,7 +94,8 @@ def test_the_kernel_gives_the_cpu_loops_costs_in_numbas_cuda_simulator() -> None
 
 
 def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
-    from bop_cender.pose.edge_cost import edge_costs, edge_model_of
+    from bop_cender.pose.cuda_edge_kernel import cuda_canvas_costs
+    from bop_cender.pose.edge_model import edge_model_of
     from bop_cender.render.cuda_loops import simulator_enabled
     from bop_cender.render.mesh import prepare_mesh
 
@@ -107,4 +108,4 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
     T[..., 2, 3] = 300.0
     K = torch.tensor([[[100.0, 0.0, 16.0], [0.0, 100.0, 16.0], [0.0, 0.0, 1.0]]])
     with pytest.raises(ValueError, match="CUDA tensors"):
-        edge_costs(model, T, K, torch.zeros(1, 32, 32), torch.ones(1), layout="cuda")
+        cuda_canvas_costs(model, T[0], torch.zeros(1, dtype=torch.int64), K, torch.zeros(1, 32, 32), None, 1.0, 2, 1.0)

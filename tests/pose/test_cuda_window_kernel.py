@@ -2,17 +2,16 @@
 
 Without a GPU the kernel runs in numba's CUDA simulator (a subprocess with ``NUMBA_ENABLE_CUDASIM=1``: every CUDA
 thread a Python thread, the shared device functions the plain Python ones), where it must give the CPU's costs
-(:meth:`SceneWindow.costs`, the compiled render and :mod:`~bop_cender.pose.window_kernel`, whose distance functions it
+(the numba backend's window costs, the compiled render and :mod:`~bop_cender.pose.window_kernel`, whose distance functions it
 shares) to float64 rounding: near
 the truth and far from it, a pose out of the windows (no own edge), behind a camera (None: the torch steps), with
 and without the other part, with and without target edges, at two edge thresholds (3.0 is exactly the curvature of
 a clean silhouette step); and the full scene cost (every part in the full frames). On a GPU (``-m cuda``)
-``SceneWindow.costs`` and ``scene_cost`` take it by default.
+the ``auto`` backend's window costs and scene cost take it.
 """
 
 from __future__ import annotations
 
-import functools
 import sys
 import textwrap
 import types
@@ -38,7 +37,7 @@ _SIMULATED = textwrap.dedent(
     import numpy as np, torch
     import method_data
     from method_data import perturb
-    from bop_cender.pose.coverage import scene_cost
+    from bop_cender.pose.backend import backend_named
     from bop_cender.pose.cuda_window_kernel import cuda_scene_cost, cuda_window_costs
     from bop_cender.pose.scene_polish import SceneWindow, scene_window
 
@@ -58,7 +57,7 @@ _SIMULATED = textwrap.dedent(
             for targets_name, w in (("targets", window),
                                     ("none", SceneWindow(**{{**window.__dict__,
                                                            "target_edges": torch.zeros_like(window.target_edges)}}))):
-                cpu = w.costs(trials, compiled=True)
+                cpu = backend_named("numba").window_costs(w, trials)
                 sim = cuda_window_costs(w, trials, threads=8)
                 print("ok", threshold, others_name, targets_name, float(np.max(np.abs(sim - cpu) / cpu)), sim.tolist())
     Kt = torch.as_tensor(Ks, dtype=torch.float32)
@@ -66,7 +65,7 @@ _SIMULATED = textwrap.dedent(
         T_cm = torch.as_tensor(np.einsum("vij,mjk->vmik", T_cw, np.stack([poses[i] for i in sorted(poses)])),
                                dtype=torch.float32)
         placed = [meshes(i) for i in sorted(poses)]
-        cpu = scene_cost(placed, T_cm, Kt, edges, dist, 3.0, compiled=True)
+        cpu = backend_named("numba").scene_cost(placed, T_cm, Kt, edges, dist, 3.0)
         sim = cuda_scene_cost(placed, T_cm, Kt, edges, dist, 3.0, threads=8)
         print("ok scene", name, abs(sim - cpu) / cpu, cpu)
     behind = parts[moving].copy()
@@ -117,39 +116,46 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator(mini) -> None:
 
 
 def _cuda_window_stand_in():
-    """An object that :meth:`SceneWindow.costs` takes for a window on CUDA (only the distance maps' device is read
-    before the dispatch), to test the dispatch without a GPU."""
-    from bop_cender.pose.scene_polish import SceneWindow
-
-    window = types.SimpleNamespace(dist=types.SimpleNamespace(device=torch.device("cuda")))
-    window._kernel_costs = functools.partial(SceneWindow._kernel_costs, window)
-    return window
+    """An object that the backends' window costs take for a window on CUDA (only the distance maps' device and the
+    views are read before the kernel is called), to test the dispatch without a GPU."""
+    return types.SimpleNamespace(dist=types.SimpleNamespace(device=torch.device("cuda")), T_cam_world=np.eye(4)[None])
 
 
-def test_on_cuda_the_costs_take_the_kernel_where_it_runs_and_else_the_torch_steps(monkeypatch, kernel_standing) -> None:
-    """``compiled`` on CUDA: None takes the kernel where it runs (else one warning, and the torch steps: the guard's
-    rules, ``tests/render/test_kernel_guard.py``), True insists."""
+def test_on_cuda_the_window_costs_take_the_kernel_where_it_runs_and_else_the_torch_steps(
+    monkeypatch, kernel_standing
+) -> None:
+    """On CUDA the ``auto`` and ``numba`` backends take the window kernel where it runs; where it declines a call (a
+    vertex behind the near plane) both take the torch steps with one warning; where numba's CUDA target is missing,
+    ``auto`` warns once and takes the torch steps, ``numba`` says why it cannot run (the guard's rules,
+    ``tests/render/test_kernel_guard.py``)."""
     from bop_cender.pose import cuda_window_kernel
-    from bop_cender.pose.scene_polish import SceneWindow
+    from bop_cender.pose.backend import NumbaBackend
 
+    auto, numba = NumbaBackend(), NumbaBackend(insist=True)
+    for backend in (auto, numba):  # the torch steps, stood in for: the window has no maps to cost
+        backend.torch = types.SimpleNamespace(window_costs=lambda window, T: np.full(len(T), 3.0))
     kernel_standing(cuda_window_kernel.GUARD)
     monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", lambda window, T: np.full(len(T), 7.0))
     window, T = _cuda_window_stand_in(), np.eye(4)[None]
-    assert SceneWindow.costs(window, T).tolist() == [7.0] == SceneWindow.costs(window, T, compiled=True).tolist()
+    assert auto.window_costs(window, T).tolist() == [7.0] == numba.window_costs(window, T).tolist()
+    monkeypatch.setattr(cuda_window_kernel, "cuda_window_costs", lambda window, T: None)  # declined: the near plane
+    for backend in (auto, numba):
+        with pytest.warns(RuntimeWarning, match="the CUDA window kernel leaves geometry behind the near plane"):
+            assert backend.window_costs(window, T).tolist() == [3.0]
     kernel_standing(cuda_window_kernel.GUARD, "numba.cuda finds no CUDA driver")
     with pytest.raises(
         RuntimeError, match="needs the CUDA window kernel, which cannot run here: numba.cuda finds no CUDA driver"
     ):
-        SceneWindow.costs(window, T, compiled=True)
+        numba.window_costs(window, T)
     with pytest.warns(RuntimeWarning, match="torch steps on CUDA: numba.cuda finds no CUDA driver"):
-        assert window._kernel_costs(T, None) is None  # SceneWindow.costs then runs the torch steps
+        assert auto.window_costs(window, T).tolist() == [3.0]
 
 
 def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer_rule() -> None:
     """The CUDA z-buffer's exact keys (1/z's float32 bits above the face id, one int64 maximum) keep what the CPU's
     exact test keeps: the larger 1/z, ties to the larger face id, never a negative or NaN 1/z; -0.0 as +0.0."""
     from bop_cender.render.compiled_raster import keep_fragment
-    from bop_cender.render.cuda_loops import FACE_ID_BITS, _keep_fragment_exact_simulated
+    from bop_cender.render.cuda_device import FACE_ID_BITS, keep_fragment_exact_simulated
 
     rng = np.random.default_rng(7)
     values = np.array([0.0, -0.0, 1e-3, 2e-3, 0.5, 0.5, 3.0, np.inf, -1e-3, np.nan], dtype=np.float32)
@@ -158,7 +164,7 @@ def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer
         cuda_key = np.full(1, -1, np.int64)
         for q, f in zip(rng.choice(values, 6), rng.integers(0, 50, 6), strict=True):
             keep_fragment(cpu_key, cpu_w, 0, np.float32(q), np.int64(f), np.int64(f), False)
-            _keep_fragment_exact_simulated(cuda_key, None, 0, np.float32(q), 0, int(f), False)
+            keep_fragment_exact_simulated(cuda_key, None, 0, np.float32(q), 0, int(f), False)
         assert (cuda_key[0] & ((1 << FACE_ID_BITS) - 1) if cuda_key[0] >= 0 else -1) == cpu_key[0]
 
 
@@ -166,7 +172,7 @@ def test_the_exact_keys_packed_for_cudas_atomic_maximum_follow_the_cpus_z_buffer
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_on_cuda_the_kernel_gives_the_cpu_costs(mini) -> None:
     """The windowed costs and the full scene cost on CUDA (the kernel, their default there) against the CPU's."""
-    from bop_cender.pose.coverage import scene_cost
+    from bop_cender.pose.backend import backend_named
     from bop_cender.pose.scene_polish import scene_window
     from bop_cender.render.cuda_loops import cuda_unavailable_reason
 
@@ -182,14 +188,15 @@ def test_on_cuda_the_kernel_gives_the_cpu_costs(mini) -> None:
     cuda_meshes = [meshes(i).to("cuda") for i in (moving, other)]
     gpu = scene_window(cuda_meshes[0], parts[moving], [(cuda_meshes[1], parts[other])], *args, edges.cuda(),
                        dist.cuda(), BOX_T_B, 12)  # fmt: skip
-    kernel, torch_steps = gpu.costs(trials), gpu.costs(trials, compiled=False)
-    assert kernel.tolist() == gpu.costs(trials, compiled=True).tolist()
-    np.testing.assert_allclose(kernel, cpu.costs(trials), rtol=1e-4, atol=1e-3)
+    auto, numba, torch_backend = backend_named("auto"), backend_named("numba"), backend_named("torch")
+    kernel, torch_steps = auto.window_costs(gpu, trials), torch_backend.window_costs(gpu, trials)
+    assert kernel.tolist() == numba.window_costs(gpu, trials).tolist()
+    np.testing.assert_allclose(kernel, auto.window_costs(cpu, trials), rtol=1e-4, atol=1e-3)
     np.testing.assert_allclose(kernel, torch_steps, rtol=1e-4, atol=1e-3)
     T_cm = torch.as_tensor(np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([parts[moving], parts[other]])),
                            dtype=torch.float32)  # fmt: skip
     K = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    full = scene_cost([meshes(moving), meshes(other)], T_cm, K, edges, dist, BOX_T_B)
-    on_cuda = scene_cost(cuda_meshes, T_cm.cuda(), K.cuda(), edges.cuda(), dist.cuda(), BOX_T_B)
-    assert on_cuda == scene_cost(cuda_meshes, T_cm.cuda(), K.cuda(), edges.cuda(), dist.cuda(), BOX_T_B, compiled=True)
+    full = auto.scene_cost([meshes(moving), meshes(other)], T_cm, K, edges, dist, BOX_T_B)
+    on_cuda = auto.scene_cost(cuda_meshes, T_cm.cuda(), K.cuda(), edges.cuda(), dist.cuda(), BOX_T_B)
+    assert on_cuda == numba.scene_cost(cuda_meshes, T_cm.cuda(), K.cuda(), edges.cuda(), dist.cuda(), BOX_T_B)
     assert on_cuda == pytest.approx(full, rel=1e-4)

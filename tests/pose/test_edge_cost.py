@@ -15,9 +15,25 @@ from scipy.stats import spearmanr
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import gt_of, perturb  # noqa: E402
 
-from bop_cender.pose.cost import candidate_costs  # noqa: E402
-from bop_cender.pose.edge_cost import edge_costs, edge_model, edge_model_of, edge_occluder  # noqa: E402
+from bop_cender.pose.backend import TorchBackend, backend_named  # noqa: E402
+from bop_cender.pose.edge_cost import edge_occluder  # noqa: E402
+from bop_cender.pose.edge_model import edge_model, edge_model_of  # noqa: E402
 from bop_cender.render.mesh import prepare_mesh  # noqa: E402
+
+#: The edge proxy's layouts, each run by the backend object that has it (``bop_cender.pose.backend``).
+LAYOUTS = {
+    "kernel": backend_named("numba"),  # the CPU's compiled loop
+    "cuda": backend_named("numba"),  # CUDA's kernel
+    "compacted": TorchBackend(dense_edges=False),
+    "dense": TorchBackend(dense_edges=True),
+}
+#: The default backend's render cost.
+candidate_costs = backend_named("auto").candidate_costs
+
+
+def edge_costs(*args, layout: str | None = None, **kwargs) -> torch.Tensor:
+    """The edge proxy by the default backend (``auto``), or by the backend that runs ``layout`` (:data:`LAYOUTS`)."""
+    return (backend_named("auto") if layout is None else LAYOUTS[layout]).edge_costs(*args, **kwargs)
 
 
 def test_a_box_has_twelve_creases_and_six_smooth_diagonals():
@@ -146,8 +162,7 @@ def test_every_layout_gives_the_compacted_costs(mini):
 
 def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads(mini, on_one_and_two_threads):
     """With no layout named, a CPU call runs the compiled loop; each canvas is summed by one thread in a fixed
-    order, so 1 and 2 threads give the same bits. An unknown layout, or the kernel on a non-CPU device, is one
-    clear error."""
+    order, so 1 and 2 threads give the same bits. An unknown backend is one clear error."""
     ds, scene, meshes, maps, cams, dist = mini
     g = gt_of(scene, 3)
     poses = np.stack([perturb(g.T_world_model, a, s) for a, s in ((0, 0), (5, 3), (20, 12), (3, 1), (9, 4))])
@@ -155,10 +170,8 @@ def test_the_cpu_default_is_the_kernel_and_its_bits_do_not_depend_on_the_threads
     model = edge_model_of(meshes(3))
     one, two = on_one_and_two_threads(lambda: edge_costs(model, T, K, dist, w))
     assert torch.equal(one, two) and torch.equal(one, edge_costs(model, T, K, dist, w, layout="kernel"))
-    with pytest.raises(ValueError, match="unknown edge-cost layout 'sparse'"):
-        edge_costs(model, T, K, dist, w, layout="sparse")
-    with pytest.raises(ValueError, match="the CPU only"):
-        edge_costs(model, T.to("meta"), K, dist, w, layout="kernel")
+    with pytest.raises(ValueError, match="unknown backend 'sparse'; expected one of auto, torch, numba"):
+        backend_named("sparse")
 
 
 def test_a_non_finite_pose_costs_the_diagonal_in_every_layout(mini):
@@ -269,7 +282,7 @@ def test_a_candidate_that_duplicates_a_placed_object_draws_almost_nothing(mini):
 
     ds, scene, meshes, maps, cams, dist = mini
     T = gt_of(scene, 3).T_world_model
-    placed = occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    placed = occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes, backend_named("auto"))
     free, _ = _cost_pair(mini, T[None])
     twice, _ = _cost_pair(mini, T[None], occ=edge_occluder(placed))
     assert free[0] < 0.3
@@ -288,7 +301,7 @@ def test_the_edge_occluder_is_the_nearest_placed_surface_around_each_pixel():
 
 def _one_segment(a: np.ndarray, b: np.ndarray):
     """An EdgeModel of one always-drawn crease segment from ``a`` to ``b`` (model frame, mm)."""
-    from bop_cender.pose.edge_cost import EdgeModel
+    from bop_cender.pose.edge_model import EdgeModel
 
     facing = torch.tensor([[[0.0, 0.0, 0.0, -1.0], [0.0, 0.0, 0.0, -1.0]]])  # n . eye - d = 1 > 0: faces the camera
     return EdgeModel(
@@ -374,7 +387,8 @@ def test_with_one_thread_the_compiled_loops_start_no_thread_pool():
     code = """
 import numpy as np, torch, trimesh
 import numba.np.ufunc.parallel as pool
-from bop_cender.pose.edge_cost import edge_costs, edge_model
+from bop_cender.pose.backend import backend_named
+from bop_cender.pose.edge_model import edge_model
 from bop_cender.pose.window_kernel import window_costs
 torch.set_num_threads(1)
 box = trimesh.creation.box(extents=(40.0, 20.0, 10.0))
@@ -382,7 +396,7 @@ T = torch.eye(4).repeat(2, 1, 1, 1)
 T[..., 2, 3] = 300.0
 K = torch.tensor([[[500.0, 0, 32], [0, 500, 24], [0, 0, 1]]])
 dist = torch.rand(1, 48, 64)
-cost = edge_costs(edge_model(box.vertices, box.faces), T, K, dist, torch.ones(1))
+cost = backend_named("auto").edge_costs(edge_model(box.vertices, box.faces), T, K, dist, torch.ones(1))
 z = torch.zeros(2, 8, 8)
 window_costs(z, torch.zeros(2, 8, 8, 3), z[:1], torch.zeros(1, 8, 8, 3), dist, torch.zeros(1, 2, dtype=torch.long),
              torch.ones(1, 8, 8, dtype=torch.bool), 3.0)

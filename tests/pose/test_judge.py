@@ -66,7 +66,7 @@ def test_the_scene_judge_adds_each_objects_centre_term(mini):
         PoseTarget(c4, np.ones(len(cams.Ks)), (4,), None),  # no map: no term
     ]
     context = pose_context(mini, pose_config("center_weight=0"))
-    plain = placement_cost(placed, context.fine, meshes, BOX_T_B)
+    plain = placement_cost(placed, context.fine, meshes, BOX_T_B, context.backend)
     assert SceneJudge(context, targets).cost(placed) == plain
     with_term = SceneJudge(pose_context(mini, pose_config("center_weight=1")), targets).cost(placed)
     assert with_term > plain + 0.05

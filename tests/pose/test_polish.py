@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, perturb, pose_config, pose_context  # noqa: E402
 
-from bop_cender.pose.coverage import scene_cost  # noqa: E402
+from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.judge import SceneJudge  # noqa: E402
 from bop_cender.pose.polish import polish_on_scene  # noqa: E402
 from bop_cender.pose.types import PlacedObject, PoseTarget  # noqa: E402
@@ -27,7 +27,9 @@ def _full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) ->
     ids = sorted(poses)
     T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
     Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    return scene_cost([meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, BOX_T_B)
+    return backend_named("auto").scene_cost(
+        [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, BOX_T_B
+    )
 
 
 def _targets(ds, cams, poses: dict[int, np.ndarray]) -> list[PoseTarget]:
@@ -79,14 +81,12 @@ def test_scene_polish_stops_at_its_own_tolerances(mini):
 
 def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
     """A window cost that prefers a wrong pose: the full scene cost refuses it and the old pose stays."""
-    from bop_cender.pose import scene_polish
-
     ds, scene, meshes, maps, cams, dist = mini
     parts = _parts(ds, scene)
     ids = sorted(parts)
     wrong = {i: perturb(T, 20.0, 8.0) for i, T in parts.items()}
-    monkeypatch.setattr(scene_polish.SceneWindow, "costs",
-                        lambda self, T: np.array([np.linalg.norm(t[:3, 3] - wrong[ids[0]][:3, 3]) for t in T]))  # fmt: skip
+    monkeypatch.setattr(backend_named("auto"), "window_costs",  # the config's backend
+                        lambda window, T: np.array([np.linalg.norm(t[:3, 3] - wrong[ids[0]][:3, 3]) for t in T]))  # fmt: skip
     placed = [PlacedObject(i, parts[i], 0.5, 3) for i in ids]
     context = pose_context(mini, pose_config("scene_polish.nelder_mead.maxfev=60"))
     out = polish_on_scene(placed, SceneJudge(context, _targets(ds, cams, parts)))

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import gt_of, perturb, pose_config, pose_context  # noqa: E402
 
+from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.nelder_mead import refine  # noqa: E402
 from bop_cender.pose.occluders import occluder_depth  # noqa: E402
 from bop_cender.pose.problem import Refinement, render_costs, view_weights  # noqa: E402
@@ -22,7 +23,7 @@ from bop_cender.pose.types import PlacedObject, PoseTarget  # noqa: E402
 
 def cost_of(mesh, T_world_model, cams, dist, occ=None):
     w = torch.full((len(cams.Ks),), 1.0 / len(cams.Ks))
-    return render_costs(mesh, T_world_model, cams, dist, w, occ)
+    return render_costs(mesh, T_world_model, cams, dist, w, occ, backend_named("auto"))
 
 
 def test_cost_is_smallest_at_gt_and_grows_with_the_perturbation(mini):
@@ -66,7 +67,7 @@ def test_a_candidate_that_duplicates_a_placed_object_costs_the_most(mini):
     shows: the same part found twice draws nothing and ranks last, instead of fitting perfectly."""
     ds, scene, meshes, maps, cams, dist = mini
     T = gt_of(scene, 3).T_world_model
-    placed = occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes)
+    placed = occluder_depth([PlacedObject(3, T, 0.0, 0)], cams, meshes, backend_named("auto"))
     free = cost_of(meshes(3), T[None], cams, dist)
     twice = cost_of(meshes(3), T[None], cams, dist, placed)
     assert free[0] < 0.1

@@ -14,10 +14,13 @@ import torch
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from method_data import BOX_T_B, perturb  # noqa: E402
 
-from bop_cender.pose.coverage import scene_cost  # noqa: E402
+from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.scene_polish import scene_window  # noqa: E402
+from bop_cender.render.rasterizer import render_scene  # noqa: E402
 
 EDGE_THRESHOLD = BOX_T_B  # the fixture's curvature scale is 1
+#: The default backend's scene cost (:meth:`~bop_cender.pose.backend.Backend.scene_cost`).
+scene_cost = backend_named("auto").scene_cost
 
 
 def _parts(ds, scene):
@@ -43,7 +46,7 @@ def test_window_cost_ranks_poses_as_the_full_scene_cost(mini):
                           edges, dist, EDGE_THRESHOLD, margin_px=12)  # fmt: skip
     h, w = window.size
     assert h <= cams.height and w <= cams.width and window.other_depth.shape == (len(cams.Ks), h, w)
-    windowed = window.costs(trials)
+    windowed = backend_named("auto").window_costs(window, trials)
     full = np.array([_full_scene_cost(meshes, {**parts, moving: T}, cams, edges, dist) for T in trials])
     assert np.all(np.diff(windowed) > 0), windowed  # the truth first, then growing with the perturbation
     assert np.all(np.diff(full) > 0), full
@@ -55,8 +58,17 @@ def test_the_compiled_window_cost_gives_the_torch_costs(mini):
     costs: near the truth, far from it, a pose that leaves the windows (no own edge: the window's diagonal) and a
     window without target edges (no backward term); the own-edge binarisation sees the same float32 curvature, so
     a clean silhouette step (curvature 3.0, the default threshold) falls on the same side."""
-    from bop_cender.pose.scene_polish import SceneWindow
+    from bop_cender.pose.scene_polish import SceneWindow, torch_window_costs, window_poses
     from bop_cender.pose.window_kernel import window_costs
+
+    auto, numba = backend_named("auto"), backend_named("numba")
+
+    def steps(window, trials):  # the torch steps after the numba backend's render (the same maps as torch's)
+        m, (h, w) = len(trials), window.size
+        render = render_scene(
+            [window.mesh], window_poses(window, trials), window.K.repeat(m, 1, 1), h, w, backend=numba
+        )
+        return torch_window_costs(window, render.depth, render.normals, m)
 
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B
@@ -69,11 +81,10 @@ def test_the_compiled_window_cost_gives_the_torch_costs(mini):
     for threshold in (EDGE_THRESHOLD, 3.0):
         window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks,
                               cams.T_cam_world, edges, dist, threshold, margin_px=12)  # fmt: skip
-        np.testing.assert_allclose(window.costs(trials, compiled=True), window.costs(trials, compiled=False), rtol=1e-5)
+        np.testing.assert_allclose(numba.window_costs(window, trials), steps(window, trials), rtol=1e-5)
         no_targets = SceneWindow(**{**window.__dict__, "target_edges": torch.zeros_like(window.target_edges)})
-        np.testing.assert_allclose(no_targets.costs(trials, compiled=True), no_targets.costs(trials, compiled=False),
-                                   rtol=1e-5)  # fmt: skip
-    assert window.costs(trials[:1]).tolist() == window.costs(trials[:1], compiled=True).tolist()  # the CPU default
+        np.testing.assert_allclose(numba.window_costs(no_targets, trials), steps(no_targets, trials), rtol=1e-5)
+    assert auto.window_costs(window, trials[:1]).tolist() == numba.window_costs(window, trials[:1]).tolist()
     V, (h, w) = len(cams.Ks), window.size
     blank = torch.zeros((V, h, w))
     only_background = window_costs(blank, torch.zeros((V, h, w, 3)), blank, torch.zeros((V, h, w, 3)), dist,
@@ -95,7 +106,7 @@ def test_the_compiled_scene_cost_gives_the_torch_cost(mini):
     for poses in (parts, {**parts, ids[1]: perturb(parts[ids[1]], 6, 3)}, {**parts, ids[1]: away}):
         T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
         args = ([meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, 3.0)
-        compiled, torch_steps = scene_cost(*args, compiled=True), scene_cost(*args, compiled=False)
+        compiled, torch_steps = backend_named("numba").scene_cost(*args), backend_named("torch").scene_cost(*args)
         assert compiled == pytest.approx(torch_steps, rel=1e-5) and scene_cost(*args) == compiled
 
 

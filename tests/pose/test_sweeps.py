@@ -51,7 +51,7 @@ def test_scene_optimisation_places_every_object(mini):
 def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkeypatch):
     """Curvature on ``device``: every render and cost of the search runs there (checked on the renders' inputs)
     and every part is placed within 1 mm; on the CPU an explicit ``device="cpu"`` gives the same bits."""
-    from bop_cender.pose import judge, occluders, problem, scene_polish
+    from bop_cender.pose.backend import backend_named
 
     ds, scene, meshes, maps, cams, dist = mini
     targets = _targets(ds, scene, cams, [1.0, -0.5, 0.5])
@@ -67,11 +67,9 @@ def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkey
 
         monkeypatch.setattr(module, name, wrapped)
 
-    spy(problem, "candidate_costs")
-    spy(problem, "edge_costs")
-    spy(occluders, "render_scene")
-    spy(judge, "scene_cost")
-    spy(scene_polish, "render_scene")
+    auto = backend_named("auto")  # the config's backend: each of its computations sees the inputs' device
+    for name in ("candidate_costs", "edge_costs", "scene_cost", "scene_maps", "window_maps"):
+        spy(auto, name)
     centers = lambda i: ds.models[i].center  # noqa: E731
     context = scene_context(maps.curvature.to(device), cams, meshes, centers, config, curvature_scale=1.0)
     placed = optimise_scene(context, targets)

@@ -19,6 +19,7 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from bop_cender.render.backend import NumbaRender, render_backend_named
 from bop_cender.render.compiled_raster import render_compiled
 from bop_cender.render.mesh import prepare_mesh
 from bop_cender.render.rasterizer import render_scene
@@ -46,8 +47,8 @@ def _poses(n_views: int, n_objects: int, seed: int, spread: float = 40.0, z: flo
 
 def _assert_same(meshes, T: np.ndarray, Ks: np.ndarray, height: int = H, width: int = W) -> None:
     T_t, K_t = torch.as_tensor(T, dtype=torch.float32), torch.as_tensor(Ks, dtype=torch.float32)
-    torch_maps = render_scene(meshes, T_t, K_t, height, width, compiled=False)
-    compiled = render_scene(meshes, T_t, K_t, height, width, compiled=True)
+    torch_maps = render_scene(meshes, T_t, K_t, height, width, backend=render_backend_named("torch"))
+    compiled = render_scene(meshes, T_t, K_t, height, width, backend=render_backend_named("numba"))
     assert torch_maps.mask.any()  # something was drawn
     for name in ("depth", "normals", "packed_face"):
         a, b = getattr(torch_maps, name), getattr(compiled, name)
@@ -94,17 +95,18 @@ def test_threads_give_the_serial_bits(on_one_and_two_threads) -> None:
 
 
 def test_a_vertex_behind_the_near_plane_is_left_to_the_torch_pipeline() -> None:
-    """The torch pipeline cuts faces at the near plane; the compiled loop does not, so it declines (None), the
-    default falls back, and ``compiled=True`` says why it cannot."""
+    """The torch pipeline cuts faces at the near plane; the compiled loop does not, so it declines (None), and every
+    backend renders such a call with the torch pipeline, the numba backend with one warning."""
     mesh = MESHES["icosphere"]()
     T = _poses(2, 1, seed=5, spread=0.0, z=10.0)  # a 25 mm sphere 10 mm in front of the camera
     T[..., 2, 3] = 10.0
     T_t, K_t = torch.as_tensor(T, dtype=torch.float32), torch.as_tensor(np.tile(K, (2, 1, 1)), dtype=torch.float32)
     assert render_compiled(mesh, T_t[..., :3, :3], T_t[..., :3, 3], K_t, H, W) is None
     default = render_scene([mesh], T_t, K_t, H, W)
-    assert torch.equal(default.depth, render_scene([mesh], T_t, K_t, H, W, compiled=False).depth)
-    with pytest.raises(ValueError, match="behind the near plane"):
-        render_scene([mesh], T_t, K_t, H, W, compiled=True)
+    assert torch.equal(default.depth, render_scene([mesh], T_t, K_t, H, W, backend=render_backend_named("torch")).depth)
+    with pytest.warns(RuntimeWarning, match="render_scene's compiled loop leaves geometry behind the near plane"):
+        numba = render_scene([mesh], T_t, K_t, H, W, backend=NumbaRender(insist=True))
+    assert torch.equal(default.depth, numba.depth)
 
 
 def test_nothing_in_view_is_background_everywhere() -> None:
@@ -113,7 +115,7 @@ def test_nothing_in_view_is_background_everywhere() -> None:
     T[..., 0, 3] = 5000.0  # far to the side: every face projects outside the frame
     T_t = torch.as_tensor(T, dtype=torch.float32)
     K_t = torch.as_tensor(np.tile(K, (2, 1, 1)), dtype=torch.float32)
-    out = render_scene([mesh], T_t, K_t, H, W, compiled=True)
+    out = render_scene([mesh], T_t, K_t, H, W, backend=render_backend_named("numba"))
     assert not out.mask.any() and not out.depth.any() and (out.packed_face == -1).all()
 
 
@@ -175,13 +177,20 @@ def test_the_rounding_of_addcmul_is_probed_not_assumed() -> None:
     )
 
 
-def test_the_compiled_loop_refuses_inputs_on_another_device() -> None:
-    """``use_compiled(True, ...)`` is for CPU inputs (``render_scene`` takes its CUDA kernel on CUDA instead)."""
-    from bop_cender.render.compiled_raster import use_compiled
+def test_the_numba_backend_says_where_the_cpu_loops_cannot_repeat_torch(monkeypatch) -> None:
+    """Where torch's ``addcmul`` rounds some elements once and others twice, the loops cannot give its bits: ``auto``
+    renders with the torch pipeline after one warning, ``numba`` says why it cannot run."""
+    from bop_cender.render import compiled_raster
 
-    with pytest.raises(ValueError, match="runs on the CPU"):
-        use_compiled(True, torch.device("cuda"))
-    assert use_compiled(False, torch.device("cpu")) is False
+    mesh = MESHES["bracket"]()
+    T_t = torch.as_tensor(_poses(2, 1, seed=4), dtype=torch.float32)
+    K_t = torch.as_tensor(np.tile(K, (2, 1, 1)), dtype=torch.float32)
+    reference = render_scene([mesh], T_t, K_t, H, W, backend=render_backend_named("torch"))
+    monkeypatch.setattr(compiled_raster, "AVAILABLE", False)
+    with pytest.warns(RuntimeWarning, match="the CPU renders run the torch pipeline: torch's CPU addcmul rounds"):
+        assert torch.equal(render_scene([mesh], T_t, K_t, H, W, backend=NumbaRender()).depth, reference.depth)
+    with pytest.raises(RuntimeError, match="the numba backend's CPU loops cannot repeat the torch renderer"):
+        render_scene([mesh], T_t, K_t, H, W, backend=NumbaRender(insist=True))
 
 
 def test_objects_alone_and_candidate_windows_are_the_torch_render_bit_for_bit(monkeypatch) -> None:

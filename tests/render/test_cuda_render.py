@@ -90,22 +90,35 @@ def test_the_kernel_refuses_cpu_tensors_outside_the_simulator() -> None:
 
 
 def test_render_scene_on_cuda_goes_through_the_kernels_guard(monkeypatch, kernel_standing) -> None:
-    """``compiled`` on CUDA: None takes the kernel where it runs (else one warning, and the torch pipeline: the
-    guard's rules, ``tests/render/test_kernel_guard.py``), True insists."""
-    from bop_cender.render import cuda_render
+    """On CUDA the ``auto`` and ``numba`` render backends take the kernel where it runs; where it declines a call (a
+    vertex behind the near plane) both take the torch pipeline with one warning; where numba's CUDA target is
+    missing, ``auto`` warns once and takes the torch pipeline, ``numba`` says why it cannot run (the guard's rules,
+    ``tests/render/test_kernel_guard.py``)."""
+    import types
 
-    maps = (torch.zeros(1), torch.zeros(1), torch.zeros(1))
+    from bop_cender.render import cuda_render
+    from bop_cender.render.backend import NumbaRender
+
+    maps, pipeline = (torch.zeros(1), torch.zeros(1), torch.zeros(1)), (torch.ones(1), torch.ones(1), torch.ones(1))
+    auto, numba = NumbaRender(), NumbaRender(insist=True)
+    for backend in (auto, numba):  # the torch pipeline, stood in for: the canvases below have no data
+        backend.torch = types.SimpleNamespace(scene_maps=lambda *a: pipeline)
+    R = types.SimpleNamespace(device=torch.device("cuda"), shape=(2, 1, 3, 3))  # what the dispatch reads
+    args = (None, R, None, None, 8, 8, 1.0)
     kernel_standing(cuda_render.GUARD)
     monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: maps)
-    args = (None, None, None, None, 8, 8, 1.0)
-    assert cuda_render.render_or_none(*args, None) is maps is cuda_render.render_or_none(*args, True)
+    assert auto.scene_maps(*args) is maps is numba.scene_maps(*args)
+    monkeypatch.setattr(cuda_render, "cuda_render", lambda *a: None)  # declined: the near plane
+    for backend in (auto, numba):
+        with pytest.warns(RuntimeWarning, match="render_scene's CUDA kernel leaves geometry behind the near plane"):
+            assert backend.scene_maps(*args) is pipeline
     kernel_standing(cuda_render.GUARD, "numba.cuda finds no CUDA driver")
     with pytest.raises(
         RuntimeError, match="needs the CUDA render kernel, which cannot run here: numba.cuda finds no CUDA driver"
     ):
-        cuda_render.render_or_none(*args, True)
+        numba.scene_maps(*args)
     with pytest.warns(RuntimeWarning, match="torch pipeline on CUDA: numba.cuda finds no CUDA driver"):
-        assert cuda_render.render_or_none(*args, None) is None
+        assert auto.scene_maps(*args) is pipeline
 
 
 @pytest.mark.cuda
@@ -118,6 +131,7 @@ def test_on_cuda_render_scene_takes_the_kernel_and_gives_the_cpu_maps() -> None:
         sys.path[:0] = [str(ROOT / "tests" / "render")]
         from reference import K_matrix, bracket
         from test_compiled_raster import _poses
+    from bop_cender.render.backend import render_backend_named
     from bop_cender.render.cuda_loops import cuda_unavailable_reason
     from bop_cender.render.rasterizer import render_scene
 
@@ -129,10 +143,11 @@ def test_on_cuda_render_scene_takes_the_kernel_and_gives_the_cpu_maps() -> None:
     cpu = render_scene(meshes, T, Ks, 96, 128)
     on_cuda = [m.to("cuda") for m in meshes]
     kernel = render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128)
+    numba, torch_pipeline = render_backend_named("numba"), render_backend_named("torch")
     assert torch.equal(
-        kernel.packed_face, render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, compiled=True).packed_face
+        kernel.packed_face, render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, backend=numba).packed_face
     )
-    pipeline = render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, compiled=False)
+    pipeline = render_scene(on_cuda, T.cuda(), Ks.cuda(), 96, 128, backend=torch_pipeline)
     for other in (cpu, pipeline):  # float32 rounding apart: a pixel where two faces nearly tie may differ
         assert (kernel.packed_face.cpu() != other.packed_face.cpu()).float().mean() < 1e-3
         same = kernel.packed_face.cpu() == other.packed_face.cpu()

@@ -3,14 +3,14 @@
 import pytest
 import torch
 
-from bop_cender.render import candidate_curvature, depth_crops, raster, rasterizer
+from bop_cender.render import backend, candidate_curvature, depth_crops, raster
 from bop_cender.render.settings import DEFAULT_RENDER_SETTINGS, RenderSettings
 
 
 def test_module_defaults_come_from_the_settings():
     s = DEFAULT_RENDER_SETTINGS
     assert s.near == raster.DEFAULT_NEAR
-    assert s.scene_chunk_pixels == rasterizer.DEFAULT_CHUNK_PIXELS
+    assert s.scene_chunk_pixels == backend.DEFAULT_CHUNK_PIXELS
     assert s.candidate_chunk_pixels(torch.device("cpu")) == candidate_curvature.DEFAULT_CHUNK_PIXELS
     assert s.depth_crop_chunk_pixels == depth_crops.DEFAULT_CHUNK_PIXELS
     assert s.candidate_chunk_pixels(torch.device("cuda")) == s.candidate_chunk_pixels_cuda
@@ -25,9 +25,10 @@ def test_bad_settings_are_refused(kw):
 def test_cost_takes_settings():
     import trimesh
 
-    from bop_cender.pose.cost import candidate_costs
+    from bop_cender.pose.backend import backend_named
     from bop_cender.render.mesh import prepare_mesh
 
+    candidate_costs = backend_named("auto").candidate_costs
     mesh = prepare_mesh(trimesh.creation.box(extents=(10.0, 10.0, 10.0)))
     T = torch.eye(4).repeat(3, 2, 1, 1)
     T[..., 2, 3] = 100.0
