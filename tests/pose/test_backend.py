@@ -15,12 +15,12 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from bop_cender.pose.optimize import PoseConfig  # noqa: E402
 from method_data import BOX_T_B, gt_of, perturb  # noqa: E402
 
 from bop_cender.errors import ConfigError  # noqa: E402
 from bop_cender.method import CenDerNetConfig  # noqa: E402
 from bop_cender.pose.backend import Backend, NumbaBackend, TorchBackend, backend_named  # noqa: E402
+from bop_cender.pose.config import PoseConfig  # noqa: E402
 from bop_cender.pose.edge_model import edge_model_of  # noqa: E402
 from bop_cender.pose.scene_polish import scene_window  # noqa: E402
 from bop_cender.render.backend import BACKEND_NAMES, render_backend_named  # noqa: E402
