@@ -131,3 +131,23 @@ def pose_context(mini, config=None, **kwargs):
     config = pose_config() if config is None else config
     return scene_context(maps.curvature, cams, meshes, lambda i: ds.models[i].center, config,
                          **{"curvature_scale": 1.0, **kwargs})  # fmt: skip
+
+
+def target_parts(ds, scene) -> dict[int, np.ndarray]:
+    """``obj_id -> T_world_model (4, 4)`` of the scene's target parts (the carriers left out)."""
+    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
+
+
+def full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) -> float:
+    """The default backend's scene cost of the parts at ``poses`` (``obj_id -> T_world_model``), at this fixture's
+    edge threshold (:data:`BOX_T_B`: its curvature scale is 1)."""
+    import torch
+
+    from bop_cender.pose.backend import backend_named
+
+    ids = sorted(poses)
+    T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
+    Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
+    return backend_named("auto").scene_cost(
+        [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, BOX_T_B
+    )

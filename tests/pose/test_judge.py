@@ -10,22 +10,18 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from method_data import BOX_T_B, pose_config, pose_context  # noqa: E402
+from method_data import BOX_T_B, pose_config, pose_context, target_parts  # noqa: E402
 
 from bop_cender.pose.center_term import center_term  # noqa: E402
 from bop_cender.pose.judge import SceneJudge, placement_cost  # noqa: E402
 from bop_cender.pose.types import PlacedObject, PoseTarget  # noqa: E402
 
 
-def _parts(ds, scene):
-    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
-
-
 def _center_setup(mini, obj_id=3):
     from bop_cender.geometry.sampling import sample_scores
 
     ds, scene, meshes, maps, cams, dist = mini
-    T = _parts(ds, scene)[obj_id]
+    T = target_parts(ds, scene)[obj_id]
     center_map = maps.center[:, 0].numpy()  # (V, H, W): the fixture's one shared centre channel
     c = T[:3, :3] @ ds.models[obj_id].center + T[:3, 3]
     scores = sample_scores(c[None], center_map, cams.Ks, cams.T_cam_world)[0]
@@ -56,7 +52,7 @@ def test_center_term_is_zero_at_the_detected_centre_and_grows_away_from_it(mini)
 def test_the_scene_judge_adds_each_objects_centre_term(mini):
     ds, scene, meshes, maps, cams, dist = mini
     _, _, T, center_map, scores = _center_setup(mini)
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     moved = T.copy()
     moved[:3, 3] += np.array([6.0, -8.0, 0.0])
     placed = [PlacedObject(3, moved, 0.0, 0), PlacedObject(4, parts[4], 0.0, 0)]

@@ -7,29 +7,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from method_data import BOX_T_B, perturb, pose_config, pose_context  # noqa: E402
+from method_data import BOX_T_B, full_scene_cost, perturb, pose_config, pose_context, target_parts  # noqa: E402
 
 from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.judge import SceneJudge  # noqa: E402
 from bop_cender.pose.polish import polish_on_scene  # noqa: E402
 from bop_cender.pose.types import PlacedObject, PoseTarget  # noqa: E402
-
-
-def _parts(ds, scene):
-    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
-
-
-def _full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) -> float:
-    ids = sorted(poses)
-    T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
-    Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    return backend_named("auto").scene_cost(
-        [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, BOX_T_B
-    )
 
 
 def _targets(ds, cams, poses: dict[int, np.ndarray]) -> list[PoseTarget]:
@@ -40,7 +26,7 @@ def _targets(ds, cams, poses: dict[int, np.ndarray]) -> list[PoseTarget]:
 def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     ids = sorted(parts)
     start = {ids[0]: parts[ids[0]], ids[1]: perturb(parts[ids[1]], 3.0, 1.5)}
     placed = [PlacedObject(i, start[i], 1.0, 7) for i in ids]
@@ -51,8 +37,8 @@ def test_polish_on_scene_moves_a_slightly_wrong_part_to_its_true_pose(mini):
     R_err = np.degrees(Rotation.from_matrix(moved.T_world_model[:3, :3] @ T[:3, :3].T).magnitude())
     assert R_err < 1.0 and np.linalg.norm(moved.T_world_model[:3, 3] - T[:3, 3]) < 0.5, R_err
     assert moved.evaluations > 7 and moved.cost != 1.0  # its evaluations counted, its cost that of the new pose
-    before = _full_scene_cost(meshes, start, cams, edges, dist)
-    after = _full_scene_cost(meshes, {p.obj_id: p.T_world_model for p in polished}, cams, edges, dist)
+    before = full_scene_cost(meshes, start, cams, edges, dist)
+    after = full_scene_cost(meshes, {p.obj_id: p.T_world_model for p in polished}, cams, edges, dist)
     assert after < before
     # the part already at its true pose stays there (a polish never makes the scene worse)
     R0 = np.degrees(Rotation.from_matrix(polished[0].T_world_model[:3, :3] @ parts[ids[0]][:3, :3].T).magnitude())
@@ -63,7 +49,7 @@ def test_scene_polish_stops_at_its_own_tolerances(mini):
     """The polish's Nelder-Mead stops where its simplex is within scene_polish.nelder_mead's xatol / fatol (loose:
     after a few steps), else at its maxfev; the refinement's tolerances do not decide it."""
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     placed = [PlacedObject(i, perturb(parts[i], 2.0, 1.0), 1.0, 0) for i in sorted(parts)]
 
     def spent(tolerance: str) -> list[int]:
@@ -82,7 +68,7 @@ def test_scene_polish_stops_at_its_own_tolerances(mini):
 def test_polish_keeps_a_pose_where_the_scene_does_not_gain(mini, monkeypatch):
     """A window cost that prefers a wrong pose: the full scene cost refuses it and the old pose stays."""
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     ids = sorted(parts)
     wrong = {i: perturb(T, 20.0, 8.0) for i, T in parts.items()}
     monkeypatch.setattr(backend_named("auto"), "window_costs",  # the config's backend

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from method_data import BOX_T_B, perturb  # noqa: E402
+from method_data import BOX_T_B, full_scene_cost, perturb, target_parts  # noqa: E402
 
 from bop_cender.pose.backend import backend_named  # noqa: E402
 from bop_cender.pose.scene_polish import scene_window  # noqa: E402
@@ -23,23 +23,10 @@ EDGE_THRESHOLD = BOX_T_B  # the fixture's curvature scale is 1
 scene_cost = backend_named("auto").scene_cost
 
 
-def _parts(ds, scene):
-    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
-
-
-def _full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) -> float:
-    ids = sorted(poses)
-    T_cm = np.einsum("vij,mjk->vmik", cams.T_cam_world, np.stack([poses[i] for i in ids]))
-    Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
-    return scene_cost(
-        [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, EDGE_THRESHOLD
-    )
-
-
-def test_window_cost_ranks_poses_as_the_full_scene_cost(mini):
+def test_window_cost_ranks_poses_as_thefull_scene_cost(mini):
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     moving, other = sorted(parts)
     trials = np.stack([parts[moving]] + [perturb(parts[moving], a, s) for a, s in ((1, 0.5), (3, 1), (6, 2), (10, 4))])
     window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks, cams.T_cam_world,
@@ -47,7 +34,7 @@ def test_window_cost_ranks_poses_as_the_full_scene_cost(mini):
     h, w = window.size
     assert h <= cams.height and w <= cams.width and window.other_depth.shape == (len(cams.Ks), h, w)
     windowed = backend_named("auto").window_costs(window, trials)
-    full = np.array([_full_scene_cost(meshes, {**parts, moving: T}, cams, edges, dist) for T in trials])
+    full = np.array([full_scene_cost(meshes, {**parts, moving: T}, cams, edges, dist) for T in trials])
     assert np.all(np.diff(windowed) > 0), windowed  # the truth first, then growing with the perturbation
     assert np.all(np.diff(full) > 0), full
     assert np.corrcoef(windowed, full)[0, 1] > 0.95
@@ -72,7 +59,7 @@ def test_the_compiled_window_cost_gives_the_torch_costs(mini):
 
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     moving, other = sorted(parts)
     trials = np.stack([parts[moving]] + [perturb(parts[moving], a, s) for a, s in ((1, 0.5), (6, 2), (25, 15))])
     gone = parts[moving].copy()
@@ -98,7 +85,7 @@ def test_the_compiled_scene_cost_gives_the_torch_cost(mini):
     truth, a perturbed part and a part that has left every view."""
     ds, scene, meshes, maps, cams, dist = mini
     edges = maps.curvature > BOX_T_B
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     ids = sorted(parts)
     Ks = torch.as_tensor(cams.Ks, dtype=torch.float32)
     away = parts[ids[1]].copy()
@@ -130,7 +117,7 @@ def test_window_drops_target_edges_along_its_inner_sides_only():
 
 def test_scene_window_drops_the_border_rows_in_a_real_window(mini):
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     moving, other = sorted(parts)
     everywhere = torch.ones_like(maps.curvature, dtype=torch.bool)
     window = scene_window(meshes(moving), parts[moving], [(meshes(other), parts[other])], cams.Ks, cams.T_cam_world,

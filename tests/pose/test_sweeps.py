@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from method_data import gt_of, perturb, pose_config, pose_context  # noqa: E402
+from method_data import gt_of, perturb, pose_config, pose_context, target_parts  # noqa: E402
 
 from bop_cender.pose import sweeps  # noqa: E402
 from bop_cender.pose.config import PoseConfig  # noqa: E402
@@ -19,10 +19,6 @@ from bop_cender.pose.context import scene_context  # noqa: E402
 from bop_cender.pose.judge import SceneJudge  # noqa: E402
 from bop_cender.pose.sweeps import choose_by_scene, optimise_scene  # noqa: E402
 from bop_cender.pose.types import PlacedObject, PoseTarget, SceneCameras  # noqa: E402
-
-
-def _parts(ds, scene) -> dict[int, np.ndarray]:
-    return {g.obj_id: g.T_world_model for g in scene.gt if ds.models[g.obj_id].is_target}
 
 
 def _targets(ds, scene, cams, offset_mm) -> list[PoseTarget]:
@@ -87,7 +83,7 @@ def test_the_pose_stage_runs_on_the_device_of_the_curvature(mini, device, monkey
 def _judged(mini, config=None):
     """``(parts, targets in placement order, judge)`` of the fixture's two parts at their GT centres."""
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     ids = sorted(parts)
     targets = [PoseTarget(parts[i][:3, :3] @ ds.models[i].center + parts[i][:3, 3], np.ones(len(cams.Ks)), (i,))
                for i in ids]  # fmt: skip
@@ -140,7 +136,7 @@ def _known_search(parts):
 
 def test_optimise_scene_runs_the_scene_polish_only_when_asked(mini, monkeypatch):
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     calls = []
     monkeypatch.setattr(sweeps, "optimise_object", _known_search(parts))
     monkeypatch.setattr(sweeps, "polish_on_scene", lambda placed, *a, **k: calls.append(len(placed)) or placed)
@@ -174,7 +170,7 @@ def test_the_judge_and_the_polish_pair_each_placed_object_with_its_own_target(mi
     """Objects are placed most visible first, so ``placed[k]`` is not ``targets[k]``: the scene judge and the
     polish must see each object beside its own target (its centre and centre map)."""
     ds, scene, meshes, maps, cams, dist = mini
-    parts = _parts(ds, scene)
+    parts = target_parts(ds, scene)
     ids = sorted(parts)
     centre = {i: T[:3, :3] @ ds.models[i].center + T[:3, 3] for i, T in parts.items()}
     # the first target is the less visible one: it is placed second
