@@ -25,7 +25,7 @@ from bop_cender.meshes import MeshCache
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.targets import TargetConfig
 from bop_cender.pose.config import PRESETS, PoseConfig
-from bop_cender.pose.config_names import FIGURES, REMOVED, RENAMED
+from bop_cender.pose.config_names import ALSO, FIGURES, REMOVED, RENAMED
 from bop_cender.pose.context import scene_context
 from bop_cender.pose.sweeps import optimise_scene
 from bop_cender.pose.types import PlacedObject, PoseTarget, SceneCameras
@@ -100,12 +100,13 @@ class CenDerNetConfig:
         for item in settings:
             if item.partition("=")[0].strip() == "preset":
                 raise ConfigError("the preset is chosen before any setting (run --preset ours|paper)", field="--set")
-            config = apply_setting(config, item, _RENAMED, _REMOVED)
+            config = apply_setting(config, item, _RENAMED, _REMOVED, _ALSO)
         return config
 
 
 #: Old ``--set`` names -> new ones, and removed options -> why (stage 3's: :mod:`bop_cender.pose.config_names`).
 _RENAMED = {f"poses.{old}": f"poses.{new}" for old, new in RENAMED.items()}
+_ALSO = {f"poses.{old}": note for old, note in ALSO.items()}
 _REMOVED = {
     **{f"poses.{name}": f"{why}; figures: {FIGURES}" for name, why in REMOVED.items()},
     "test_flips": "averaging the network's passes lost end to end with both shipped networks (DIMO 0.870 -> 0.834,"

@@ -20,7 +20,11 @@ Config = TypeVar("Config")
 
 
 def apply_setting(
-    config: Config, item: str, renamed: Mapping[str, str] | None = None, removed: Mapping[str, str] | None = None
+    config: Config,
+    item: str,
+    renamed: Mapping[str, str] | None = None,
+    removed: Mapping[str, str] | None = None,
+    also: Mapping[str, str] | None = None,
 ) -> Config:
     """``config`` with the setting ``item`` (``path=value``) applied.
 
@@ -29,6 +33,7 @@ def apply_setting(
         item: ``path=value``; the path names a leaf field by its dotted field names.
         renamed: old path -> new path: an old path is refused, naming the new one.
         removed: removed path -> why it was removed (and where its figures are).
+        also: old path -> what else the old setting set (appended to its rename message).
 
     Raises:
         ConfigError: no ``=``, an old or removed name, an unknown path or a section, or a value that is not of the
@@ -39,7 +44,10 @@ def apply_setting(
     if not sep:
         raise ConfigError(f"expected section.field=value, got {item!r}", field="--set")
     if renamed and key in renamed:
-        raise ConfigError(f"{key} was renamed {renamed[key]} (--set {renamed[key]}={text.strip()})", field="--set")
+        more = f"; {also[key]}" if also and key in also else ""
+        raise ConfigError(
+            f"{key} was renamed {renamed[key]} (--set {renamed[key]}={text.strip()}){more}", field="--set"
+        )
     if removed and key in removed:
         raise ConfigError(f"{key} was removed: {removed[key]}", field="--set")
     parts = key.split(".")

@@ -151,3 +151,14 @@ def test_run_builds_its_config_from_the_preset_then_its_options_then_set():
         config_of("--set", "poses.passes=1")
     with pytest.raises(SystemExit):
         config_of("--preset", "best")
+
+
+@pytest.mark.parametrize("old", ["nm_initial_rotation_rad", "nm_initial_translation_mm", "nm_xatol", "nm_fatol"])
+def test_an_old_name_that_drove_several_runs_says_which_others_it_set(old) -> None:
+    """Before the sections the refinement's Nelder-Mead settings also drove the screen's (and the initial simplex the
+    scene polish's, at a quarter): following the rename alone would change one run of three, silently."""
+    with pytest.raises(ConfigError, match=rf"poses\.{old} was renamed .*; it also set poses\.screen\.nelder_mead\."):
+        CenDerNetConfig.for_dataset("dimo").with_settings([f"poses.{old}=0.1"])
+    with pytest.raises(ConfigError) as caught:
+        CenDerNetConfig.for_dataset("dimo").with_settings(["poses.nm_maxfev=10"])
+    assert "also" not in str(caught.value)  # the screen and the polish had maxfevs of their own

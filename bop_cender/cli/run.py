@@ -96,7 +96,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("ours", "paper"),
         default="ours",
         help="the method's settings to start from (default ours; paper: the paper's stage 3, one sweep, no scene"
-        " polish, no centre term, no screen; bop_cender/pose/config.py PRESETS); recorded in the run's sidecar",
+        " polish, no centre term, no screen, searched on our edge proxy and judged by the paper's render cost;"
+        " --set poses.search_cost=render renders every evaluation as the paper does; bop_cender/pose/config.py PRESETS); recorded in the run's sidecar",
     )
     p.add_argument(
         "--set",

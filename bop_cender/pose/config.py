@@ -188,7 +188,7 @@ class PoseConfig:
         center_weight: weight of the centre term in every cost (pixels; 1, the paper's 0; 2026-12-03 second session).
         seed: seed of the candidates, with the object's index (integer; 0).
         backend: the code of every render and cost (``auto``: numba's loops on the CPU and kernels on CUDA, torch
-            where they cannot run; ``torch``; ``numba``, which fails instead of falling back; the same rows to float32
+            where they cannot run; ``torch``; ``numba``, which fails where numba cannot run at all; the same rows to float32
             rounding, :mod:`bop_cender.pose.backend`; ``docs/performance.md``).
         candidates, refine, screen, sweeps, scene_polish, network: the sections above.
     """

@@ -40,6 +40,17 @@ RENAMED: dict[str, str] = {
     "screen_maxfev": "screen.nelder_mead.maxfev",
 }
 
+#: Old name -> what else it set before the sections, where one old setting drove several Nelder-Mead runs: following
+#: :data:`RENAMED` alone would change the refinement's run only (default runs are unaffected).
+ALSO: dict[str, str] = {
+    "nm_initial_rotation_rad": "it also set poses.screen.nelder_mead.initial_rotation_rad, and a quarter of it"
+    " poses.scene_polish.nelder_mead.initial_rotation_rad: set those too for the old behaviour",
+    "nm_initial_translation_mm": "it also set poses.screen.nelder_mead.initial_translation_mm, and a quarter of it"
+    " poses.scene_polish.nelder_mead.initial_translation_mm: set those too for the old behaviour",
+    "nm_xatol": "it also set poses.screen.nelder_mead.xatol: set that too for the old behaviour",
+    "nm_fatol": "it also set poses.screen.nelder_mead.fatol: set that too for the old behaviour",
+}
+
 #: Removed option -> why (each was off by default; its figures, where it had any, are in :data:`FIGURES`).
 REMOVED: dict[str, str] = {
     "coverage_weight": "the two-sided judge measured no gain alone (2026-12-02, second session)",

@@ -25,8 +25,8 @@ the pose only through which faces face the camera, so they can be found without 
 What it leaves out: self-occlusion (a crease hidden behind another part of the same object still
 counts) and the curvature's magnitude (every drawn edge weighs the same). It is a ranking proxy: the
 method ranks many candidates and runs the Nelder-Mead refinement on it, then judges the finalists by
-the render cost (a render-cost polish is optional, ``PoseConfig.polish_maxfev``, and off: it pulled poses
-back onto the pixel grid). Being continuous in the pose (bilinear lookups, no pixel
+the render cost (a render-cost polish was measured and removed: it pulled poses
+back onto the pixel grid; ``results/accuracy/README.md``). Being continuous in the pose (bilinear lookups, no pixel
 snapping), it also suits Nelder-Mead better than a rendered cost, whose value moves in pixel steps.
 
 Four layouts of the same arithmetic, which agree to float rounding (``tests/pose/test_edge_cost.py``); the backend

@@ -8,7 +8,7 @@ to the scene's. Measured on oracle heatmaps (DIMO-layout seed 4242, scene 000019
 a fully visible disc placed 6 degrees from its symmetric pose (MSSD 5.5 % of its diameter: a miss at
 BOP's strictest threshold); put at its true pose, the scene cost falls 1.079 -> 0.940; Nelder-Mead on the
 scene cost from the placed pose brings it to 0.6 degrees, and the other four discs' centres from 0.4-0.8
-mm to under 0.2 mm. The render cost's polish (``PoseConfig.polish_maxfev``) did not do this: it is the
+mm to under 0.2 mm. The render cost's polish (removed, once ``polish_maxfev``) did not do this: it is the
 paper's one-sided cost of one object, blind to the target edges a tilted pose leaves unexplained.
 
 How, cheaply. The scene cost renders every object in every full frame (23 ms per pose for 4 parts in 7

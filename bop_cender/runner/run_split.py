@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import shutil
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bop_cender.data.types import Dataset
-from bop_cender.errors import ConfigError, RunError
+from bop_cender.errors import ConfigError, ResultsWarning, RunError
 from bop_cender.runner.build import curvature_threshold, open_run_dataset, read_weights
 from bop_cender.runner.merge import RunSummary, merge
 from bop_cender.runner.pool import execute_scenes
@@ -112,6 +113,10 @@ def _run_scenes(
     targets = {i for i, m in dataset.models.items() if m.is_target}
     outcomes = resumable_outcomes(work, keys, fingerprint, targets)
     resumed = len(outcomes)
+    redone = sum(1 for k in keys if k not in outcomes and shard_path(work, k).exists())
+    if redone:  # said up front: a changed setting (or an older bop-cender) must not look like a slow resume
+        warnings.warn(f"{work}: {redone} shards made with other settings, another version of bop-cender or for"
+                      " other data are estimated again", ResultsWarning, stacklevel=2)  # fmt: skip
     todo = [k for k in keys if k not in outcomes]
     done = resumed
     if progress is not None:
