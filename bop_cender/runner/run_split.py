@@ -33,6 +33,7 @@ from bop_cender.runner.request import (
 from bop_cender.runner.shards import (
     SceneOutcome,
     make_dirs,
+    other_settings_shards,
     remove_empty,
     resumable_outcomes,
     shard_path,
@@ -113,7 +114,7 @@ def _run_scenes(
     targets = {i for i, m in dataset.models.items() if m.is_target}
     outcomes = resumable_outcomes(work, keys, fingerprint, targets)
     resumed = len(outcomes)
-    redone = sum(1 for k in keys if k not in outcomes and shard_path(work, k).exists())
+    redone = other_settings_shards(work, [k for k in keys if k not in outcomes], fingerprint)
     if redone:  # said up front: a changed setting (or an older bop-cender) must not look like a slow resume
         warnings.warn(f"{work}: {redone} shards made with other settings, another version of bop-cender or for"
                       " other data are estimated again", ResultsWarning, stacklevel=2)  # fmt: skip

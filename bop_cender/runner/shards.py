@@ -125,6 +125,21 @@ def resumable_outcomes(
     return outcomes
 
 
+def other_settings_shards(work: Path, keys: list[str], fingerprint: str) -> int:
+    """How many shards in ``work`` of scenes of ``keys`` were made with another ``fingerprint`` (other settings,
+    weights or data, or an older bop-cender): ``--resume`` redoes them, and a user who changed nothing on purpose
+    should hear it. A failed scene's or a damaged shard is not counted (its scene is redone for that reason)."""
+    count = 0
+    for key in keys:
+        try:
+            data = json.loads(shard_path(work, key).read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and data.get("format") == SHARD_FORMAT and data.get("fingerprint") != fingerprint:
+            count += 1
+    return count
+
+
 def make_dirs(folder: Path) -> list[Path]:
     """``mkdir -p folder``; returns the folders it created, outermost first (to remove them when nothing
     was written)."""
