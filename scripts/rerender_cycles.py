@@ -155,19 +155,12 @@ def _checked_input(args: argparse.Namespace):
     (readable, the size its entry says)."""
     from PIL import Image
 
-    from bop_cender.data.dimo import DimoSelection, open_dimo
-    from bop_cender.data.registry import DatasetRequest, open_dataset
     from bop_cender.errors import DatasetError
     from bop_cender.meshes import MeshCache
+    from bop_cender.synth.relook import DEFAULT_SPLIT, open_every_image
 
-    # every image of the split (DIMO: not only the paper's selection; T-LESS: each image its own group), so that no
-    # image of the copy keeps our renderer's look
-    if args.dataset == "dimo":
-        args.split = args.split or "sim"
-        dataset = open_dimo(args.src, args.split, DimoSelection.everything())
-    else:
-        args.split = args.split or "test"
-        dataset = open_dataset(DatasetRequest("tless", args.src, args.split, n_views=1))
+    args.split = args.split or DEFAULT_SPLIT[args.dataset]
+    dataset = open_every_image(args.dataset, args.src, args.split)  # no image of the copy keeps our renderer's look
     keys = dataset.scene_keys[: args.limit_scenes]
     scenes, meshes = {}, MeshCache(dataset.models)
     for key in keys:

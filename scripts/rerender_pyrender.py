@@ -54,22 +54,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: pyrender is not usable here ({exc}); pip install pyrender2 (the pyrender extra), and set "
               "PYOPENGL_PLATFORM=egl or osmesa", file=sys.stderr)  # fmt: skip
         return 2
-    from bop_cender.data.dimo import DimoSelection, open_dimo
-    from bop_cender.data.registry import DatasetRequest, open_dataset
     from bop_cender.errors import BopCenderError
+    from bop_cender.synth.relook import DEFAULT_SPLIT, open_every_image
 
     if args.dst.exists():
         print(f"error: {args.dst} exists; give a new folder", file=sys.stderr)
         return 2
     try:
-        # every image of the split (DIMO: not only the paper's selection; T-LESS: each image its own group), so that
-        # no image of the copy keeps our renderer's look
-        if args.dataset == "dimo":
-            args.split = args.split or "sim"
-            dataset = open_dimo(args.src, args.split, DimoSelection.everything())
-        else:
-            args.split = args.split or "test"
-            dataset = open_dataset(DatasetRequest("tless", args.src, args.split, n_views=1))
+        args.split = args.split or DEFAULT_SPLIT[args.dataset]
+        dataset = open_every_image(args.dataset, args.src, args.split)  # no image of the copy keeps our look
     except BopCenderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -24,6 +24,10 @@ from bop_cender.synth.sensor_look import SensorLook, apply_sensor_look, look_rng
 Redraw = Callable[[np.ndarray, str], np.ndarray]
 
 
+#: The split a re-rendered look redraws when none is named: DIMO's synthetic camera, T-LESS's test images.
+DEFAULT_SPLIT = {"dimo": "sim", "tless": "test"}
+
+
 def open_every_image(layout: str, root: Path, split: str) -> Dataset:
     """The split with every image a view of some scene (DIMO: every variant and viewpoint, not only the paper's
     selection; T-LESS / BOP: each image its own group), so that no image of the copy keeps the source's look."""

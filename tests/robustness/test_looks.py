@@ -122,3 +122,12 @@ def test_an_unknown_look_or_a_missing_data_root_is_one_error(tmp_path: Path, cap
     assert "--looks: unknown look foggy" in capsys.readouterr().err
     assert robustness.main(["--dataset", "dimo", "--data-root", str(tmp_path / "no"), "--out", str(out)]) == 2
     assert "--data-root" in capsys.readouterr().err and not out.exists()
+
+
+def test_an_empty_split_or_a_limit_below_one_is_one_error(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "out"
+    base = ["--dataset", "dimo", "--data-root", str(tmp_path), "--out", str(out)]
+    assert robustness.main([*base, "--splits", "sim,"]) == 2
+    assert "--splits: an empty split name in 'sim,'" in capsys.readouterr().err
+    assert robustness.main([*base, "--limit-scenes", "0"]) == 2
+    assert "--limit-scenes: expected 1 or more, got 0" in capsys.readouterr().err and not out.exists()
