@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
 from pathlib import Path
 
@@ -55,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
               "PYOPENGL_PLATFORM=egl or osmesa", file=sys.stderr)  # fmt: skip
         return 2
     from bop_cender.errors import BopCenderError
-    from bop_cender.synth.relook import DEFAULT_SPLIT, open_every_image
+    from bop_cender.synth.relook import DEFAULT_SPLIT, open_every_image, relook_split
 
     if args.dst.exists():
         print(f"error: {args.dst} exists; give a new folder", file=sys.stderr)
@@ -66,24 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     except BopCenderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    tmp = args.dst.with_name(args.dst.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    shutil.copytree(args.src, tmp)
-    keys = dataset.scene_keys[: args.limit_scenes]
     renderer = _Renderer(dataset, np.random.default_rng(args.seed), args.noise)
     try:
-        for n, key in enumerate(keys, 1):
-            scene = dataset.scene(key)
-            for view in scene.views:
-                out = tmp / Path(view.rgb_path).relative_to(args.src)
-                renderer.render(scene, view).save(out)
-            print(f"rerender: {n}/{len(keys)} scene {key}", flush=True)
-    except (BopCenderError, ValueError) as exc:
-        shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left
+        relook_split(dataset, args.src, args.dst, lambda scene, view, _name: np.asarray(renderer.render(scene, view)),
+                     args.limit_scenes, lambda line: print(line, flush=True))  # fmt: skip
+    except (BopCenderError, ValueError) as exc:  # relook_split leaves nothing half-written
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    tmp.rename(args.dst)
+    keys = dataset.scene_keys[: args.limit_scenes]
     print(f"wrote {args.dst} ({len(keys)} scenes of split {args.split} rendered by pyrender)")
     return 0
 

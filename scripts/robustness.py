@@ -97,10 +97,11 @@ def make_look(look: str, dataset: str, src: Path, dst: Path, split: str, seed: i
     dst.parent.mkdir(parents=True, exist_ok=True)
     if look == "sensor":
         from bop_cender.errors import BopCenderError
-        from bop_cender.synth.relook import relook_split, sensor_redraw
+        from bop_cender.synth.relook import open_every_image, relook_split, sensor_redraw
 
         try:
-            n = relook_split(dataset, src, dst, split, sensor_redraw(seed), limit, lambda line: print(line, flush=True))
+            dataset_split = open_every_image(dataset, src, split)
+            n = relook_split(dataset_split, src, dst, sensor_redraw(seed), limit, lambda line: print(line, flush=True))
         except (BopCenderError, ValueError, OSError) as exc:
             print(f"error: sensor look of {src}: {exc}", file=sys.stderr)
             return 2

@@ -18,7 +18,7 @@ import robustness  # noqa: E402
 
 from bop_cender.data.dimo import DimoSelection, open_dimo  # noqa: E402
 from bop_cender.data.registry import DatasetRequest, open_dataset  # noqa: E402
-from bop_cender.synth.relook import relook_split, sensor_redraw  # noqa: E402
+from bop_cender.synth.relook import open_every_image, relook_split, sensor_redraw  # noqa: E402
 from bop_cender.synth.sensor_look import SensorLook, _bayer_demosaic, _pillbox_blur, apply_sensor_look, look_rng  # noqa: E402
 
 
@@ -69,7 +69,7 @@ def test_blur_and_demosaic_keep_a_flat_image_and_the_demosaic_keeps_each_measure
 def test_a_split_in_the_sensor_look_is_a_copy_with_only_its_images_redrawn(tmp_path: Path) -> None:
     src = method_data.build(tmp_path / "src", n_scenes=1)
     dst = tmp_path / "dst"
-    n = relook_split("dimo", src, dst, "real", sensor_redraw(3))
+    n = relook_split(open_every_image("dimo", src, "real"), src, dst, sensor_redraw(3))
     before = open_dimo(src, "real", DimoSelection.everything())
     assert n == sum(len(before.scene(k).views) for k in before.scene_keys) > 0
     for key in before.scene_keys:
@@ -82,21 +82,21 @@ def test_a_split_in_the_sensor_look_is_a_copy_with_only_its_images_redrawn(tmp_p
     assert open_dataset(DatasetRequest("dimo", dst, "real")).scene_keys == before.scene_keys
     assert not (tmp_path / "dst.partial").exists()
     with pytest.raises(FileExistsError):
-        relook_split("dimo", src, dst, "real", sensor_redraw(3))
+        relook_split(open_every_image("dimo", src, "real"), src, dst, sensor_redraw(3))
 
 
 def test_a_relook_that_fails_midway_leaves_nothing(tmp_path: Path) -> None:
     src = method_data.build(tmp_path / "src", n_scenes=1)
     calls = []
 
-    def broken(image: np.ndarray, name: str) -> np.ndarray:
+    def broken(scene, view, name: str) -> np.ndarray:
         calls.append(name)
         if len(calls) == 3:
             raise OSError("disk full")
-        return image
+        return np.zeros((int(view.height), int(view.width), 3), np.uint8)
 
     with pytest.raises(OSError, match="disk full"):
-        relook_split("dimo", src, tmp_path / "dst", "real", broken)
+        relook_split(open_every_image("dimo", src, "real"), src, tmp_path / "dst", broken)
     assert not (tmp_path / "dst").exists() and not (tmp_path / "dst.partial").exists()
 
 
