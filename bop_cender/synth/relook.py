@@ -1,8 +1,8 @@
 """A copy of a dataset whose images of one split are drawn again in another look (same scenes, same poses).
 
 Why: the robustness benchmark (``scripts/robustness.py``) scores the same test scenes in several looks; every look
-(the foreign camera here, pyrender's ``scripts/rerender_pyrender.py``) is a copy read by the same loader, unchanged, with every other file (GT, cameras, models, masks) as it was. The
-copy is built in ``DST.partial`` and renamed to ``DST`` once every image is written, so an interrupted run leaves
+(the foreign camera here, pyrender's ``scripts/rerender_pyrender.py``) is a copy read by the same loader, unchanged,
+with every other file (GT, cameras, models, masks) as it was. The copy is built in ``DST.partial`` and renamed to ``DST`` once every image is written, so an interrupted run leaves
 no folder that reads as complete.
 """
 
