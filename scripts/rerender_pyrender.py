@@ -45,6 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--noise", type=float, default=3.0, help="sensor noise, standard deviation in grey levels")
     ap.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
     args = ap.parse_args(argv)
+    for flag, bad, expected in (("--noise", args.noise < 0, "0 or more"),
+                                ("--limit-scenes", args.limit_scenes is not None and args.limit_scenes < 1, "1 or more")):  # fmt: skip
+        if bad:
+            print(f"error: {flag}: expected {expected}", file=sys.stderr)
+            return 2
     try:
         import pyrender
 

@@ -133,3 +133,10 @@ def test_an_existing_destination_is_refused(tmp_path: Path, capsys) -> None:
     (tmp_path / "out").mkdir()
     assert rerender_pyrender.main([str(tmp_path), str(tmp_path / "out")]) == 2
     assert "exists" in capsys.readouterr().err
+
+
+def test_a_negative_noise_or_no_scene_is_one_error(tmp_path: Path, capsys) -> None:
+    """Before any work: an empty copy written with exit 0 would read as a look of no scene."""
+    for flag, value in (("--limit-scenes", "0"), ("--noise", "-1")):
+        assert rerender_pyrender.main([str(tmp_path), str(tmp_path / "dst"), flag, value]) == 2
+        assert f"error: {flag}: expected" in capsys.readouterr().err and not (tmp_path / "dst").exists()
