@@ -160,6 +160,18 @@ def add_scoring_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
+def add_protocol_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--protocol bop19|bop24`` (default: the run sidecar's, else bop19)."""
+    p.add_argument(
+        "--protocol",
+        choices=("bop19", "bop24"),
+        default=None,
+        help="bop19: BOP'19 localisation, AR over VSD, MSSD, MSPD (the top inst_count estimates per target); bop24:"
+        " BOP'24/'25 6D detection, mAP over MSSD (diameter and mm) and MSPD, every estimate up to 100 per image"
+        " (default: the protocol the run's sidecar names, else bop19)",
+    )
+
+
 def announce(line: str) -> None:
     """Tell the user what the command does on their behalf (the embedded demo), on stderr."""
     print(f"[bop-cender] {line}", file=sys.stderr)

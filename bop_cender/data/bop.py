@@ -34,11 +34,11 @@ from bop_cender.data.bop_scene import (
     BopSceneLoader,
     ScenePlan,
 )
-from bop_cender.data.layout import SCENE_CAMERA, TARGETS_FILE
+from bop_cender.data.layout import SCENE_CAMERA, TARGETS_FILE, TARGETS_FILE_BOP24
 from bop_cender.data.models import load_models
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.split_size import SAMPLE_SCENES, SAMPLE_VIEWS_PER_SCENE, vote_image_size
-from bop_cender.data.targets_file import check_not_repeated
+from bop_cender.data.targets_file import check_not_repeated, image_selection
 from bop_cender.data.types import Dataset, ObjectModel
 from bop_cender.errors import ConfigError, DatasetError, DatasetWarning
 
@@ -146,10 +146,17 @@ def open_bop_split(
     index = {sid: _camera_index(split_dir / sid / SCENE_CAMERA) for sid in scene_ids}
     selected = {sid: sorted(ims) for sid, ims in index.items()}
     targets_path = root / TARGETS_FILE
+    bop24_path = root / TARGETS_FILE_BOP24
     if layout.is_test and targets_path.is_file():
         selected = _read_targets(targets_path, index, models, layout.folder, notes)
-    elif layout.is_test:
+    elif layout.is_test and not bop24_path.is_file():
         notes.append(f"no {TARGETS_FILE}: every image of every scene is used")
+    if layout.is_test and bop24_path.is_file():  # BOP'24 detection scores these images: they are loaded too
+        extra = image_selection(bop24_path, index, layout.folder)
+        base = selected if targets_path.is_file() else {}
+        selected = {sid: sorted(set(base.get(sid, ())) | extra.get(sid, set())) for sid in index
+                    if sid in base or sid in extra}  # fmt: skip
+        notes.append(f"BOP'24 targets ({TARGETS_FILE_BOP24}): their {sum(len(v) for v in extra.values())} images used")
 
     plans = _plan_scenes(selected, index, layout, n_views, seed, notes)
     camera = _read_camera_file(root, layout)

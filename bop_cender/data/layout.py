@@ -14,6 +14,8 @@ SCENE_GT = "scene_gt.json"
 SCENE_GT_INFO = "scene_gt_info.json"
 #: BOP'19 test targets at the dataset root.
 TARGETS_FILE = "test_targets_bop19.json"
+#: BOP'24 test targets at the dataset root: the images of the 6D-detection task (no instance counts).
+TARGETS_FILE_BOP24 = "test_targets_bop24.json"
 #: Models' sizes and symmetries (in each models folder).
 MODELS_INFO = "models_info.json"
 #: The record ``bop-cender synth`` keeps at the root of a dataset it made (not a BOP file: real data has none); its

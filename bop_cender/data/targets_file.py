@@ -6,7 +6,7 @@ toolkit adapter use the values, never the file.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,6 +50,49 @@ def read_targets(path: str | Path) -> list[Target]:
         check_not_repeated(first, (values[0], values[1], values[2]), i, path)
         targets.append(Target(*values))
     return targets
+
+
+def read_image_targets(path: str | Path) -> list[tuple[int, int]]:
+    """``test_targets_bop24.json`` as ``(scene_id, im_id)`` pairs in file order, each once (the toolkit keys its
+    targets by image, so a repeated image is the same target; other keys of an entry, e.g. ``obj_id``, are not
+    used by the detection task).
+
+    Raises:
+        DatasetError: not a list of objects with non-negative integer scene_id and im_id.
+    """
+    path = Path(path)
+    entries = load_json(path)
+    if not isinstance(entries, list):
+        raise DatasetError(f"expected a list of targets, got {type(entries).__name__}", file=path)
+    images: dict[tuple[int, int], None] = {}
+    for i, entry in enumerate(entries):
+        values = []
+        for key in ("scene_id", "im_id"):
+            value = entry.get(key) if isinstance(entry, dict) else None
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise DatasetError(f"expected a non-negative integer, got {value!r}", file=path, field=f"[{i}].{key}")
+            values.append(value)
+        images.setdefault((values[0], values[1]), None)
+    return list(images)
+
+
+def image_selection(path: Path, index: Mapping[str, Iterable[int]], folder: str) -> dict[str, set[int]]:
+    """The images of ``test_targets_bop24.json`` per scene folder of ``index`` (folder name -> image ids on disk).
+
+    Raises:
+        DatasetError: malformed, or an image whose scene folder or image the split does not hold (the field named).
+    """
+    from bop_cender.data.scene_ids import scene_folder_to_int
+
+    folders = {scene_folder_to_int(sid): sid for sid in index}
+    selected: dict[str, set[int]] = {}
+    for i, (scene, im) in enumerate(read_image_targets(path)):
+        if scene not in folders:
+            raise DatasetError(f"scene {scene} has no folder in {folder}/", file=path, field=f"[{i}].scene_id")
+        if im not in index[folders[scene]]:
+            raise DatasetError(f"image {im} is not in {folder}/{folders[scene]}", file=path, field=f"[{i}].im_id")
+        selected.setdefault(folders[scene], set()).add(im)
+    return selected
 
 
 def check_not_repeated(

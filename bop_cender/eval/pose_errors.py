@@ -78,6 +78,7 @@ def mssd(
     *,
     diameter: float | None = None,
     max_elements: int = DEFAULT_MAX_ELEMENTS,
+    beyond: float | None = None,
 ) -> np.ndarray:
     """Maximum Symmetry-aware Surface Distance (mm) of E estimate/GT pairs.
 
@@ -88,6 +89,9 @@ def mssd(
         sym_R, sym_t: ``(S, 3, 3)``, ``(S, 3)`` symmetry set, e.g. ``ObjectModel.symmetry_transforms()``.
         diameter: if given, pairs with ``||t_est - t_gt|| >= diameter`` are ``inf`` (the toolkit's early-out).
         max_elements: memory bound, values of (pair x vertex) per chunk.
+        beyond: if given, pairs whose error is sure to be at least this (mm) are ``inf``, not computed (ours, for
+            a scorer that only asks whether errors are below thresholds that are all smaller: see
+            :func:`_min_over_symmetries_of_max`); every other pair's error is exact.
 
     Returns:
         ``(E,)`` float64 errors.
@@ -124,8 +128,9 @@ def mssd(
 
     probe = _probe_points(y)
     sq = _min_over_symmetries_of_max(
-        kernel_for(y), kernel_for(y[probe]) if probe is not None else None, len(rows), len(sym_R), len(y), max_elements
-    )
+        kernel_for(y), kernel_for(y[probe]) if probe is not None else None, len(rows), len(sym_R), len(y), max_elements,
+        beyond_sq=None if beyond is None else float(beyond) ** 2,
+    )  # fmt: skip
     out[rows] = np.sqrt(sq)
     return out
 
@@ -141,6 +146,7 @@ def mspd(
     sym_t: np.ndarray,
     *,
     max_elements: int = DEFAULT_MAX_ELEMENTS,
+    beyond: float | None = None,
 ) -> np.ndarray:
     """Maximum Symmetry-aware Projection Distance (px) of E estimate/GT pairs.
 
@@ -150,6 +156,7 @@ def mspd(
         pts: ``(N, 3)`` all model vertices (no hull shortcut: projection is not convex).
         sym_R, sym_t: ``(S, 3, 3)``, ``(S, 3)`` symmetry set.
         max_elements: memory bound, values of (pair x vertex) per chunk.
+        beyond: as in :func:`mssd` (px): pairs sure to be at least this far are ``inf``, not computed.
 
     Returns:
         ``(E,)`` float64 errors (un-normalised pixels; BOP multiplies by 640 / image width later).
@@ -204,6 +211,7 @@ def mspd(
         max_elements,
         kernel_top=kernel_top if len(pts) > HOT_COUNT else None,
         kernel_hot=kernel_hot,
+        beyond_sq=None if beyond is None else float(beyond) ** 2,
     )
     return np.sqrt(sq)
 
@@ -300,6 +308,7 @@ def _min_over_symmetries_of_max(
     *,
     kernel_top: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray | None]] | None = None,
     kernel_hot: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    beyond_sq: float | None = None,
 ) -> np.ndarray:
     """``min_s max_i`` of squared distances ``(E,)``, exact, with the lower-bound prune when it pays.
 
@@ -310,29 +319,45 @@ def _min_over_symmetries_of_max(
     other candidate symmetries from below by the max over those vertices, which for neighbouring
     samples of a continuous symmetry is nearly the full maximum. Both prunes only drop symmetries that
     cannot be the minimum, so the result is that of evaluating every symmetry, bit for bit.
+
+    ``beyond_sq``: a pair whose lower bounds at every symmetry are at least this is sure to be at least this: ``inf``,
+    not evaluated over all points (BOP'24 detection asks only whether an error is below its largest threshold, and
+    an estimate against another instance of its object is nearly always far beyond it). Without probes the bound is
+    the full value itself, so the result differs only in being ``inf`` where the value is at least ``beyond_sq``.
     """
     if kernel_probe is None or S < PRUNE_MIN_SYMMETRIES:
         e, s = np.divmod(np.arange(E * S), S)
-        return _run_chunked(kernel_all, e, s, n_points, max_elements).reshape(E, S).min(axis=1)
+        out = _run_chunked(kernel_all, e, s, n_points, max_elements).reshape(E, S).min(axis=1)
+        if beyond_sq is not None:
+            out[out >= beyond_sq] = np.inf
+        return out
     e, s = np.divmod(np.arange(E * S), S)
     lower = _run_chunked(kernel_probe, e, s, PROBE_COUNT, max_elements).reshape(E, S)
+    out = np.full(E, np.inf)
+    live = np.arange(E)  # the pairs evaluated over all points; the others are sure to be beyond_sq or more
+    if beyond_sq is not None:
+        live = np.flatnonzero(lower.min(axis=1) < beyond_sq)
+        lower = lower[live]
     s_best = lower.argmin(axis=1)
-    rows = np.arange(E)
+    local = np.arange(len(live))
     hot = None
     if kernel_top is not None:
-        best, hot = _run_chunked_top(kernel_top, rows, s_best, n_points, max_elements)
+        best, hot = _run_chunked_top(kernel_top, live, s_best, n_points, max_elements)
     else:
-        best = _run_chunked(kernel_all, rows, s_best, n_points, max_elements)
+        best = _run_chunked(kernel_all, live, s_best, n_points, max_elements)
     candidates = lower < best[:, None] * (1.0 + _PRUNE_SLACK)
-    candidates[rows, s_best] = False
-    e_c, s_c = np.nonzero(candidates)
+    candidates[local, s_best] = False
+    e_c, s_c = np.nonzero(candidates)  # e_c: local indices into live
     if hot is not None and kernel_hot is not None and e_c.size:
-        bound = _run_chunked(lambda a, b: kernel_hot(a, b, hot[a]), e_c, s_c, HOT_COUNT, max_elements)
+        bound = _run_chunked(lambda a, b: kernel_hot(live[a], b, hot[a]), e_c, s_c, HOT_COUNT, max_elements)
         keep = bound < best[e_c] * (1.0 + _PRUNE_SLACK)
         e_c, s_c = e_c[keep], s_c[keep]
     if e_c.size:
-        np.minimum.at(best, e_c, _run_chunked(kernel_all, e_c, s_c, n_points, max_elements))
-    return best
+        np.minimum.at(best, e_c, _run_chunked(kernel_all, live[e_c], s_c, n_points, max_elements))
+    out[live] = best
+    if beyond_sq is not None:
+        out[out >= beyond_sq] = np.inf  # one meaning, whichever way a pair got there: at least beyond_sq
+    return out
 
 
 def _run_chunked_top(

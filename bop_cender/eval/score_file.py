@@ -33,10 +33,12 @@ from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.scene_ids import scene_folder_to_int
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
+from bop_cender.eval.detection_file import PROTOCOLS, detection_file_outputs, score_detection_rows
+from bop_cender.eval.detection_report import DetectionReport, write_detection_files
 from bop_cender.eval.render_process import RenderProcess, render_process_useful
 from bop_cender.eval.score_report import ScoreReport, write_score_files
 from bop_cender.eval.scoring import score_results
-from bop_cender.results.bop_csv import read_bop_results
+from bop_cender.results.bop_csv import check_row_times, read_bop_results
 from bop_cender.results.files import (
     ResultName,
     name_contradiction,
@@ -66,17 +68,25 @@ class DataChoice:
     origin: str
     scene_keys: tuple[str, ...] | None = None
     failed_scenes: tuple[str, ...] = ()
+    protocol: str | None = None
 
 
 @dataclass(frozen=True)
 class ScoredFile:
-    """A scored results file: the report, the data it was scored on and the files written."""
+    """A scored results file: the report, the data it was scored on and the files written.
 
-    report: ScoreReport
+    Attributes:
+        report: BOP'19 (:class:`ScoreReport`) or BOP'24 (:class:`~bop_cender.eval.detection_report.DetectionReport`).
+        scores_path: its scores JSON. errors_path: its per-estimate CSV (BOP'24: the detections CSV).
+        protocol: ``bop19`` or ``bop24``.
+    """
+
+    report: ScoreReport | DetectionReport
     choice: DataChoice
     dataset: Dataset
     scores_path: Path
     errors_path: Path
+    protocol: str = "bop19"
 
 
 def choose_data(
@@ -164,7 +174,13 @@ def choose_data(
     failed = (sidecar or {}).get("extra", {}).get("failed_scenes") or {}
     if not (isinstance(failed, dict) and all(isinstance(k, str) for k in failed)):
         raise ResultsError("extra.failed_scenes: expected an object of scene keys", file=sidecar_path(csv_path))
-    return DataChoice(request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys), tuple(failed))
+    protocol = (sidecar or {}).get("extra", {}).get("protocol")
+    if protocol is not None and protocol not in PROTOCOLS:
+        raise ResultsError(f"extra.protocol: expected one of {', '.join(PROTOCOLS)}, got {protocol!r}",
+                           file=sidecar_path(csv_path))  # fmt: skip
+    return DataChoice(
+        request, ", ".join(origin) or "defaults", None if keys is None else tuple(keys), tuple(failed), protocol
+    )
 
 
 def _refuse_option(what: str, named: str, given: str, sidecar_too: bool) -> None:
@@ -204,6 +220,7 @@ def score_file(
     render_process: RenderProcess | bool | None = None,
     open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
     write: bool = True,
+    protocol: str | None = None,
 ) -> ScoredFile:
     """Score one BOP results CSV and write ``scores_<stem>.json`` and ``errors_<stem>.csv`` into ``out_dir``.
 
@@ -225,18 +242,40 @@ def score_file(
             needs a data root; the CLI passes :func:`bop_cender.datasets.open_with_demo` for ``--demo``).
         write: write the two files (both or neither, :func:`write_score_files`); False = only score
             (``compare`` writes once every input has been scored).
+        protocol: ``bop19`` (BOP'19 localisation: AR) or ``bop24`` (BOP'24/'25 detection: mAP,
+            :mod:`bop_cender.eval.detection_file`); None: the run sidecar's ``extra.protocol``, else ``bop19``.
 
     Raises:
         ResultsError: the file is missing, a directory, malformed, holds no estimate, or matches no target.
     """
     csv_path = require_file(csv_path, "results file", ResultsError)  # before the data is opened
+    if protocol is not None and protocol not in PROTOCOLS:
+        raise ConfigError(f"expected one of {', '.join(PROTOCOLS)}, got {protocol!r}", field="--protocol")
     if out_dir is not None:
         check_output_dir(out_dir)
     clock = time.perf_counter()
-    rows = read_bop_results(csv_path)  # every line checked before the data is opened (or the demo generated)
+    # every line checked before the data is opened (or the demo generated); the times below, once the protocol is known
+    rows = read_bop_results(csv_path, check_times=False)
     if not rows:
         raise ResultsError("no estimates (the file is empty or holds only the header): nothing to score", file=csv_path)
     read = time.perf_counter()
+    choice = choose_data(
+        csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed, model_type=model_type
+    )
+    protocol = protocol or choice.protocol or PROTOCOLS[0]
+    if protocol == "bop19":
+        check_row_times(rows, csv_path)  # every row; BOP'24 checks the rows its cap keeps
+    else:  # the one place the protocol is chosen
+        ds = restrict_scenes(open_data(choice.request), choice.scene_keys, csv_path)
+        check_millimetres(rows, ds, csv_path)
+        report = score_detection_rows(
+            rows, ds, csv_path, progress=progress, method=method_name(csv_path), origin=choice.origin
+        )
+        report.timings.update(read_results=read - clock, total=time.perf_counter() - clock)
+        scored = ScoredFile(report, choice, ds, *detection_file_outputs(csv_path, out_dir), protocol="bop24")
+        if write:
+            write_scored(scored)
+        return scored
     if isinstance(render_process, RenderProcess):
         process = nullcontext(render_process)
     elif render_process or (render_process is None and render_process_useful()):
@@ -245,10 +284,6 @@ def score_file(
     else:
         process = nullcontext()
     with process as renderer:
-        choice = choose_data(
-            csv_path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
-            model_type=model_type,
-        )  # fmt: skip
         ds = restrict_scenes(open_data(choice.request), choice.scene_keys, csv_path)
         check_millimetres(rows, ds, csv_path)
         opened = time.perf_counter()
@@ -273,8 +308,11 @@ def score_file(
 
 
 def write_scored(scored: ScoredFile) -> None:
-    """Write a scored file's scores JSON and errors CSV, both or neither."""
-    write_score_files(scored.scores_path, scored.errors_path, scored.report)
+    """Write a scored file's scores JSON and errors (BOP'24: detections) CSV, both or neither."""
+    if isinstance(scored.report, DetectionReport):
+        write_detection_files(scored.scores_path, scored.errors_path, scored.report)
+    else:
+        write_score_files(scored.scores_path, scored.errors_path, scored.report)
 
 
 #: Below this fraction of rows naming a target, scoring warns (the rest are ignored): a file made on other

@@ -191,7 +191,7 @@ class ScoreReport:
 
 def scores_json_text(report: ScoreReport) -> str:
     """:meth:`ScoreReport.to_json` as strict JSON text (non-finite numbers become null)."""
-    return json.dumps(_finite(report.to_json()), indent=1) + "\n"
+    return json.dumps(finite_json(report.to_json()), indent=1) + "\n"
 
 
 def write_scores_json(path: str | Path, report: ScoreReport) -> None:
@@ -257,12 +257,18 @@ def errors_csv_text(report: ScoreReport) -> str:
     for r in report.records:
         matched = int(r.mssd_match[-1])
         j = int(np.flatnonzero(r.gt_ids == matched)[0]) if matched >= 0 else r.best_gt()
-        vsd = [""] * len(taus) if r.vsd is None else [_num(v) for v in r.vsd[j]]
+        vsd = [""] * len(taus) if r.vsd is None else [number_text(v) for v in r.vsd[j]]
         hits = [int(np.count_nonzero(m >= 0)) if m is not None else "" for m in (r.mssd_match, r.mspd_match)]
         vsd_hits = "" if r.vsd_match is None else int(np.count_nonzero(r.vsd_match >= 0))
         writer.writerow(
             [r.scene_id, r.im_id, r.obj_id, r.est_id, "" if r.line is None else r.line, repr(r.score), matched]
-            + [int(r.gt_ids[j]), _num(r.mssd_mm[j]), _num(r.mssd[j]), _num(r.mspd_px[j]), _num(r.mspd[j])]
+            + [
+                int(r.gt_ids[j]),
+                number_text(r.mssd_mm[j]),
+                number_text(r.mssd[j]),
+                number_text(r.mspd_px[j]),
+                number_text(r.mspd[j]),
+            ]
             + vsd
             + [*hits, vsd_hits]
         )
@@ -274,16 +280,16 @@ def write_errors_csv(path: str | Path, report: ScoreReport) -> None:
     write_text_atomic(path, errors_csv_text(report))
 
 
-def _num(value: float) -> str:
+def number_text(value: float) -> str:
     return "inf" if math.isinf(value) else repr(float(value))
 
 
-def _finite(obj: Any) -> Any:
+def finite_json(obj: Any) -> Any:
     """JSON-safe copy: non-finite floats become None (the toolkit writes ``Infinity``; strict JSON cannot)."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: finite_json(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
+        return [finite_json(v) for v in obj]
     return obj

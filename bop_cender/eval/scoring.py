@@ -193,7 +193,7 @@ def compute_errors(
     """MSSD, MSPD and (with test depth) VSD of every pair, and their normalisation."""
     timings = {} if timings is None else timings
     gt, models, pairs = gathered.gt, gathered.models, paired.pairs
-    width = mspd_width(dataset.name, dataset.split_folder, _image_width(gt, dataset))
+    width = mspd_width(dataset.name, dataset.split_folder, image_width(gt, dataset))
     has_depth = bool(gt.images) and all(im.depth_path is not None for im in gt)
     delta = vsd_delta_for(dataset.name, vsd_delta) if has_depth else None
     clock = time.perf_counter()
@@ -364,7 +364,8 @@ def _targets_count(valid: list[GtInstance], n_top: int) -> int:
     return int(sum(min(n_top, c) for c in counts.values()))
 
 
-def _image_width(gt: GroundTruth, dataset: Dataset) -> int:
+def image_width(gt: GroundTruth, dataset: Dataset) -> int:
+    """The split's image width (its constant where the loader knows one, else the first image's; 640 without any)."""
     if dataset.image_size is not None:
         return int(dataset.image_size[0])
     return next(iter(gt)).width if len(gt) else 640

@@ -1,14 +1,22 @@
-"""What ``bop-cender score`` prints: the AR table of one or more methods and the lines under it."""
+"""What ``bop-cender score`` prints: the AR (BOP'19) or mAP (BOP'24) table of one or more methods and the lines
+under it."""
 
 from __future__ import annotations
 
+from bop_cender.eval.detection import BOP24_KEYS
 from bop_cender.eval.score_report import SCORE_KEYS, ScoreCounts, ScoreReport
 
+#: The BOP'24 keys a table shows (the time per image is said under it).
+MAP_KEYS = tuple(k for k in BOP24_KEYS if k != "bop24_average_time_per_image")
 
-def format_scores(rows: list[tuple[str, dict[str, float | None]]], digits: int = 3) -> str:
-    """A plain-text table, one row per (name, scores), one column per score; ``n/a`` where None."""
-    header = ["method", *SCORE_KEYS]
-    body = [[name] + [_fmt(s.get(k), digits) for k in SCORE_KEYS] for name, s in rows]
+
+def format_scores(
+    rows: list[tuple[str, dict[str, float | None]]], digits: int = 3, keys: tuple[str, ...] = SCORE_KEYS
+) -> str:
+    """A plain-text table, one row per (name, scores), one column per score of ``keys`` (BOP'19's AR keys, or
+    :data:`MAP_KEYS`); ``n/a`` where None."""
+    header = ["method", *keys]
+    body = [[name] + [_fmt(s.get(k), digits) for k in keys] for name, s in rows]
     widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
     lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))
              for r in [header, *body]]  # fmt: skip

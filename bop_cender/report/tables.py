@@ -24,14 +24,14 @@ import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from importlib import resources
-from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
+from bop_cender.eval.detection_file import detection_file_outputs
+from bop_cender.eval.detection_report import read_detection_scores_json
 from bop_cender.eval.score_file import (
     ScoredFile,
     choose_data,
@@ -40,23 +40,17 @@ from bop_cender.eval.score_file import (
     score_file_outputs,
     write_scored,
 )
-from bop_cender.eval.score_report import SCORE_KEYS, is_recall, read_scores_json
+from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
+from bop_cender.report.reference_table import (  # noqa: F401  (re-exported: the tables' one import site)
+    PAPER_TABLES,
+    REFERENCE_COLUMNS,
+    MethodRow,
+    read_reference_table,
+    reference_rows,
+    reference_rows_of,
+)
+from bop_cender.report.summary import MAP_KEYS
 from bop_cender.results.files import parse_result_filename
-
-#: The paper's reported numbers (dataset, split, method, source, metric, value): package data, so that an
-#: installed package finds them (a copy of results/reference/paper_tables.csv, kept equal by a test).
-PAPER_TABLES = resources.files("bop_cender.report").joinpath("paper_tables.csv")
-
-
-@dataclass(frozen=True)
-class MethodRow:
-    """One row of a comparison: a method's scores (None where not available) and where they come from."""
-
-    method: str
-    source: str
-    scores: dict[str, float | None]
-    dataset: str | None = None
-    split: str | None = None
 
 
 @dataclass
@@ -68,15 +62,26 @@ class Comparison:
     split: str | None
     files: dict[str, Path] = field(default_factory=dict)
     scores: dict[Path, Path] = field(default_factory=dict)  # each CSV input's scores JSON, as written
+    protocol: str = "bop19"
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The table's columns: BOP'19's six AR scores, or BOP'24's six mAP scores."""
+        return MAP_KEYS if self.protocol == "bop24" else SCORE_KEYS
+
+    @property
+    def title(self) -> str:
+        what = "BOP'24/'25 detection scores (mAP)" if self.protocol == "bop24" else "BOP'19 scores"
+        return f"{what}, {self.dataset or '?'} {self.split or '?'}"
 
     def markdown(self, digits: int = 3) -> str:
         """The table in markdown: method, source, then the six scores (``–`` where not available)."""
-        title = f"BOP'19 scores, {self.dataset or '?'} {self.split or '?'}"
-        head = ["method", "source", *SCORE_KEYS]
-        lines = [f"### {title}", "", "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 2 + ["---:"] * 6) + "|"]
+        head = ["method", "source", *self.keys]
+        lines = [f"### {self.title}", "", "| " + " | ".join(head) + " |",
+                 "|" + "|".join(["---"] * 2 + ["---:"] * len(self.keys)) + "|"]  # fmt: skip
         for r in self.rows:
             cells = [r.method, r.source] + [
-                "–" if r.scores.get(k) is None else f"{r.scores[k]:.{digits}f}" for k in SCORE_KEYS
+                "–" if r.scores.get(k) is None else f"{r.scores[k]:.{digits}f}" for k in self.keys
             ]
             lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
         return "\n".join(lines) + "\n"
@@ -84,11 +89,11 @@ class Comparison:
     def csv_text(self) -> str:
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["method", "source", "dataset", "split", *SCORE_KEYS])
+        w.writerow(["method", "source", "dataset", "split", "protocol", *self.keys])
         for r in self.rows:
             w.writerow(
-                [r.method, r.source, r.dataset or "", r.split or ""]
-                + ["" if r.scores.get(k) is None else repr(r.scores[k]) for k in SCORE_KEYS]
+                [r.method, r.source, r.dataset or "", r.split or "", self.protocol]
+                + ["" if r.scores.get(k) is None else repr(r.scores[k]) for k in self.keys]
             )
         return buf.getvalue()
 
@@ -112,6 +117,7 @@ def compare(
     out_dir: str | Path = ".",
     progress: bool = True,
     open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
+    protocol: str | None = None,
 ) -> Comparison:
     """Build, write and return the comparison of ``inputs`` (see the module docstring).
 
@@ -127,6 +133,8 @@ def compare(
             (:func:`~bop_cender.eval.score_file.score_file`) (default: their
             file names / sidecars, the toolkit's delta).
         out_dir: where the scores of CSV inputs and the comparison files are written.
+        protocol: ``bop19`` (AR) or ``bop24`` (mAP) for every input; None: each CSV's sidecar's, each JSON's own.
+            A table holds one protocol (inputs of two are refused) and says which.
 
     Raises:
         ConfigError: an input is neither ``.csv`` nor ``.json`` or is given twice, the inputs are for several
@@ -140,6 +148,7 @@ def compare(
         table = read_reference_table(PAPER_TABLES if reference == "paper" else Path(reference))
     planned: dict[Path, tuple[str | None, str | None]] = {}
     jsons: dict[Path, dict] = {}
+    protocols: dict[Path, str] = {}
     for path in paths:
         if path.suffix == ".csv":
             choice = choose_data(
@@ -149,15 +158,18 @@ def compare(
             request = choice.request
             known = request.dataset != "bop"  # named after its folder: told only once it is opened
             planned[path] = (request.dataset, request.split_name) if known else (None, None)
+            protocols[path] = protocol or choice.protocol or "bop19"
         else:
-            jsons[path] = read_scores_json(path)
+            jsons[path] = _read_scores(path)
             planned[path] = _json_dataset_and_split(path, jsons[path])
+            protocols[path] = jsons[path].get("protocol", "bop19")
+    table_protocol = _one_protocol(protocols, protocol)
     _one_dataset_and_split(planned)  # before anything is scored
-    score_dirs = _score_dirs(paths, out_dir)
-    outputs = [out for path, folder in score_dirs.items() for out in score_file_outputs(path, folder)]
+    score_dirs = _score_dirs(paths, out_dir, table_protocol)
+    outputs = [out for path, folder in score_dirs.items() for out in _outputs(path, folder, table_protocol)]
     known = next(((ds, sp) for ds, sp in planned.values() if ds is not None and sp is not None), None)
     if known is not None:  # the table's files too (a BOP dataset's split is told once it is opened: checked then)
-        outputs += _comparison_files(out_dir, *known).values()
+        outputs += _comparison_files(out_dir, *known, table_protocol).values()
     _check_outputs(paths, outputs)
     rows: list[MethodRow] = []
     scored_files: list[ScoredFile] = []
@@ -167,19 +179,18 @@ def compare(
             scored = score_file(
                 path, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
                 model_type=model_type, vsd_delta=vsd_delta, out_dir=score_dirs[path], progress=progress,
-                open_data=open_data,
-                write=False,
+                open_data=open_data, write=False, protocol=table_protocol,
             )  # fmt: skip
             scored_files.append(scored)
             scores_paths[path] = scored.scores_path
-            meta = scored.report.metadata
+            meta = scored.report if table_protocol == "bop24" else scored.report.metadata
             rows.append(
                 MethodRow(method_name(path), f"scored {path.name}", scored.report.scores, meta.dataset, meta.split)
             )
         else:
             data = jsons[path]
             meta = data.get("metadata") or {}
-            scores = {k: data[k] for k in SCORE_KEYS}
+            scores = {k: data[k] for k in (MAP_KEYS if table_protocol == "bop24" else SCORE_KEYS)}
             rows.append(
                 MethodRow(meta.get("method") or method_name(path), f"scores {path.name}", scores, *planned[path])
             )
@@ -187,7 +198,14 @@ def compare(
     rows = _named_apart(rows, paths)
     table_dataset = next((r.dataset for r in rows if r.dataset), None if dataset == "bop" else dataset)
     table_split = next((r.split for r in rows if r.split), split)
-    if table is not None:
+    if table is not None and table_protocol == "bop24":
+        warnings.warn(
+            f"the reference table {reference} holds BOP'19 scores only (the paper reports no mAP): a BOP'24 table holds"
+            " the inputs alone",
+            ResultsWarning,
+            stacklevel=2,
+        )
+    elif table is not None:
         reported = reference_rows_of(table, table_dataset, table_split)
         if not reported:  # asked for and absent: said, not left to be noticed
             warnings.warn(
@@ -197,8 +215,8 @@ def compare(
                 stacklevel=2,
             )
         rows += reported
-    comparison = Comparison(rows, table_dataset, table_split, scores=scores_paths)
-    comparison.files = _comparison_files(out_dir, table_dataset, table_split)
+    comparison = Comparison(rows, table_dataset, table_split, scores=scores_paths, protocol=table_protocol)
+    comparison.files = _comparison_files(out_dir, table_dataset, table_split, table_protocol)
     _check_outputs(paths, list(comparison.files.values()))
     for scored in scored_files:  # every input scored: now the files
         write_scored(scored)
@@ -208,9 +226,12 @@ def compare(
     return comparison
 
 
-def _comparison_files(out_dir: Path, dataset: str | None, split: str | None) -> dict[str, Path]:
-    """The table's files (markdown, CSV, bar chart) for a dataset and split (unknown: ``results``, ``all``)."""
-    stem = f"comparison_{dataset or 'results'}-{split or 'all'}"
+def _comparison_files(
+    out_dir: Path, dataset: str | None, split: str | None, protocol: str = "bop19"
+) -> dict[str, Path]:
+    """The table's files (markdown, CSV, bar chart) for a dataset and split (unknown: ``results``, ``all``); a BOP'24
+    table's names end in ``_bop24`` (both protocols' tables of one split can sit side by side)."""
+    stem = f"comparison_{dataset or 'results'}-{split or 'all'}" + ("_bop24" if protocol == "bop24" else "")
     return {"markdown": out_dir / f"{stem}.md", "csv": out_dir / f"{stem}.csv", "png": out_dir / f"{stem}.png"}
 
 
@@ -232,13 +253,39 @@ def _json_dataset_and_split(path: Path, data: dict) -> tuple[str | None, str | N
     return parsed.dataset, DatasetRequest(parsed.dataset, split=parsed.split, split_type=parsed.split_type).split_name
 
 
-def _score_dirs(paths: list[Path], out_dir: Path) -> dict[Path, Path]:
+def _read_scores(path: Path) -> dict:
+    """A scores JSON of either protocol (a BOP'24 one says ``"protocol": "bop24"``)."""
+    from bop_cender.data.bop_io import load_json
+
+    data = load_json(path, error=ResultsError)
+    if isinstance(data, dict) and data.get("protocol") == "bop24":
+        return read_detection_scores_json(path)
+    return read_scores_json(path)
+
+
+def _one_protocol(protocols: dict[Path, str], asked: str | None) -> str:
+    """The table's protocol: every input's (one table, one protocol), else a ConfigError naming the inputs."""
+    groups: dict[str, list[str]] = {}
+    for path, p in protocols.items():
+        groups.setdefault(p, []).append(path.name)
+    if len(groups) > 1:
+        listed = "; ".join(f"{', '.join(names)}: {p}" for p, names in groups.items())
+        raise ConfigError(f"a table holds one protocol, and the inputs are scored under {len(groups)}: {listed}"
+                          " (give --protocol to score every CSV under one, or compare them apart)", field="inputs")  # fmt: skip
+    return next(iter(groups), asked or "bop19")
+
+
+def _outputs(path: Path, folder: Path, protocol: str) -> tuple[Path, Path]:
+    return detection_file_outputs(path, folder) if protocol == "bop24" else score_file_outputs(path, folder)
+
+
+def _score_dirs(paths: list[Path], out_dir: Path, protocol: str = "bop19") -> dict[Path, Path]:
     """Where each CSV input's scores and errors files go: ``out_dir``, or, where two CSVs would write the same files
     there (one file name from different folders; their rows named apart by path), ``out_dir/input<k>/`` (k: the
     input's position, from 1)."""
     csvs = [p for p in paths if p.suffix == ".csv"]
-    writers = Counter(score_file_outputs(p, out_dir) for p in csvs)
-    return {p: out_dir / f"input{paths.index(p) + 1}" if writers[score_file_outputs(p, out_dir)] > 1 else out_dir
+    writers = Counter(_outputs(p, out_dir, protocol) for p in csvs)
+    return {p: out_dir / f"input{paths.index(p) + 1}" if writers[_outputs(p, out_dir, protocol)] > 1 else out_dir
             for p in csvs}  # fmt: skip
 
 
@@ -295,86 +342,6 @@ def _named_apart(rows: list[MethodRow], paths: list[Path]) -> list[MethodRow]:
     ]
 
 
-REFERENCE_COLUMNS = ("dataset", "split", "method", "source", "metric", "value")
-"""The columns of a reference table (``--reference FILE.csv``), in any order."""
-
-
-def read_reference_table(path: Path | Traversable) -> list[dict[str, str]]:
-    """Every record of a paper-tables CSV (``dataset,split,method,source,metric,value``; ``#`` lines are
-    comments), each checked (a number, a known metric), so that a bad table fails before anything is scored.
-
-    Raises:
-        ConfigError: the file is missing or malformed.
-    """
-    if not path.is_file():
-        raise ConfigError(
-            "reference table not found (expected a CSV such as bop_cender/report/paper_tables.csv)", field=str(path)
-        )
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a BOM (a spreadsheet's export) is not part of the header
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"not UTF-8 text (byte {exc.start}); expected a CSV", field=str(path)) from None
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")]
-    header = next(csv.reader(lines[:1]), None)
-    if header is None or sorted(h.strip() for h in header) != sorted(REFERENCE_COLUMNS):  # in any order
-        found = "no header" if header is None else f"header {','.join(header)}"
-        raise ConfigError(f"expected the header {','.join(REFERENCE_COLUMNS)}, found {found}", field=str(path))
-    records = []
-    first: dict[tuple[str, str, str, str], tuple[str, int]] = {}  # each figure's first value and its row
-    for n, rec in enumerate(csv.DictReader(lines, skipinitialspace=True), start=2):  # "a, b" as the header check
-        try:
-            if not is_recall(float(rec["value"])):
-                raise ValueError
-            if None in rec or not all(
-                isinstance(rec[k], str) for k in ("dataset", "split", "method", "source", "metric")
-            ):
-                raise TypeError  # a missing column, or more columns than the header (csv keys them None)
-        except (KeyError, TypeError, ValueError):
-            raise ConfigError(
-                f"expected dataset,split,method,source,metric,value (a recall in [0, 1]); bad row {n}", field=str(path)
-            ) from None
-        if rec["metric"] not in SCORE_KEYS:
-            raise ConfigError(
-                f"unknown metric {rec['metric']!r} (expected one of {', '.join(SCORE_KEYS)})", field=f"{path}: row {n}"
-            )
-        value, row = first.setdefault((rec["dataset"], rec["split"], rec["method"], rec["metric"]), (rec["value"], n))
-        if float(value) != float(rec["value"]):  # one would be dropped unsaid
-            raise ConfigError(
-                f"{rec['method']} on {rec['dataset']} {rec['split']} has two values of {rec['metric']}:"
-                f" {value} (row {row}) and {rec['value']}",
-                field=f"{path}: row {n}",
-            )
-        records.append(rec)
-    return records
-
-
-def reference_rows(path: Path | Traversable, dataset: str | None, split: str | None) -> list[MethodRow]:
-    """Rows of a paper-tables CSV (:func:`read_reference_table`) for ``dataset`` / ``split`` (None: any), one
-    per method, its tables merged.
-
-    Raises:
-        ConfigError: the file is missing or malformed.
-    """
-    return reference_rows_of(read_reference_table(path), dataset, split)
-
-
-def reference_rows_of(records: list[dict[str, str]], dataset: str | None, split: str | None) -> list[MethodRow]:
-    """:func:`reference_rows` of records already read."""
-    merged: dict[tuple[str, str, str], dict[str, float]] = {}
-    sources: dict[tuple[str, str, str], list[str]] = {}
-    for rec in records:
-        key = (rec["dataset"], rec["split"], rec["method"])
-        if (dataset and key[0] != dataset) or (split and key[1] != split):
-            continue
-        merged.setdefault(key, {})[rec["metric"]] = float(rec["value"])
-        if rec["source"] not in sources.setdefault(key, []):
-            sources[key].append(rec["source"])
-    return [
-        MethodRow(f"{key[2]} [reported]", "; ".join(sources[key]), {k: vals.get(k) for k in SCORE_KEYS}, key[0], key[1])
-        for key, vals in merged.items()
-    ]
-
-
 def bar_chart(comparison: Comparison, path: Path) -> None:
     """Grouped bars: one group per score, one bar per method (no bar where not available); PNG, written atomically."""
     import matplotlib
@@ -385,15 +352,16 @@ def bar_chart(comparison: Comparison, path: Path) -> None:
     rows = comparison.rows
     n = max(1, len(rows))
     width = 0.8 / n
-    fig, ax = plt.subplots(figsize=(max(7.0, 1.3 * len(SCORE_KEYS) + 0.3 * n), 4.2))
+    keys = comparison.keys
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.3 * len(keys) + 0.3 * n), 4.2))
     for i, r in enumerate(rows):
-        xs = [k + (i - (n - 1) / 2) * width for k, key in enumerate(SCORE_KEYS) if r.scores.get(key) is not None]
-        ys = [r.scores[key] for key in SCORE_KEYS if r.scores.get(key) is not None]
+        xs = [k + (i - (n - 1) / 2) * width for k, key in enumerate(keys) if r.scores.get(key) is not None]
+        ys = [r.scores[key] for key in keys if r.scores.get(key) is not None]
         ax.bar(xs, ys, width=width, label=r.method)
-    ax.set_xticks(range(len(SCORE_KEYS)), SCORE_KEYS, rotation=20, ha="right")
+    ax.set_xticks(range(len(keys)), keys, rotation=20, ha="right")
     ax.set_ylim(0, 1)
-    ax.set_ylabel("average recall")
-    ax.set_title(f"BOP'19 scores, {comparison.dataset or '?'} {comparison.split or '?'}")
+    ax.set_ylabel("mean average precision" if comparison.protocol == "bop24" else "average recall")
+    ax.set_title(comparison.title)
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()

@@ -176,7 +176,9 @@ def _format_row(row: BopEstimate) -> str:
     return f"{row.scene_id},{row.im_id},{row.obj_id},{row.score!r},{R},{t},{row.time!r}"
 
 
-def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = None) -> list[BopEstimate]:
+def read_bop_results(
+    path: str | Path, known_obj_ids: Collection[int] | None = None, check_times: bool = True
+) -> list[BopEstimate]:
     """Read and check a BOP results CSV; every bad line is reported, with its number, in one error.
 
     Accepted as the toolkit accepts it: a header only on line 1 (any line containing the header
@@ -184,8 +186,8 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
     row: 7 columns; ids non-negative ints; score, R, t, time finite numbers; R 9 numbers, t 3;
     R a rotation (error when max|R R^T - I| > 1e-2 or det < 0, one :class:`ResultsWarning` for
     all rows above 1e-4; never re-orthonormalised); obj_id in ``known_obj_ids`` when given; all
-    rows of one image with times within 0.001 s of each other (unknown times, negative, included: the toolkit's
-    rule).
+    rows of one image with known times within 0.001 s of each other (the toolkit's rule; ``check_times`` False
+    leaves it to the caller: BOP'24 checks it on the rows its per-image cap keeps, as the toolkit does).
 
     Returns:
         The rows in file order, each with its ``line``.
@@ -218,7 +220,7 @@ def read_bop_results(path: str | Path, known_obj_ids: Collection[int] | None = N
         t.setflags(write=False)
     else:
         numbers, sid, im, obj, score, R, t, time = _empty_arrays()
-    more, warn = _check_arrays((sid, im, obj, score, R, t, time), numbers, "line", known_obj_ids)
+    more, warn = _check_arrays((sid, im, obj, score, R, t, time), numbers, "line", known_obj_ids, check_times)
     problems = sorted(problems + more, key=lambda p: p[0])  # stable: a line's problems stay in column order
     if problems:
         bad = len({n for n, _ in problems})
@@ -284,7 +286,11 @@ def _rows_to_arrays(rows: list[BopEstimate]) -> tuple[np.ndarray, ...]:
 
 
 def _check_arrays(
-    cols: tuple[np.ndarray, ...], numbers: np.ndarray, word: str, known_obj_ids: Collection[int] | None
+    cols: tuple[np.ndarray, ...],
+    numbers: np.ndarray,
+    word: str,
+    known_obj_ids: Collection[int] | None,
+    check_times: bool = True,
 ) -> tuple[list[tuple[int, str]], tuple[int, int, float] | None]:
     """Row checks shared by reader and writer, vectorised over N rows.
 
@@ -319,7 +325,8 @@ def _check_arrays(
         known = {int(i) for i in known_obj_ids}
         for k in np.flatnonzero(~np.isin(obj, list(known))):
             problems.append((int(numbers[k]), f"obj_id: unknown object {obj[k]} (known: {sorted(known)})"))
-    problems += _check_times(sid, im, time, numbers, word)
+    if check_times:
+        problems += _check_times(sid, im, time, numbers, word)
     soft = finite_R & (err > ROTATION_WARN_TOLERANCE) & (err <= ROTATION_TOLERANCE) & (det >= 0)
     warn = None
     if soft.any():
@@ -332,13 +339,14 @@ def _check_arrays(
 def _check_times(
     sid: np.ndarray, im: np.ndarray, time: np.ndarray, numbers: np.ndarray, word: str
 ) -> list[tuple[int, str]]:
-    """Per image, every time within TIME_TOLERANCE_S of that image's first time, unknown ones (negative) included:
-    the toolkit's ``check_consistent_timings`` compares them all (a -1 beside 0.5 in one image fails it)."""
+    """Per image, every known time within TIME_TOLERANCE_S of that image's first known time: the toolkit's
+    ``check_consistent_timings`` (thodan/bop_toolkit @ cea62d6) skips unknown (negative) times, so a -1 beside 0.5 in
+    one image passes it (and makes the average time unknown)."""
     first: dict[tuple[int, int], int] = {}
     problems = []
     times = time.tolist()
     for k, (s, i, tm) in enumerate(zip(sid.tolist(), im.tolist(), times, strict=True)):
-        if tm != tm:  # NaN: reported elsewhere
+        if tm != tm or tm < 0:  # NaN: reported elsewhere; negative: unknown, not compared
             continue
         j = first.setdefault((s, i), k)
         if abs(tm - times[j]) > TIME_TOLERANCE_S:
@@ -347,6 +355,23 @@ def _check_times(
                 (int(numbers[k]), msg + f"; one image's estimates must share its time within {TIME_TOLERANCE_S} s")
             )
     return problems
+
+
+def check_row_times(rows: list[BopEstimate], path: str | Path) -> None:
+    """The reader's time check on rows read with ``check_times=False`` (BOP'19 checks every row, BOP'24 the rows its
+    per-image cap keeps, as the toolkit does).
+
+    Raises:
+        ResultsError: known times of one image more than 0.001 s apart (every such line listed).
+    """
+    if not rows:
+        return
+    cols = [np.array(c) for c in zip(*((r.scene_id, r.im_id, r.time, r.line or 0) for r in rows), strict=True)]
+    problems = sorted(_check_times(cols[0], cols[1], cols[2], cols[3], "line"))
+    if problems:
+        raise ResultsError(
+            f"{len(problems)} line(s) with another time than their image's", file=path, problems=_fmt(problems, "line")
+        )
 
 
 def _fmt(problems: list[tuple[int, str]], word: str) -> list[str]:

@@ -254,3 +254,45 @@ def test_the_verdict_lists_every_disagreement(small_fixture, small_dataset, tmp_
     assert ours_nan.disagreements()[0].startswith("AR_MSSD: bop-cender n/a")
     del toolkit.errors["mspd"][next(iter(toolkit.errors["mspd"]))]
     assert check(same) == ["MSPD: 1 (estimate, GT) pair(s) computed by one side only"]
+
+
+def test_crosscheck_bop24_without_the_toolkit_says_so(small_fixture, tmp_path: Path, capsys) -> None:
+    if importlib.util.find_spec("bop_toolkit_lib") is not None:
+        pytest.skip("bop_toolkit_lib is installed in this environment")
+    csv = tmp_path / "cendernet_tless-test.csv"
+    write_bop_results(csv, gt_rows(small_fixture)[:3])
+    argv = ["crosscheck", str(csv), "--protocol", "bop24", "--toolkit", str(tmp_path / "nowhere"), "--data-root",
+            str(small_fixture.root), "--out", str(tmp_path / "cc")]  # fmt: skip
+    assert main(argv) == 2
+    assert capsys.readouterr().err.startswith("error: crosscheck not run: the BOP toolkit")
+    assert not (tmp_path / "cc").exists()  # nothing half-written
+
+
+def test_bop24_export_lists_our_target_images_and_target_objects(small_fixture, dimo_copy, tmp_path: Path) -> None:
+    from bop_toolkit_adapters.bop24 import export_bop24
+
+    csv = tmp_path / "cendernet_dimo-real.csv"
+    write_bop_results(csv, [row(0, 0, 1, 1.0, __import__("numpy").eye(4), 0.5)])
+    ds = open_dataset(DatasetRequest("dimo", dimo_copy, "real"))
+    export = export_bop24(ds, csv, tmp_path / "export", progress=False)
+    assert 100 not in export.obj_ids and 1 in export.obj_ids  # DIMO's carriers are not detection targets
+    listed = json.loads((export.datasets_path / "dimo" / "test_targets_bop24.json").read_text())
+    assert listed and all(set(e) == {"scene_id", "im_id"} for e in listed)
+
+
+@pytest.mark.slow
+def test_crosscheck_bop24_with_the_official_toolkit(small_fixture, tmp_path: Path, capsys) -> None:
+    """The toolkit's own eval_bop24_pose.py on rows that exercise every rule: every key and per-object AP within
+    1e-9 (``scripts/make_bop24_reference.py`` stores these figures for the runs without a toolkit)."""
+    toolkit = os.environ.get("BOP_TOOLKIT_DIR")
+    if not toolkit:
+        pytest.skip("set BOP_TOOLKIT_DIR to a checkout of thodan/bop_toolkit to run the cross-check")
+    from bop_cender.synth.detection_rows import detection_rows
+
+    csv = tmp_path / "cendernet_tless-test.csv"
+    write_bop_results(csv, detection_rows(small_fixture, seed=11, crowded=120), sort=False)
+    argv = ["crosscheck", str(csv), "--protocol", "bop24", "--toolkit", toolkit, "--data-root",
+            str(small_fixture.root), "--out", str(tmp_path / "cc"), "--no-progress"]  # fmt: skip
+    with pytest.warns(Warning):
+        assert main(argv) == 0
+    assert "verdict: bop-cender and the BOP toolkit agree" in capsys.readouterr().out

@@ -212,3 +212,23 @@ def test_matches_official_toolkit_numbers():
         assert np.array_equal(np.isinf(value), np.isinf(want)), name
         np.testing.assert_allclose(value[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=1e-6, err_msg=name)
     assert np.isinf(expected("mssd")).sum() >= 1  # the fixture covers the early-out (at ||dt|| == diameter)
+
+
+@pytest.mark.parametrize("spread_t", [15.0, 80.0])
+def test_errors_beyond_a_bound_are_inf_and_the_others_exact(spread_t):
+    """``beyond`` (BOP'24 detection needs exact errors below its largest thresholds only): a pair whose error is at
+    least the bound is ``inf``, every other error bit for bit what it is without the bound; with the symmetries of a
+    cylinder (probe bounds) and of an asymmetric box (none)."""
+    pts = cylinder(sections=96)
+    sym_R, sym_t = symmetry_transforms([FLIP_X], [ContinuousSymmetry((0.0, 0.0, 1.0), (0.0, 0.0, 0.0))])
+    R_e, t_e, R_g, t_g = random_poses(60, seed=4, spread_t=spread_t)
+    for S_R, S_t in ((sym_R, sym_t), IDENTITY):
+        exact_mm = mssd(R_e, t_e, R_g, t_g, pts, S_R, S_t)
+        exact_px = mspd(R_e, t_e, R_g, t_g, K, pts, S_R, S_t)
+        for exact, bounded in (
+            (exact_mm, mssd(R_e, t_e, R_g, t_g, pts, S_R, S_t, beyond=float(np.median(exact_mm)))),
+            (exact_px, mspd(R_e, t_e, R_g, t_g, K, pts, S_R, S_t, beyond=float(np.median(exact_px)))),
+        ):
+            bound = float(np.median(exact))
+            assert np.array_equal(bounded[exact < bound], exact[exact < bound])
+            assert np.isinf(bounded[exact >= bound]).all() and np.isinf(bounded).sum() == (exact >= bound).sum()

@@ -305,3 +305,30 @@ def test_a_method_name_with_a_line_break_or_a_pipe_keeps_the_markdown_table_whol
     scores = dict.fromkeys(SCORE_KEYS, 0.5)
     table = Comparison([MethodRow("a|b\n# hi", "scores x.json", scores, "tless", "test")], "tless", "test").markdown()
     assert table.splitlines()[-1].startswith("| a/b # hi | scores x.json | 0.500")
+
+
+def test_compare_bop24_gives_map_columns_one_protocol_per_table(small_fixture, results_dir, capsys) -> None:
+    """``--protocol bop24``: the CSVs scored for 6D detection, mAP columns, the protocol in the title and the files;
+    a BOP'24 scores JSON joins such a table; a BOP'19 one beside it is refused; the paper has no mAP to add."""
+    cosy = results_dir / COSYPOSE
+    cosypose_style(small_fixture, cosy)
+    ours = results_dir / "cendernet_tless-test.csv"
+    write_bop_results(ours, gt_rows(small_fixture))
+    out = results_dir / "tables"
+    with pytest.warns(ResultsWarning, match="no mAP"):
+        code = main(["compare", str(cosy), str(ours), "--protocol", "bop24", "--reference", "paper",
+                     "--data-root", str(small_fixture.root), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0
+    md = (out / "comparison_tless-test_bop24.md").read_text()
+    assert "BOP'24/'25 detection scores (mAP), tless test" in md and "bop25_mAP_mm" in md and "AR_VSD" not in md
+    assert "[reported]" not in md
+    table = list(csv.DictReader(io.StringIO((out / "comparison_tless-test_bop24.csv").read_text())))
+    assert {r["protocol"] for r in table} == {"bop24"} and float(table[1]["bop24_mAP"]) == 1.0
+    assert (out / "scores_cendernet_tless-test_bop24.json").is_file()
+    bop24_json = out / "scores_cendernet_tless-test_bop24.json"
+    again = compare([bop24_json], out_dir=results_dir / "again", progress=False)
+    assert again.protocol == "bop24" and again.rows[0].scores["bop24_mAP"] == 1.0
+    bop19 = score_file(ours, data_root=small_fixture.root, out_dir=results_dir / "s19", progress=False).scores_path
+    with pytest.raises(ConfigError, match="one protocol"):
+        compare([bop24_json, bop19], out_dir=results_dir / "mixed", progress=False)
+    assert not (results_dir / "mixed").exists() or not list((results_dir / "mixed").iterdir())

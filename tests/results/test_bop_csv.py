@@ -221,23 +221,26 @@ def test_reader_accepts_crlf_trailing_blank_lines_and_no_header(tmp_path: Path) 
     assert read_bop_results(_write(tmp_path, HEADER, name="empty.csv")) == []
 
 
-def test_unknown_times_are_compared_as_the_toolkit_compares_them(tmp_path: Path) -> None:
-    """The toolkit's check_consistent_timings compares every time of an image, negative (unknown) ones included:
-    a -1 beside 0.31 fails it, so it fails here (it was accepted, and the two scorers parted)."""
+def test_unknown_times_are_skipped_as_the_toolkit_skips_them(tmp_path: Path) -> None:
+    """The toolkit's check_consistent_timings (thodan/bop_toolkit @ cea62d6) skips negative (unknown) times: a -1
+    beside 0.31 in one image passes it (the average time is then unknown); two known times 0.01 s apart fail it."""
     rows = read_bop_results(
         _write(
             tmp_path,
             HEADER,
             GOOD,
             GOOD.replace("1,0,2,", "1,0,4,").replace(",0.31", ",0.3105"),
+            GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
             GOOD.replace("1,0,2,", "1,1,2,").replace(",0.31", ",-5"),
         )  # fmt: skip
     )
-    assert [r.time for r in rows] == [0.31, 0.3105, -5.0]  # any negative time is unknown, as in the toolkit
-    problems = _problems(_write(tmp_path, HEADER, GOOD, GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",-1"),
+    assert [r.time for r in rows] == [0.31, 0.3105, -1.0, -5.0]  # any negative time is unknown, as in the toolkit
+    problems = _problems(_write(tmp_path, HEADER, GOOD, GOOD.replace("1,0,2,", "1,0,3,").replace(",0.31", ",0.32"),
                                 name="mixed_tless-test.csv"))  # fmt: skip
-    assert problems == ["line 3: time: -1.0 s differs from 0.31 s of the same image (scene 1, image 0) at line 2;"
+    assert problems == ["line 3: time: 0.32 s differs from 0.31 s of the same image (scene 1, image 0) at line 2;"
                         " one image's estimates must share its time within 0.001 s"]  # fmt: skip
+    unchecked = read_bop_results(tmp_path / "mixed_tless-test.csv", check_times=False)  # BOP'24 checks after its cap
+    assert [r.time for r in unchecked] == [0.31, 0.32]
 
 
 # --- reader: bad input --------------------------------------------------------------------------
