@@ -7,7 +7,12 @@ duplicate and non-target estimates), scores it with the real scorer and turns th
 
 - ``scores.csv``: every recall (MSSD and MSPD per threshold, VSD per tau and threshold) and the six scores;
 - ``errors.csv``: the raw errors of every (estimate, GT) pair (MSSD mm, MSPD px, VSD per tau);
-- ``matches.csv``: per evaluated estimate, the gt_id it is matched to at each threshold (-1: none).
+- ``matches.csv``: per evaluated estimate, the gt_id it is matched to at each threshold (-1: none);
+- ``scores_bop24.csv``: BOP'24/'25 detection on the same fixture with the rows of
+  :func:`bop_cender.synth.detection_rows.detection_rows` (every rule of the cap, ties, hidden instances, ignored
+  rows): per error type, object and threshold the AP, and the seven scores; its anchor
+  ``toolkit_anchor_scores_bop24.csv`` is the toolkit's ``eval_bop24_pose.py`` on the same export, and every value
+  must equal it (within the tables' rounding).
 
 :func:`compare_tables` compares them with the committed ones (numbers within :data:`TOLERANCE`, i.e. the
 rounding of the written tables; ids exactly) and with the official toolkit's numbers for the same fixture
@@ -29,9 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.registry import DatasetRequest, open_dataset
+from bop_cender.eval.detection import BOP24_KEYS, ERROR_TYPES
+from bop_cender.eval.detection_report import DetectionReport
 from bop_cender.eval.score_report import SCORE_KEYS, ScoreReport
 from bop_cender.eval.scoring import score_results
+from bop_cender.eval.scoring_bop24 import score_detections
 from bop_cender.results.bop_csv import write_bop_results
+from bop_cender.synth.detection_rows import detection_rows
 from bop_cender.synth.regression_fixture import FixtureSpec, build_fixture, regression_estimates
 
 RESULTS_NAME = "regression_tless-test.csv"
@@ -42,8 +51,12 @@ TOLERANCE = 1e-8
 VSD_RENDERER_TOLERANCE = 2e-3
 GEOMETRIC_TOLERANCE = 1e-9
 
-OURS = ("scores.csv", "errors.csv", "matches.csv")
+OURS = ("scores.csv", "errors.csv", "matches.csv", "scores_bop24.csv")
 ANCHOR = ("toolkit_anchor_scores.csv", "toolkit_anchor_errors.csv")
+ANCHOR_BOP24 = "toolkit_anchor_scores_bop24.csv"
+#: The BOP'24 rows' results file and their generator's arguments (crowded: one image crosses the cap of 100).
+RESULTS_NAME_BOP24 = "regression24_tless-test.csv"
+DETECTION_ROWS = {"seed": 2, "crowded": 130}
 
 
 @dataclass(frozen=True)
@@ -52,17 +65,38 @@ class RegressionRun:
 
     report: ScoreReport
     tables: dict[str, str]
+    detection: DetectionReport | None = None
 
 
 def run_regression(work_dir: str | Path | None = None, progress: bool = False) -> RegressionRun:
-    """Build the fixture (in ``work_dir`` or a temporary folder), score it, and return the tables."""
+    """Build the fixture (in ``work_dir`` or a temporary folder), score it (BOP'19 and BOP'24), return the tables."""
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(work_dir) if work_dir is not None else Path(tmp)
         built = build_fixture(work / "tless", FixtureSpec())
         rows = regression_estimates(built)
         write_bop_results(work / RESULTS_NAME, rows, sort=False)
-        report = score_results(rows, open_dataset(DatasetRequest("tless", work / "tless", "test")), progress=progress)
-    return RegressionRun(report, report_tables(report))
+        dataset = open_dataset(DatasetRequest("tless", work / "tless", "test"))
+        report = score_results(rows, dataset, progress=progress)
+        rows24 = detection_rows(built, **DETECTION_ROWS)
+        write_bop_results(work / RESULTS_NAME_BOP24, rows24, sort=False)
+        detection = score_detections(rows24, dataset, progress=progress)
+    tables = {**report_tables(report), "scores_bop24.csv": bop24_table(detection.scores, _object_aps(detection))}
+    return RegressionRun(report, tables, detection)
+
+
+def bop24_table(scores: dict, object_aps: dict[str, dict[int, list[float]]]) -> str:
+    """``scores_bop24.csv``: per error type (``metric``), object and threshold the AP, then the seven scores."""
+    rows = [["metric", "obj_id", "threshold", "value"]]
+    for name, per_object in object_aps.items():
+        ths = ERROR_TYPES[name][0]
+        for obj, aps in sorted(per_object.items()):
+            rows += [[name, obj, _fmt(th), _fmt(ap)] for th, ap in zip(ths, aps, strict=True)]
+    rows += [[k, "", "", _fmt(scores[k])] for k in BOP24_KEYS]
+    return _csv(rows)
+
+
+def _object_aps(detection: DetectionReport) -> dict[str, dict[int, list[float]]]:
+    return {n: {o: [c.ap for c in s.curves[o]] for o in s.objects} for n, s in detection.per_type.items()}
 
 
 def report_tables(report: ScoreReport) -> dict[str, str]:
@@ -124,6 +158,12 @@ def compare_tables(run: RegressionRun, tables_dir: str | Path) -> list[str]:
                           lambda col: VSD_RENDERER_TOLERANCE if col.startswith("vsd") else GEOMETRIC_TOLERANCE)  # fmt: skip
     else:
         problems.append(f"toolkit anchor missing: {', '.join(ANCHOR)} (scripts/regression.py --anchor TOOLKIT_DIR)")
+    anchor24 = tables_dir / ANCHOR_BOP24
+    if anchor24.is_file():
+        problems += _diff("toolkit anchor BOP'24 scores", _parse(anchor24.read_text()),
+                          _parse(run.tables["scores_bop24.csv"]), lambda col: TOLERANCE)  # fmt: skip
+    else:
+        problems.append(f"toolkit anchor missing: {ANCHOR_BOP24} (scripts/regression.py --anchor TOOLKIT_DIR)")
     return problems
 
 
@@ -175,7 +215,7 @@ def format_problems(problems: list[str], limit: int = 40) -> str:
 # --------------------------------------------------------------------------------------------- helpers
 
 _Table = tuple[list[str], dict[tuple, dict[str, str]]]
-_KEY_COLUMNS = ("scene_id", "im_id", "obj_id", "est_id", "gt_id", "metric", "tau", "threshold")
+_KEY_COLUMNS = ("scene_id", "im_id", "obj_id", "est_id", "gt_id", "metric", "tau", "threshold")  # obj_id: BOP'24
 
 
 def _parse(text: str) -> _Table:
