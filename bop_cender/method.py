@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -86,6 +86,11 @@ class CenDerNetConfig:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def for_task(self, task: str) -> CenDerNetConfig:
+        """The settings for a BOP task: ``localization`` as they are; ``detection`` (BOP'24/'25) without the instance
+        counts and object ids of the scene (the task gives neither), ``known_counts`` and ``known_object_ids`` false."""
+        return self if task == "localization" else replace(self, known_counts=False, known_object_ids=False)
 
     def with_settings(self, settings: Sequence[str]) -> CenDerNetConfig:
         """A copy with ``path=value`` settings applied at any depth (``poses.t_b=0.5``, ``poses.candidates.n=500``,

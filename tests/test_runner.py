@@ -731,3 +731,33 @@ def test_a_process_reads_the_weights_file_once(mini_root, tmp_path, monkeypatch)
     assert (len(loads), len(opens)) == (1, 1)
     # the shards' fingerprint of the weights read is the one of the file (shards of an earlier run stay resumable)
     assert given.fingerprint(worker.method.predictor.weights) == given.fingerprint()
+
+
+def test_a_detection_run_knows_no_counts_or_objects_and_score_reads_it_as_bop24(mini_root, tmp_path, capsys):
+    """``run --task detection`` (BOP'24/'25): stage 2 without instance counts, stage 3 over every target object; the
+    sidecar names the protocol, so ``score`` needs no flag and gives the mAPs."""
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(mini_root), "--split", "real",
+                 "--out", str(out), "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress",
+                 "--deterministic-time", "--task", "detection", "--score"])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "bop24_mAP" in printed and "6D detection" in printed
+    extra = json.loads(out.with_suffix(".json").read_text())["extra"]
+    assert (extra["task"], extra["protocol"]) == ("detection", "bop24")
+    assert extra["config"]["known_counts"] is False and extra["config"]["known_object_ids"] is False
+    assert (tmp_path / "scores_cendernet-oracle_dimo-real_bop24.json").is_file()
+    assert main(["score", str(out), "--no-progress"]) == 0 and "bop24_mAP" in capsys.readouterr().out
+    with pytest.raises(ConfigError, match="known_counts and known_object_ids must be false"):
+        request(mini_root, out, task="detection")  # a config that uses the counts
+    assert request(mini_root, out, task="detection", config=None).config.known_counts is False
+    assert request(mini_root, out).protocol == "bop19"
+
+
+def test_data_with_bop24_targets_only_default_to_the_detection_task(tmp_path, capsys):
+    from bop_cender.cli.run import default_task
+
+    (tmp_path / "test_targets_bop24.json").write_text("[]")
+    assert default_task(str(tmp_path)) == "detection" and "--task detection" in capsys.readouterr().err
+    (tmp_path / "test_targets_bop19.json").write_text("[]")
+    assert default_task(str(tmp_path)) == "localization" and default_task(None) == "localization"

@@ -107,6 +107,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         " poses.sweeps.passes=1, poses.network.t_b=0.5 (a network's curvature; default: the weights' calibration),"
         " poses.t_b=0.7 (rendered curvature and pose edges), targets.curvature_scale=1",
     )
+    p.add_argument(
+        "--task",
+        choices=("localization", "detection"),
+        default=None,
+        help="localization (BOP'19: each image's instance counts and objects are known; scored by AR) or detection"
+        " (BOP'24/'25: neither is known; stage 2 finds centres without counts, stage 3 tries every target object;"
+        " scored by mAP); the sidecar names the protocol, so score needs no flag (default: detection where the data"
+        " has test_targets_bop24.json and no test_targets_bop19.json, else localization)",
+    )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
@@ -129,6 +138,20 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
     return "net"
 
 
+def default_task(data_root: str | None) -> str:
+    """``detection`` where the data holds BOP'24 targets only (``test_targets_bop24.json``, no BOP'19 file: the
+    industrial datasets), said on stderr; else ``localization``."""
+    from pathlib import Path
+
+    from bop_cender.data.layout import TARGETS_FILE, TARGETS_FILE_BOP24
+
+    root = Path(data_root) if data_root else None
+    if root is not None and (root / TARGETS_FILE_BOP24).is_file() and not (root / TARGETS_FILE).is_file():
+        announce(f"{TARGETS_FILE_BOP24} and no {TARGETS_FILE}: the BOP'24 6D-detection task (--task detection)")
+        return "detection"
+    return "localization"
+
+
 def run_config(args: argparse.Namespace) -> CenDerNetConfig:
     """The method's settings of a ``run`` command line: ``--preset`` for ``--dataset``, then ``--seed``,
     ``--candidates``, ``--top-k`` and ``--no-occlusion``, then every ``--set`` in order (which may override them).
@@ -144,7 +167,8 @@ def run_config(args: argparse.Namespace) -> CenDerNetConfig:
             options.append(f"poses.{name}={value}")
     if args.no_occlusion:
         options.append("poses.occlusion=false")
-    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).with_settings([*options, *(args.set or [])])
+    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).for_task(args.task or "localization")
+    config = config.with_settings([*options, *(args.set or [])])
     config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
         "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"
     )
@@ -160,6 +184,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bop_cender.runner import RunRequest, results_dataset_name, run
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
+    if args.task is None:
+        args.task = default_task(args.data_root)
     if args.heatmaps is None:
         args.heatmaps = default_heatmaps(args.dataset, args.weights)
         if args.heatmaps == "oracle":
@@ -180,7 +206,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         model_type=args.model_type, heatmaps=args.heatmaps, weights=args.weights, seed=args.seed, config=config,
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
         deterministic_time=args.deterministic_time, device=device, pose_device=pose_device,
-        vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views, threads=args.threads,
+        vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views, threads=args.threads, task=args.task,
     )  # fmt: skip
     bar = None
 
@@ -213,13 +239,10 @@ def cmd_run(args: argparse.Namespace) -> int:
               f" ({summary.curvature_threshold_source})")  # fmt: skip
     print(f"wrote {summary.out} and {summary.sidecar}")
     if args.score:
-        from bop_cender.eval.score_file import method_name, score_file
-        from bop_cender.report.summary import format_scores, summary_lines
+        from bop_cender.cli.score import print_scored
+        from bop_cender.eval.score_file import score_file
 
-        scored = score_file(summary.out, progress=not args.no_progress)
-        print(format_scores([(method_name(summary.out), scored.report.scores)]))
-        print("\n".join(summary_lines(scored.report)))
-        print(f"wrote {scored.scores_path} and {scored.errors_path}")
+        print_scored(score_file(summary.out, progress=not args.no_progress), summary.out)
     else:
         print(f"next: bop-cender score {summary.out}")
     if summary.failed:  # the file is whole for the other scenes, but the run did not do what was asked

@@ -40,25 +40,32 @@ def cmd_score(args: argparse.Namespace) -> int:
     # The VSD render process is forked before anything heavy is imported here: its torch import (and
     # NumPy's) runs while this process imports the scorer and reads the data.
     with RenderProcess.start() if render_process_useful() else nullcontext() as renderer:
-        from bop_cender.eval.detection_report import DetectionReport
-        from bop_cender.eval.score_file import method_name, score_file
-        from bop_cender.report.summary import MAP_KEYS, format_scores, summary_lines
+        from bop_cender.eval.score_file import score_file
 
         scored = score_file(
             args.results, **data_overrides(args),
             vsd_delta=args.vsd_delta, out_dir=args.out, progress=not args.no_progress,
             render_process=renderer or False, protocol=args.protocol,
         )  # fmt: skip
+    print_scored(scored, args.results)
+    return 0
+
+
+def print_scored(scored, results: Path) -> None:
+    """The score table of a scored file (AR or mAP, by its protocol), the lines that explain it, the files written."""
+    from bop_cender.eval.detection_report import DetectionReport
+    from bop_cender.eval.score_file import method_name
+    from bop_cender.report.summary import MAP_KEYS, format_scores, summary_lines
+
     report = scored.report
     if isinstance(report, DetectionReport):
-        print(format_scores([(method_name(args.results), report.scores)], keys=MAP_KEYS))
+        print(format_scores([(method_name(results), report.scores)], keys=MAP_KEYS))
         print()
         print(f"dataset {report.dataset} split {report.split} ({report.root})")
         print("\n".join(report.summary_lines()))
     else:
-        print(format_scores([(method_name(args.results), report.scores)]))
+        print(format_scores([(method_name(results), report.scores)]))
         print()
         print("\n".join(summary_lines(report)))
     print(f"data: {scored.choice.origin}")
     print(f"wrote {scored.scores_path} and {scored.errors_path}")
-    return 0

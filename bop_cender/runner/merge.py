@@ -92,6 +92,8 @@ def merge(
         request.seed,
         extra={
             "method": "cendernet",
+            "task": request.task,
+            "protocol": request.protocol,  # `score FILE.csv` scores it under this protocol without a flag
             "heatmaps": request.heatmaps,
             "weights": request.weights,
             "model_type": request.model_type,

@@ -31,6 +31,10 @@ HEATMAP_SOURCES = ("oracle", "net", "oracle-centers", "oracle-curvature")
 the centres from the oracle and the curvature from the network, ``oracle-curvature`` the reverse."""
 
 
+#: The tasks a run can do, and the BOP protocol that scores each.
+TASKS = {"localization": "bop19", "detection": "bop24"}
+
+
 @dataclass(frozen=True)
 class RunRequest:
     """What to run: the data, the heatmap source, the method's settings and where to write.
@@ -57,6 +61,9 @@ class RunRequest:
         threads: threads of the compiled CPU loops (renderer, stage 3's costs) when one process runs the scenes;
             the same rows whatever the count (each canvas is summed by one thread, torch keeps one). Not with
             ``workers`` > 1.
+        task: ``localization`` (BOP'19: the instance counts and objects of each image are known) or ``detection``
+            (BOP'24/'25: neither is; the config must not use them, :data:`TASKS`); the sidecar names the protocol
+            the file is for (``bop19`` / ``bop24``), so ``score FILE.csv`` needs no flag.
     """
 
     dataset: str
@@ -78,10 +85,25 @@ class RunRequest:
     vis_dir: Path | None = None
     max_views: int | None = None
     threads: int = 1
+    task: str = "localization"
 
     def __post_init__(self) -> None:
         if self.config is None:
-            object.__setattr__(self, "config", CenDerNetConfig.for_dataset(self.dataset))
+            config = CenDerNetConfig.for_dataset(self.dataset)
+            object.__setattr__(self, "config", config.for_task(self.task) if self.task in TASKS else config)
+        if self.task not in TASKS:
+            raise ConfigError(f"expected one of {', '.join(TASKS)}, got {self.task!r}", field="--task")
+        if self.task == "detection" and (self.config.known_counts or self.config.known_object_ids):
+            raise ConfigError(
+                "6D detection tells the method neither how many instances an image holds nor which objects:"
+                " known_counts and known_object_ids must be false",
+                field="--task",
+            )
+
+    @property
+    def protocol(self) -> str:
+        """The BOP protocol the results are for: ``bop19`` (localization) or ``bop24`` (detection)."""
+        return TASKS[self.task]
 
     def fingerprint(self, weights: NetWeights | None = None) -> str:
         """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume).
