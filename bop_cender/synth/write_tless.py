@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bop_cender.data.bop_io import load_json, save_depth, save_json, write_image
-from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE
+from bop_cender.data.layout import MIN_VISIB_FRACT, SCENE_GT, SCENE_GT_INFO, TARGETS_FILE, TARGETS_FILE_BOP24
 from bop_cender.meshes import MeshCache
 from bop_cender.synth.bop_files import Pile, camera_entry, gt_entry, make_pile, scene_folder
 from bop_cender.synth.catalogue import N_OBJECTS, catalogue_parts
@@ -197,7 +197,8 @@ def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec,
 
 
 def write_targets(root: Path) -> int:
-    """Write ``test_targets_bop19.json`` from the test scenes on disk (visib_fract >= 0.1 rule).
+    """Write ``test_targets_bop19.json`` from the test scenes on disk (visib_fract >= 0.1 rule), and
+    ``test_targets_bop24.json``: the images of those targets (the 6D-detection task's file lists images only).
 
     Reads back ``scene_gt.json`` / ``scene_gt_info.json`` so that a resumed run gives the same file.
     Returns the number of targets.
@@ -217,4 +218,6 @@ def write_targets(root: Path) -> int:
                 for o, c in sorted(counts.items())
             ]
     save_json(Path(root) / TARGETS_FILE, targets)
+    images = dict.fromkeys((t["scene_id"], t["im_id"]) for t in targets)
+    save_json(Path(root) / TARGETS_FILE_BOP24, [{"im_id": im, "scene_id": scene} for scene, im in images])
     return len(targets)
