@@ -13,6 +13,11 @@ if TYPE_CHECKING:
     from bop_cender.data.registry import DatasetRequest
 
 
+#: ``--dataset`` of the data options: :data:`bop_cender.data.registry.DATASETS` (spelled here so that building the
+#: parser imports no data module; tests/data/test_industrial.py checks that they agree).
+DATASET_CHOICES = ("dimo", "tless", "bop", "ipd", "xyzibd", "itoddmv")
+
+
 def count(option: str, minimum: int = 1) -> Callable[[str], int]:
     """An argparse ``type`` for an integer option that must be ``>= minimum`` (a number of scenes, views,
     workers; a seed, ``minimum=0``).
@@ -82,7 +87,11 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
             option is then optional and overrides what the file says.
     """
     if from_results:
-        p.add_argument("--dataset", default=None, help="dimo | tless | bop (default: from the file name or sidecar)")
+        p.add_argument(
+            "--dataset",
+            default=None,
+            help="dimo | tless | bop | ipd | xyzibd | itoddmv (default: from the file name or sidecar)",
+        )
         p.add_argument(
             "--data-root",
             default=None,
@@ -107,7 +116,12 @@ def add_data_options(p: argparse.ArgumentParser, *, from_results: bool = False) 
         )
         p.add_argument("--model-type", default=None, help="models folder variant: cad | eval | reconst (T-LESS: cad)")
         return
-    p.add_argument("--dataset", choices=("dimo", "tless", "bop"), required=True, help="dataset layout")
+    p.add_argument(
+        "--dataset",
+        choices=DATASET_CHOICES,
+        required=True,
+        help="dataset layout: dimo | tless | bop, or a BOP-Industrial dataset (multi-sensor): ipd | xyzibd | itoddmv",
+    )
     p.add_argument(
         "--data-root", default=None, help="dataset root folder (default: the embedded synthetic demo, generated once)"
     )

@@ -140,24 +140,11 @@ def open_bop_split(
             field="--split",
         )
     notes = [f"split {split!r}: folder {layout.folder}/"]
-    models, eval_models = _load_model_sets(root, layout, notes)
+    models, eval_models = load_model_sets(root, layout, notes)
 
-    scene_ids = _scene_folders(split_dir)
+    scene_ids = scene_folders(split_dir)
     index = {sid: _camera_index(split_dir / sid / SCENE_CAMERA) for sid in scene_ids}
-    selected = {sid: sorted(ims) for sid, ims in index.items()}
-    targets_path = root / TARGETS_FILE
-    bop24_path = root / TARGETS_FILE_BOP24
-    if layout.is_test and targets_path.is_file():
-        selected = _read_targets(targets_path, index, models, layout.folder, notes)
-    elif layout.is_test and not bop24_path.is_file():
-        notes.append(f"no {TARGETS_FILE}: every image of every scene is used")
-    if layout.is_test and bop24_path.is_file():  # BOP'24 detection scores these images: they are loaded too
-        extra = image_selection(bop24_path, index, layout.folder)
-        base = selected if targets_path.is_file() else {}
-        selected = {sid: sorted(set(base.get(sid, ())) | extra.get(sid, set())) for sid in index
-                    if sid in base or sid in extra}  # fmt: skip
-        notes.append(f"BOP'24 targets ({TARGETS_FILE_BOP24}): their {sum(len(v) for v in extra.values())} images used")
-
+    selected = select_images(root, index, models, layout, notes)
     plans = _plan_scenes(selected, index, layout, n_views, seed, notes)
     camera = _read_camera_file(root, layout)
     size, has_depth = _image_size(split_dir, layout, camera, index, notes)
@@ -186,6 +173,32 @@ def open_bop_split(
         has_depth=has_depth,
         split_dir=split_dir,
     )
+
+
+def select_images(
+    root: Path, index: dict[str, dict[int, bool]], models: dict[int, ObjectModel], layout: SplitLayout, notes: list[str]
+) -> dict[str, list[int]]:
+    """The images of each scene folder a split uses (``index``: folder -> its image ids): a test split's target
+    images (``test_targets_bop19.json``, and those ``test_targets_bop24.json`` adds; every image without either
+    file), every image elsewhere. Scene folders without a selected image are left out.
+
+    Raises:
+        DatasetError: a targets file is malformed or names an image or object the split does not hold.
+    """
+    selected = {sid: sorted(ims) for sid, ims in index.items()}
+    targets_path = root / TARGETS_FILE
+    bop24_path = root / TARGETS_FILE_BOP24
+    if layout.is_test and targets_path.is_file():
+        selected = _read_targets(targets_path, index, models, layout.folder, notes)
+    elif layout.is_test and not bop24_path.is_file():
+        notes.append(f"no {TARGETS_FILE}: every image of every scene is used")
+    if layout.is_test and bop24_path.is_file():  # BOP'24 detection scores these images: they are loaded too
+        extra = image_selection(bop24_path, index, layout.folder)
+        base = selected if targets_path.is_file() else {}
+        selected = {sid: sorted(set(base.get(sid, ())) | extra.get(sid, set())) for sid in index
+                    if sid in base or sid in extra}  # fmt: skip
+        notes.append(f"BOP'24 targets ({TARGETS_FILE_BOP24}): their {sum(len(v) for v in extra.values())} images used")
+    return selected
 
 
 def group_views(im_ids: list[int], n_views: int, seed: int, scene_int: int) -> list[list[int]]:
@@ -248,9 +261,10 @@ def _camera_file(root: Path, folder: str) -> str | None:
     return next((c for c in candidates if (root / c).is_file()), None)
 
 
-def _load_model_sets(
+def load_model_sets(
     root: Path, layout: SplitLayout, notes: list[str]
 ) -> tuple[dict[int, ObjectModel], dict[int, ObjectModel]]:
+    """The models (``layout.models_dir``) and the evaluation models (``models_eval/``, else the same), noted."""
     models_dir = root / layout.models_dir
     if not models_dir.is_dir():
         found = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith("models"))
@@ -279,7 +293,7 @@ def _load_model_sets(
     return models, eval_models
 
 
-def _scene_folders(split_dir: Path) -> list[str]:
+def scene_folders(split_dir: Path) -> list[str]:
     """Scene folder names, sorted by their int id; any other (non-hidden) folder is an error."""
     names = []
     for p in split_dir.iterdir():

@@ -512,13 +512,23 @@ def image_size(path: str | Path) -> tuple[int, int]:
     Raises:
         DatasetError: the file is missing, not an image, or a PNG or JPEG with a cut or malformed header.
     """
+    return image_shape(path)[:2]
+
+
+def image_shape(path: str | Path) -> tuple[int, int, int]:
+    """``(width, height, channels)`` of an image as :func:`image_size` reads it (channels as decoded unchanged: 1 grey,
+    3 colour, 4 colour + alpha).
+
+    Raises:
+        DatasetError: as :func:`image_size`.
+    """
     from bop_cender.data.image_header import read_image_header
 
     path = Path(path)
     header = read_image_header(path)
     if header is not None:
-        return header.width, header.height
+        return header.width, header.height, header.channels
     import cv2
 
     img = _imread(path, cv2.IMREAD_UNCHANGED)
-    return int(img.shape[1]), int(img.shape[0])
+    return int(img.shape[1]), int(img.shape[0]), 1 if img.ndim == 2 else int(img.shape[2])

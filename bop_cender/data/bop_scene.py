@@ -19,7 +19,7 @@ small residuals only warn; a frame mix-up fails).
 from __future__ import annotations
 
 import os
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -118,13 +118,13 @@ def read_scene_folder(
     cam_raw = load_image_dict(cam_path)
     gt_raw = load_image_dict(gt_path)
     check_same_image_ids({cam_path: cam_raw, gt_path: gt_raw})
-    cameras = {im: _parse_camera(cam_raw[im], im, cam_path, default_depth_scale) for im in sorted(cam_raw)}
-    gt = {im: _parse_gt(gt_raw[im], im, gt_path, obj_ids) for im in sorted(gt_raw)}
+    cameras = {im: parse_camera(cam_raw[im], im, cam_path, default_depth_scale) for im in sorted(cam_raw)}
+    gt = {im: parse_gt(gt_raw[im], im, gt_path, obj_ids) for im in sorted(gt_raw)}
     visib = None
     if info_path.is_file():
         info_raw = load_image_dict(info_path)
         check_same_image_ids({cam_path: cam_raw, info_path: info_raw})
-        visib = {im: _parse_visib(info_raw[im], len(gt[im]), im, info_path) for im in sorted(info_raw)}
+        visib = {im: parse_visib(info_raw[im], len(gt[im]), im, info_path) for im in sorted(info_raw)}
     listing = {
         sub: frozenset(os.listdir(scene_dir / sub))
         for sub in (*RGB_FOLDERS, "depth", "mask", "mask_visib")
@@ -133,7 +133,7 @@ def read_scene_folder(
     return SceneFolder(scene_dir, cameras, gt, visib, listing)
 
 
-def _parse_camera(entry: Any, im: int, path: Path, default_depth_scale: float | None) -> ImageCamera:
+def parse_camera(entry: Any, im: int, path: Path, default_depth_scale: float | None) -> ImageCamera:
     src = str(path)
     require_keys(entry, ("cam_K",), path, str(im))
     K = check_intrinsics(check_matrix(entry["cam_K"], (9,), f"{im}: cam_K", src).reshape(3, 3), f"{im}: cam_K", src)
@@ -156,7 +156,7 @@ def _parse_camera(entry: Any, im: int, path: Path, default_depth_scale: float | 
     return ImageCamera(K, T, depth_scale, info)
 
 
-def _parse_gt(entries: Any, im: int, path: Path, obj_ids: Collection[int]) -> list[GtEntry]:
+def parse_gt(entries: Any, im: int, path: Path, obj_ids: Collection[int]) -> list[GtEntry]:
     src = str(path)
     if not isinstance(entries, list):
         raise DatasetError(f"expected a list of annotations, got {type(entries).__name__}", file=path, field=str(im))
@@ -177,7 +177,7 @@ def _parse_gt(entries: Any, im: int, path: Path, obj_ids: Collection[int]) -> li
     return out
 
 
-def _parse_visib(entries: Any, n_gt: int, im: int, path: Path) -> list[float]:
+def parse_visib(entries: Any, n_gt: int, im: int, path: Path) -> list[float]:
     if not isinstance(entries, list) or len(entries) != n_gt:
         got = len(entries) if isinstance(entries, list) else type(entries).__name__
         raise DatasetError(
@@ -307,7 +307,12 @@ class _Instance:
     gt_ids: dict[int, int]
 
 
-def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, tracker: ResidualTracker) -> list[GtObject]:
+def associate_instances(
+    views: tuple[CameraView, ...],
+    folder: SceneFolder,
+    tracker: ResidualTracker,
+    gt_paths: Mapping[int, Path] | None = None,
+) -> list[GtObject]:
     """Static GT instances of a group of views, associated across the views' ``scene_gt`` lists.
 
     Images are visited in the given order. In each, the annotations of one ``obj_id`` are assigned
@@ -317,13 +322,17 @@ def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, trac
     checked by ``tracker`` (``T_cam_world @ T_world_model`` vs the stored ``T_cam_model``), which
     raises on a gross mismatch (a frame mix-up) and records small rounding residuals.
 
+    Args:
+        gt_paths: per image id, the file its annotations came from (multi-sensor folders:
+            ``scene_gt_{sensor}.json``); default the folder's ``scene_gt.json``.
+
     Returns:
         GtObjects in order of first appearance, with ``gt_ids`` and ``visib_fract`` per image.
     """
-    gt_path = folder.path / SCENE_GT
     instances: list[_Instance] = []
     for view in views:
         im, T_cw = view.im_id, view.T_cam_world
+        gt_path = folder.path / SCENE_GT if gt_paths is None else gt_paths[im]
         entries = folder.gt[im]
         by_obj: dict[int, list[int]] = {}
         for gt_id, e in enumerate(entries):
@@ -346,7 +355,10 @@ def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, trac
                     f"T_cam_world @ T_world_model of the obj {obj_id} instance first seen in image {inst.first_im}",
                 )
                 inst.gt_ids[im] = gt_id
-    source = str(gt_path)
+
+    def source(inst: _Instance) -> str:
+        return str(folder.path / SCENE_GT if gt_paths is None else gt_paths[inst.first_im])
+
     return [
         GtObject(
             obj_id=inst.obj_id,
@@ -354,7 +366,7 @@ def associate_instances(views: tuple[CameraView, ...], folder: SceneFolder, trac
             gt_ids=inst.gt_ids,
             visib_fract={} if folder.visib is None else {im: folder.visib[im][g] for im, g in inst.gt_ids.items()},
             T_cam_model={im: folder.gt[im][g].T_cam_model for im, g in inst.gt_ids.items()},
-            source=source,
+            source=source(inst),
         )
         for inst in instances
     ]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from bop_cender.data.types import Dataset
+from bop_cender.data.types import Dataset, Sensor
 from bop_cender.errors import BopCenderError
 from bop_cender.progress import progress_bar
 
@@ -72,8 +72,15 @@ def _ids(ids: list[int]) -> str:
     return ", ".join(str(i) for i in ids) if ids else "none"
 
 
+def _sensor(dataset: Dataset, sensor: Sensor) -> str:
+    """``xyz 1440x1080 gray, depth (evaluated: gray)``."""
+    evaluated = f" (evaluated: {sensor.intensity})" if sensor.name == dataset.eval_sensor else ""
+    return f"{sensor.name} {sensor.image_size[0]}x{sensor.image_size[1]} {', '.join(sensor.modalities)}{evaluated}"
+
+
 def describe(dataset: Dataset, progress: bool = True, summary: DatasetSummary | None = None) -> str:
-    """Multi-line text: scenes, views, objects, symmetric models, the selection and why, residuals.
+    """Multi-line text: scenes, views, objects, symmetric models, a multi-sensor split's sensors (size, modalities,
+    which one is evaluated), the selection and why, residuals.
 
     Args:
         summary: the split's counts when already gathered (:func:`summarise`); else every scene is loaded here.
@@ -96,6 +103,8 @@ def describe(dataset: Dataset, progress: bool = True, summary: DatasetSummary | 
         f"objects   {s.gt_instances} GT instances ({s.target_instances} of target objects); per object id: "
         + (", ".join(f"{i}: {n}" for i, n in sorted(s.objects_per_id.items())) or "none"),
     ]
+    if dataset.sensors:
+        lines.insert(5, "sensors   " + "; ".join(_sensor(dataset, sensor) for sensor in dataset.sensors))
     if dataset.eval_models and any(m.path != models.get(i, m).path for i, m in dataset.eval_models.items()):
         lines.append(f"eval      {len(dataset.eval_models)} evaluation models")
     if dataset.selection:

@@ -23,19 +23,25 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bop_cender.data.bop_io import image_shape
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.progress import progress_bar
 
+#: Channels an intensity image may have, per modality (as decoded unchanged; 4: colour with alpha).
+MODALITY_CHANNELS = {"gray": (1,), "rgb": (3, 4)}
+
 
 @dataclass(frozen=True)
 class ImageFile:
-    """One image to check: its path, the size it must have, and whether it is a depth image."""
+    """One image to check: its path, the size it must have, and whether it is a depth image (``modality``: ``gray``
+    or ``rgb`` where the layout says, as the multi-sensor one does: then its channels are checked too)."""
 
     path: Path
     size: tuple[int, int]
     depth: bool = False
     depth_scale: float | None = None
+    modality: str | None = None
 
 
 @dataclass
@@ -96,12 +102,15 @@ def unlisted_meshes(models: Iterable[ObjectModel]) -> list[str]:
 
 def scene_images(scene: Scene, split_size: tuple[int, int] | None) -> list[ImageFile]:
     """The colour and depth images of ``scene``'s views, each with the size it must have: the split's
-    (DIMO reads each view's size from its own image, so only the split's size can disagree), else the view's."""
+    (DIMO reads each view's size from its own image, so only the split's size can disagree), else the view's;
+    a multi-sensor view's, its sensor's."""
     out = []
     for view in scene.views:
-        size = split_size or (view.width, view.height)
+        size = (view.width, view.height) if view.sensor is not None or split_size is None else split_size
         if view.rgb_path is not None:
-            out.append(ImageFile(Path(view.rgb_path), size))
+            out.append(
+                ImageFile(Path(view.rgb_path), size, modality=view.info.get("modality") if view.sensor else None)
+            )
         if view.depth_path is not None:
             out.append(ImageFile(Path(view.depth_path), size, depth=True, depth_scale=view.depth_scale))
     return out
@@ -115,9 +124,22 @@ def check_image(image: ImageFile, deep: bool) -> str | None:
         return e.format()
     if (width, height) != tuple(image.size):
         expected = f"{image.size[0]}x{image.size[1]}"
+        whose = "the split's" if image.modality is None else "its sensor's"
         return DatasetError(
-            f"image is {width}x{height}, expected {expected} (the split's image size)", file=image.path, field="size"
+            f"image is {width}x{height}, expected {expected} ({whose} image size)", file=image.path, field="size"
         ).format()
+    if image.modality in MODALITY_CHANNELS:
+        try:
+            channels = image_shape(image.path)[2]
+        except DatasetError as e:
+            return e.format()
+        if channels not in MODALITY_CHANNELS[image.modality]:
+            return DatasetError(
+                f"a {channels}-channel image where {image.modality} is expected"
+                f" ({' or '.join(map(str, MODALITY_CHANNELS[image.modality]))} channels)",
+                file=image.path,
+                field="channels",
+            ).format()
     return None
 
 

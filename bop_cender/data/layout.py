@@ -23,3 +23,22 @@ MODELS_INFO = "models_info.json"
 SYNTH_RECORD = "bop_cender_synth.json"
 #: The toolkit's minimum visible fraction of a BOP'19 target instance (``enumerate_test_targets.py``).
 MIN_VISIB_FRACT = 0.1
+
+# BOP-Industrial multi-sensor layout (IPD, XYZ-IBD, ITODD-MV; docs/datasets.md): in a scene folder, per sensor,
+# ``scene_camera_{sensor}.json``, ``scene_gt_{sensor}.json``, ``scene_gt_info_{sensor}.json`` and the image folders
+# ``{modality}_{sensor}/`` (``gray_xyz/``, ``depth_photoneo/``, ``mask_visib_cam1/``).
+#: Per-sensor camera file: its name is ``SENSOR_CAMERA_PREFIX + sensor + ".json"``.
+SENSOR_CAMERA_PREFIX = "scene_camera_"
+#: Image and mask modalities of the multi-sensor folders, longest prefix first (``mask_visib`` before ``mask``).
+SENSOR_FOLDER_MODALITIES = ("mask_visib", "mask", "rgb", "gray", "depth", "aolp", "dolp")
+
+
+def sensor_file(kind: str, sensor: str) -> str:
+    """``sensor_file("scene_gt_info", "xyz")`` -> ``scene_gt_info_xyz.json``; ``kind`` one of ``scene_camera``,
+    ``scene_gt``, ``scene_gt_info``."""
+    return f"{kind}_{sensor}.json"
+
+
+def sensor_folder(modality: str, sensor: str) -> str:
+    """``sensor_folder("gray", "xyz")`` -> ``gray_xyz`` (masks: ``mask_visib_xyz``)."""
+    return f"{modality}_{sensor}"

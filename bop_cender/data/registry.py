@@ -18,8 +18,10 @@ from bop_cender.data.layout import SYNTH_RECORD
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, DatasetWarning
 
-#: The names the command line offers; any other BOP dataset name opens with the generic BOP loader.
-DATASETS = ("dimo", "tless", "bop")
+#: The names the command line offers; any other BOP dataset name opens with the generic BOP loader. The
+#: BOP-Industrial names (``bop_cender.data.industrial_params.INDUSTRIAL``) open their multi-sensor splits with
+#: :func:`bop_cender.data.industrial.open_industrial`, their classic-layout ones (``train_pbr``) as any BOP split.
+DATASETS = ("dimo", "tless", "bop", "ipd", "xyzibd", "itoddmv")
 DEFAULT_SPLIT = {"dimo": "real", "tless": "test", "bop": "test"}
 
 
@@ -29,7 +31,9 @@ class DatasetRequest:
 
     Attributes:
         dataset: ``dimo``, ``tless``, ``bop`` (a BOP-layout folder, named after it) or a BOP dataset name
-            (``lmo``, ``itodd``: the generic BOP loader under that name).
+            (``lmo``, ``itodd``: the generic BOP loader under that name; ``ipd``, ``xyzibd``, ``itoddmv``: the
+            multi-sensor reader where the split folder is in that layout). ``bop`` opens a multi-sensor split
+            folder with the multi-sensor reader too.
         root: dataset root folder; None = not given (see :func:`bop_cender.datasets.resolve_data_root`).
         split: split name; None = the dataset's default (dimo: real, others: test).
         n_views: views per multi-view group of BOP-layout test splits (default 5, the paper's).
@@ -89,6 +93,20 @@ def open_dataset(request: DatasetRequest) -> Dataset:
         from bop_cender.data.tless import open_tless
 
         return open_tless(root, split, n_views=request.n_views, seed=request.seed, model_type=request.model_type)
+    from bop_cender.data.industrial import multi_sensor_folder, open_industrial
+
+    folder = multi_sensor_folder(root, split, request.split_type)
+    if folder is not None:
+        if request.n_views is not None:
+            raise ConfigError(
+                f"a multi-sensor scene is the sensors' images of one capture, not groups of --n-views {request.n_views}"
+                " images; --n-views is for single-sensor BOP test splits",
+                field="--n-views",
+            )
+        return open_industrial(
+            root, split, name=None if request.dataset == "bop" else request.dataset, folder=folder,
+            model_type=request.model_type,
+        )  # fmt: skip
     from bop_cender.data.bop import open_bop
 
     return open_bop(

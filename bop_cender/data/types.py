@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from bop_cender.data.layout import SCENE_CAMERA
 from bop_cender.errors import DatasetError
 from bop_cender.geometry.rotations import orthonormality_error
 from bop_cender.geometry.symmetry import (
@@ -99,7 +100,12 @@ class CameraView:
         depth_scale: mm per depth unit.
         mask_paths: full-silhouette masks per GT instance, in ``scene_gt`` order (gt_id).
         mask_visib_paths: visible-part masks per GT instance, in ``scene_gt`` order.
-        info: extra per-image keys (DIMO ``scene_info``: viewpoint, carrier, ...).
+        info: extra per-image keys (DIMO ``scene_info``: viewpoint, carrier, ...; multi-sensor layouts: the
+            sensor's ``modality`` of ``rgb_path``, the BOP ``bop_im_id`` and other modalities' ``images``).
+        sensor: the sensor that took the image in a multi-sensor layout (``xyz``, ``cam1``); None elsewhere.
+        evaluated: whether BOP evaluates this image: results rows are written and scored for it. False for the
+            views of a multi-sensor layout's other sensors, whose ``im_id`` is then a view id unique in its scene
+            (:func:`bop_cender.data.industrial_scene.view_id`), not a BOP image id.
     """
 
     im_id: int
@@ -114,9 +120,11 @@ class CameraView:
     mask_visib_paths: tuple[Path, ...] = ()
     info: Mapping[str, Any] = field(default_factory=dict)
     source: str | None = None
+    sensor: str | None = None
+    evaluated: bool = True
 
     def __post_init__(self) -> None:
-        what = f"image {self.im_id}"
+        what = f"image {self.im_id}" if self.sensor is None else f"{self.sensor} image {self.im_id}"
         object.__setattr__(self, "K", check_intrinsics(self.K, f"{what}: K", self.source))
         object.__setattr__(self, "T_cam_world", check_pose(self.T_cam_world, f"{what}: T_cam_world", self.source))
         if int(self.width) <= 0 or int(self.height) <= 0:
@@ -262,11 +270,36 @@ class Scene:
     def im_ids(self) -> list[int]:
         return [v.im_id for v in self.views]
 
+    @property
+    def evaluated_views(self) -> tuple[CameraView, ...]:
+        """The views BOP evaluates (all but a multi-sensor layout's other sensors): results rows are theirs."""
+        return tuple(v for v in self.views if v.evaluated)
+
     def view(self, im_id: int) -> CameraView:
         for v in self.views:
             if v.im_id == im_id:
                 return v
         raise KeyError(im_id)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """One sensor of a multi-sensor split (BOP-Industrial: IPD, XYZ-IBD, ITODD-MV).
+
+    Attributes:
+        name: as in its file names (``scene_camera_{name}.json``, ``gray_{name}/``).
+        modalities: its image folders' modalities (``rgb``, ``gray``, ``depth``, ``aolp``, ``dolp``), in table order.
+        image_size: ``(width, height)`` of its images, px.
+    """
+
+    name: str
+    modalities: tuple[str, ...]
+    image_size: tuple[int, int]
+
+    @property
+    def intensity(self) -> str | None:
+        """The modality of its views' ``rgb_path``: ``rgb``, else ``gray``, else None."""
+        return next((m for m in ("rgb", "gray") if m in self.modalities), None)
 
 
 @dataclass(eq=False)
@@ -286,6 +319,10 @@ class Dataset:
         has_depth: whether test depth images exist (VSD needs them).
         split_dir: the folder holding the split's scene folders (``test_primesense/``, DIMO ``real_jaigo/``);
             None for data held only in memory.
+        sensors: a multi-sensor split's sensors, the evaluated one first; empty elsewhere.
+        eval_sensor: the sensor whose images BOP evaluates (``image_size`` is its size); None elsewhere.
+        scene_camera_name: the per-scene camera file that lists the split's BOP images (``scene_camera.json``;
+            multi-sensor: ``scene_camera_{eval_sensor}.json``).
     """
 
     root: Path
@@ -300,6 +337,9 @@ class Dataset:
     image_size: tuple[int, int] | None = None
     has_depth: bool = False
     split_dir: Path | None = None
+    sensors: tuple[Sensor, ...] = ()
+    eval_sensor: str | None = None
+    scene_camera_name: str = SCENE_CAMERA
     _cache: dict[str, Scene] = field(default_factory=dict, repr=False)
     _on_disk: dict[str, frozenset[int] | None] = field(default_factory=dict, repr=False)
     _files: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -343,9 +383,7 @@ class Dataset:
 
     def scene_on_disk(self, scene_id: str) -> bool:
         """Whether the split has a folder for this scene id (selected or not)."""
-        from bop_cender.data.layout import SCENE_CAMERA
-
-        return self.split_dir is not None and (self.split_dir / scene_id / SCENE_CAMERA).is_file()
+        return self.split_dir is not None and (self.split_dir / scene_id / self.scene_camera_name).is_file()
 
     def image_ids_on_disk(self, scene_id: str) -> frozenset[int] | None:
         """Image ids of a scene folder of the split, selected or not (its ``scene_camera.json``); None without one."""
@@ -353,9 +391,8 @@ class Dataset:
             return None
         if scene_id not in self._on_disk:
             from bop_cender.data.bop_io import load_json
-            from bop_cender.data.layout import SCENE_CAMERA
 
-            path = self.split_dir / scene_id / SCENE_CAMERA
+            path = self.split_dir / scene_id / self.scene_camera_name
             ids = None
             if path.is_file():
                 content = load_json(path, keys_to_int=True)

@@ -159,9 +159,10 @@ def collect_ground_truth(dataset: Dataset, progress: bool = True, scenes: Sequen
 
 
 def _scene_images(scene: Scene, scene_dir: Path | None) -> Iterator[tuple[ImageGt, bool | None]]:
-    """Each view as an ImageGt, and whether all its poses were stored (None: no GT instance)."""
+    """Each evaluated view as an ImageGt (a multi-sensor scene's other sensors are no BOP images), and whether all its
+    poses were stored (None: no GT instance)."""
     scene_int = scene_folder_to_int(scene.scene_id)
-    for view in scene.views:
+    for view in scene.evaluated_views:
         im = view.im_id
         instances = []
         stored: bool | None = None

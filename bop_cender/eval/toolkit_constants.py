@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bop_cender.data.industrial_params import INDUSTRIAL
 from bop_cender.errors import ConfigError
 from bop_cender.eval.vsd import VSD_DEFAULT_DELTA, vsd_delta
 
@@ -33,6 +34,8 @@ TOOLKIT_TEST_WIDTHS: dict[str, dict[str | None, int]] = {
     "hope": {None: 1920},
     "hopev2": {None: 1920},
     "handal": {None: 1920},
+    # BOP-Industrial: the evaluated sensor's width (eval_calc_scores.py: get_im_size(eval_modality, eval_sensor))
+    **{name: {None: spec.sensors[0].image_size[0]} for name, spec in INDUSTRIAL.items()},
 }
 #: Datasets in eval_bop19_pose.py's VSD delta table.
 TOOLKIT_VSD_DATASETS = frozenset(

@@ -114,7 +114,8 @@ class BopEstimate:
 def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEstimate]:
     """Per-image camera-frame rows for every (view, object) of a scene: ``T_cam_model = T_cam_world @ T_world_model``.
 
-    Every object is written into every view of the scene (as CosyPose's multi-view results are);
+    Every object is written into every evaluated view of the scene (as CosyPose's multi-view results are; a
+    multi-sensor scene's other sensors are views of the method, not BOP images: :attr:`Scene.evaluated_views`);
     BOP's evaluation only looks at the targets of each image, so an object outside one view costs
     nothing. ``time`` of every row is the scene's ``time_s``: a multi-view method produces no
     image's estimates before the whole scene is processed, so each image waited that long (dividing
@@ -122,13 +123,13 @@ def scene_estimates_to_rows(scene: Scene, estimate: SceneEstimate) -> list[BopEs
     wants). Each row's score is the object's confidence in that image (:meth:`ObjectEstimate.score_in`).
 
     Returns:
-        ``len(scene.views) * len(estimate.objects)`` rows, view by view, objects in estimate order.
+        ``len(scene.evaluated_views) * len(estimate.objects)`` rows, view by view, objects in estimate order.
     """
     if estimate.scene_key != scene.key or estimate.scene_id != scene.scene_id:
         raise ValueError(f"estimate for scene {estimate.scene_key!r} given with scene {scene.key!r}")
     scene_id = scene_folder_to_int(scene.scene_id)
     rows = []
-    for view in scene.views:
+    for view in scene.evaluated_views:
         for obj in estimate.objects:
             T = compose(view.T_cam_world, obj.T_world_model)
             score = obj.score_in(view.im_id)

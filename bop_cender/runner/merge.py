@@ -74,7 +74,7 @@ def merge(
         for stage, seconds in est.timings.items():
             stage_seconds[stage] = stage_seconds.get(stage, 0.0) + seconds
         scene = dataset.scene(key)
-        image_time = -1.0 if request.deterministic_time else est.time_s / len(scene.views)
+        image_time = -1.0 if request.deterministic_time else est.time_s / max(1, len(scene.evaluated_views))
         rows.extend(scene_estimates_to_rows(scene, replace(est, time_s=image_time)))
     write_bop_results(request.out, rows)
     sidecar = write_run_sidecar(
