@@ -24,18 +24,20 @@ one image header per sensor and modality):
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from bop_cender.data.bop import SplitLayout, load_model_sets, resolve_split_folder, scene_folders, select_images
 from bop_cender.data.bop_io import image_shape, load_image_dict, require_dir
 from bop_cender.data.bop_scene import IMAGE_SUFFIXES, ScenePlan
 from bop_cender.data.file_checks import MODALITY_CHANNELS
-from bop_cender.data.industrial_params import INDUSTRIAL, IndustrialSpec
+from bop_cender.data.industrial_params import INDUSTRIAL, SYNTH_INDUSTRIAL, IndustrialSpec
 from bop_cender.data.industrial_scene import DEPTH_SUFFIXES, IndustrialSceneLoader
 from bop_cender.data.layout import (
     SCENE_CAMERA,
     SENSOR_CAMERA_PREFIX,
     SENSOR_FOLDER_MODALITIES,
+    SYNTH_RECORD,
     sensor_file,
     sensor_folder,
 )
@@ -73,7 +75,8 @@ def open_industrial(
         root: dataset root (``models*/``, split folders, targets files).
         split: ``test``, ``val``, ... or a literal split folder name.
         name: dataset name; defaults to the root folder's name. Its constants are ``spec``, else the table's entry
-            for it; without either, the sensors' sizes are their first images' and the evaluated sensor must be
+            for it, else :data:`SYNTH_INDUSTRIAL` for a set ``bop-cender synth --layout industrial`` wrote
+            (:func:`synth_spec`); without any, the sensors' sizes are their first images' and the evaluated sensor must be
             the only one.
         folder: the split folder, when already resolved.
         model_type: use ``models_{model_type}/`` instead of ``models/``.
@@ -85,7 +88,7 @@ def open_industrial(
     """
     root = require_dir(root, "dataset root folder")
     name = name or root.resolve().name
-    spec = spec or INDUSTRIAL.get(name)
+    spec = spec or INDUSTRIAL.get(name) or synth_spec(root)
     folder = folder or resolve_split_folder(root, split, split_type)
     split_dir = root / folder
     layout = SplitLayout(folder=folder, models_dir=f"models_{model_type}" if model_type else "models")
@@ -115,6 +118,17 @@ def open_industrial(
         has_depth=has_depth, split_dir=split_dir, sensors=sensors, eval_sensor=sensors[0].name,
         scene_camera_name=eval_camera,
     )  # fmt: skip
+
+
+def synth_spec(root: Path) -> IndustrialSpec | None:
+    """:data:`SYNTH_INDUSTRIAL` where ``root`` holds the record of ``bop-cender synth --layout industrial``
+    (``bop_cender_synth.json``, ``"layout": "industrial"``), else None: its sensors are that table's, whatever the
+    root folder is called."""
+    try:
+        record = json.loads((Path(root) / SYNTH_RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    return SYNTH_INDUSTRIAL if isinstance(record, dict) and record.get("layout") == "industrial" else None
 
 
 def _camera_index(path: Path) -> dict[int, bool]:
@@ -224,6 +238,8 @@ def _check_models(
             file=models_dir / "models_info.json",
             field="obj_id",
         )
+    if spec.symmetric_obj_ids is None:  # a synthetic catalogue: models_info.json is the only list
+        return
     symmetric = sorted(i for i, m in models.items() if m.is_symmetric)
     listed = sorted(set(spec.symmetric_obj_ids) & set(models))
     if symmetric != listed:

@@ -26,7 +26,8 @@ class IndustrialSpec:
         sensors: every sensor, the evaluated one first, then in the toolkit's order.
         eval_modality: the evaluated sensor's modality (``rgb`` for IPD's Photoneo, ``gray`` elsewhere).
         obj_ids: the dataset's object ids (IPD starts at 0).
-        symmetric_obj_ids: the objects the toolkit lists as symmetric.
+        symmetric_obj_ids: the objects the toolkit lists as symmetric; None: no list, ``models_info.json`` alone
+            says (a synthetic catalogue).
         image_suffix: suffix of every image file (``.png``; ITODD-MV ``.tif``).
         max_estimates_per_image: the BOP'24 cap of estimates per image.
     """
@@ -35,7 +36,7 @@ class IndustrialSpec:
     sensors: tuple[Sensor, ...]
     eval_modality: str
     obj_ids: tuple[int, ...]
-    symmetric_obj_ids: tuple[int, ...]
+    symmetric_obj_ids: tuple[int, ...] | None
     image_suffix: str = ".png"
     max_estimates_per_image: int = 100
 
@@ -82,3 +83,17 @@ INDUSTRIAL: dict[str, IndustrialSpec] = {
         image_suffix=".tif",
     ),
 }  # fmt: skip
+
+
+#: The sets ``bop-cender synth --layout industrial`` writes (:mod:`bop_cender.synth.write_industrial`): a bin of
+#: DIMO parts (ids 1..6) seen by a gray evaluated camera, two RGB cameras and a gray camera with depth. Not a BOP
+#: name: the reader takes it for a folder whose generator record says ``"layout": "industrial"``
+#: (:func:`bop_cender.data.industrial.synth_spec`).
+SYNTH_INDUSTRIAL = IndustrialSpec(
+    name="synth_industrial",
+    sensors=(Sensor("hires", ("gray",), (320, 256)), Sensor("left", ("rgb",), (256, 192)),
+             Sensor("right", ("rgb",), (256, 192)), Sensor("tof", ("gray", "depth"), (240, 180))),
+    eval_modality="gray",
+    obj_ids=(1, 2, 3, 4, 5, 6),
+    symmetric_obj_ids=None,
+)  # fmt: skip

@@ -43,12 +43,15 @@ def _gray_rgb(img: np.ndarray, vmax: float) -> np.ndarray:
 
 
 def contact_sheet(views: Sequence[ViewBuffers], max_views: int = 4) -> np.ndarray:
-    """An RGB uint8 image: one row per view (at most ``max_views``), 4 columns."""
+    """An RGB uint8 image: one row per view (at most ``max_views``), 4 columns; rows of views of other sizes (the
+    sensors of a multi-sensor set) are padded with black on the right to the widest."""
     rows = []
     for v in list(views)[:max_views]:
         rgb = v.rgb if v.rgb is not None else np.zeros((*v.depth.shape, 3), np.uint8)
         cells = [rgb, _depth_rgb(v.depth), _instance_rgb(v.instance), _gray_rgb(v.curvature, CURVATURE_DISPLAY_MAX)]
         rows.append(np.concatenate([np.pad(c, ((2, 2), (2, 2), (0, 0))) for c in cells], axis=1))
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
     return np.concatenate(rows, axis=0)
 
 

@@ -1,4 +1,4 @@
-"""Generate a synthetic dataset in the DIMO or T-LESS layout: models, scenes in parallel, targets.
+"""Generate a synthetic dataset in the DIMO, T-LESS or BOP-Industrial layout: models, scenes in parallel, targets.
 
 Deterministic per seed (every scene derives its generator from ``(seed, scene)``, so the output
 does not depend on the number of workers or on the order of completion), resumable (scene folders
@@ -8,7 +8,7 @@ stderr. A resume finds out what is done before any set-up (models, meshes, worke
 folders cost one ``stat`` per file, and the bar counts only the folders still to write.
 
 What differs between layouts is one small protocol, :class:`SynthLayout` (models, jobs, scenes, what is
-written once at the end); :data:`LAYOUTS` holds its two implementations. A worker process keeps its
+written once at the end); :data:`LAYOUTS` holds its implementations. A worker process keeps its
 models and meshes in one explicit :class:`_Worker`, set by the pool's initializer.
 """
 
@@ -24,11 +24,13 @@ from typing import Any, Protocol
 
 import torch
 
+from bop_cender.data.industrial_params import SYNTH_INDUSTRIAL
+from bop_cender.data.layout import sensor_file
 from bop_cender.meshes import MeshCache
 from bop_cender.progress import progress_bar
-from bop_cender.synth import write_dimo, write_tless
+from bop_cender.synth import write_dimo, write_industrial, write_tless
 from bop_cender.synth.done import scene_done
-from bop_cender.synth.models_info import model_folders_complete
+from bop_cender.synth.models_info import model_folders_complete, write_model_folders
 from bop_cender.synth.parts import Part
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.record import check_or_write_record, mark_complete
@@ -131,7 +133,42 @@ class TlessLayout:
         return write_tless.write_targets(root) if spec.n_scenes > 0 else None
 
 
-LAYOUTS: dict[str, SynthLayout] = {"dimo": DimoLayout(), "tless": TlessLayout()}
+class IndustrialLayout:
+    """BOP-Industrial multi-sensor bins (:mod:`bop_cender.synth.write_industrial`): each job is one test or train
+    scene folder; the targets of the evaluated sensor are written last."""
+
+    name = "industrial"
+
+    def models(self, spec: write_industrial.IndustrialSynthSpec) -> dict[int, Part]:
+        return write_industrial.industrial_models(spec.catalogue_seed)
+
+    def write_models(self, root: Path, spec: write_industrial.IndustrialSynthSpec) -> None:
+        models = write_industrial.industrial_models(spec.catalogue_seed)
+        write_model_folders(root, {i: p for i, p in models.items() if i != write_industrial.BIN_ID}, "industrial")
+
+    def models_written(self, root: Path) -> bool:
+        return model_folders_complete(root, "industrial")
+
+    def scene_jobs(self, spec: write_industrial.IndustrialSynthSpec) -> list:
+        return write_industrial.scene_jobs(spec)
+
+    def write_scene(self, root, spec, job, models, meshes, piles) -> int:
+        return write_industrial.write_scene(root, spec, job, models, meshes, piles)
+
+    def job_folders(self, root: Path, spec: write_industrial.IndustrialSynthSpec, job: tuple[str, int]) -> list[Path]:
+        return write_industrial.job_folders(root, job)
+
+    def folder_shape(
+        self, spec: write_industrial.IndustrialSynthSpec, job: tuple[str, int], folder: Path
+    ) -> FolderShape:
+        camera = sensor_file("scene_camera", SYNTH_INDUSTRIAL.eval_sensor)
+        return FolderShape(spec.n_images, "--views", camera_file=camera)
+
+    def finish(self, root: Path, spec: write_industrial.IndustrialSynthSpec) -> int | None:
+        return write_industrial.write_targets(root) if spec.n_scenes > 0 else None
+
+
+LAYOUTS: dict[str, SynthLayout] = {"dimo": DimoLayout(), "tless": TlessLayout(), "industrial": IndustrialLayout()}
 
 
 @dataclass
@@ -198,10 +235,11 @@ def generate(
     """Generate (or complete) a dataset.
 
     Args:
-        layout: ``dimo`` or ``tless``.
+        layout: ``dimo``, ``tless`` or ``industrial``.
         root: output folder (created; existing done scenes are kept, if its record, written on the first
             run, names the same layout, seed and catalogue seed).
-        spec: :class:`~bop_cender.synth.write_dimo.DimoSpec` or :class:`~bop_cender.synth.write_tless.TlessSpec`.
+        spec: :class:`~bop_cender.synth.write_dimo.DimoSpec`, :class:`~bop_cender.synth.write_tless.TlessSpec` or
+            :class:`~bop_cender.synth.write_industrial.IndustrialSynthSpec`.
         workers: processes (1 = in this process; never more than the jobs left).
         progress: progress bar on stderr.
         announce: called with one line when a resume finds scene folders done.

@@ -30,7 +30,11 @@ if TYPE_CHECKING:
     from bop_cender.synth.parts import Part
 
 #: Model folders per dataset layout: (the main models folder, the evaluation copy).
-MODEL_FOLDERS: dict[str, tuple[str, str]] = {"dimo": ("models", "models_eval"), "tless": ("models_cad", "models_eval")}
+MODEL_FOLDERS: dict[str, tuple[str, str]] = {
+    "dimo": ("models", "models_eval"),
+    "tless": ("models_cad", "models_eval"),
+    "industrial": ("models", "models_eval"),
+}
 
 
 def models_info_entry(
@@ -102,10 +106,10 @@ def write_models(models_dir: str | Path, parts: Mapping[int, Part]) -> dict[int,
 
 
 def write_model_folders(
-    root: str | Path, parts: Mapping[int, Part], layout: Literal["dimo", "tless"]
+    root: str | Path, parts: Mapping[int, Part], layout: Literal["dimo", "tless", "industrial"]
 ) -> dict[str, Path]:
     """Write the model folders of a dataset in ``layout``: DIMO ``models/`` + ``models_eval/``, or
-    T-LESS ``models_cad/`` + ``models_eval/``.
+    T-LESS ``models_cad/`` + ``models_eval/``, or industrial ``models/`` + ``models_eval/``.
 
     The evaluation copy is identical to the main folder for now (no resampling); the same bytes
     are written to both. A folder whose ``models_info.json`` exists (written last) is complete and
@@ -128,7 +132,7 @@ def write_model_folders(
     return written
 
 
-def model_folders_complete(root: str | Path, layout: Literal["dimo", "tless"]) -> bool:
+def model_folders_complete(root: str | Path, layout: Literal["dimo", "tless", "industrial"]) -> bool:
     """Whether every model folder of ``layout`` has its ``models_info.json`` (written last: the folder is
     complete), so that :func:`write_model_folders` has nothing to do and the catalogue need not be made."""
     return all((Path(root) / name / "models_info.json").is_file() for name in MODEL_FOLDERS[layout])

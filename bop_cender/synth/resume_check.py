@@ -28,11 +28,13 @@ class FolderShape:
         images_option: the ``synth`` option that sets ``images``.
         info: DIMO ``scene_info.json`` values every image carries, with the option that sets each
             (``{"carrier": (2, "--carriers")}``); empty for T-LESS.
+        camera_file: the camera file whose entries are the images (a multi-sensor folder's evaluated sensor's).
     """
 
     images: int
     images_option: str
     info: dict[str, tuple[int, str]] = field(default_factory=dict)
+    camera_file: str = SCENE_CAMERA
 
 
 def check_done_folder(folder: Path, shape: FolderShape) -> None:
@@ -43,9 +45,9 @@ def check_done_folder(folder: Path, shape: FolderShape) -> None:
             (``file``: the folder's file that says so, ``field``: the option).
         DatasetError: its ``scene_camera.json`` / ``scene_info.json`` cannot be read.
     """
-    cameras = _load_object(folder / SCENE_CAMERA)
+    cameras = _load_object(folder / shape.camera_file)
     if len(cameras) != shape.images:
-        _mismatch(folder / SCENE_CAMERA, shape.images_option, f"{len(cameras)} images", f"{shape.images}")
+        _mismatch(folder / shape.camera_file, shape.images_option, f"{len(cameras)} images", f"{shape.images}")
     if not shape.info:
         return
     info = _load_object(folder / SCENE_INFO)

@@ -196,18 +196,20 @@ def _write_images(tmp: Path, kind, pile: Pile, cameras, im_ids, spec: TlessSpec,
     return views
 
 
-def write_targets(root: Path) -> int:
+def write_targets(
+    root: Path, split_folder: str = "test_primesense", gt_file: str = SCENE_GT, info_file: str = SCENE_GT_INFO
+) -> int:
     """Write ``test_targets_bop19.json`` from the test scenes on disk (visib_fract >= 0.1 rule), and
     ``test_targets_bop24.json``: the images of those targets (the 6D-detection task's file lists images only).
 
-    Reads back ``scene_gt.json`` / ``scene_gt_info.json`` so that a resumed run gives the same file.
-    Returns the number of targets.
+    Reads back ``scene_gt.json`` / ``scene_gt_info.json`` (``gt_file`` / ``info_file``: a multi-sensor split's
+    evaluated sensor's) of ``split_folder`` so that a resumed run gives the same file. Returns the number of targets.
     """
     targets = []
-    test_dir = Path(root) / "test_primesense"
+    test_dir = Path(root) / split_folder
     for scene_dir in sorted(p for p in test_dir.iterdir() if p.is_dir() and p.name.isdigit()):
-        gt = load_json(scene_dir / SCENE_GT, keys_to_int=True)
-        info = load_json(scene_dir / SCENE_GT_INFO, keys_to_int=True)
+        gt = load_json(scene_dir / gt_file, keys_to_int=True)
+        info = load_json(scene_dir / info_file, keys_to_int=True)
         for im_id in sorted(gt):
             counts: dict[int, int] = {}
             for g, i in zip(gt[im_id], info[im_id], strict=True):
