@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from bop_cender.centers import Center3D, CenterConfig, detect_centers, sample_scores
+from bop_cender.data.canvas import on_one_canvas
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.errors import ConfigError
 from bop_cender.estimates import ObjectEstimate, SceneEstimate
@@ -161,7 +162,10 @@ class CenDerNet:
         return self.run_scene(scene).estimate
 
     def run_scene(self, scene: Scene) -> SceneOutput:
-        """Run the three stages on ``scene`` and time each."""
+        """Run the three stages on ``scene`` and time each (a capture of cameras of several sizes seen at one,
+        :func:`~bop_cender.data.canvas.on_one_canvas`; the estimate is in the world frame, so any view's camera
+        writes its rows)."""
+        scene = on_one_canvas(scene)
         t0 = time.perf_counter()
         heatmaps = self.predictor.predict(scene)
         t1 = time.perf_counter()

@@ -73,8 +73,11 @@ def target_images(dataset: Dataset, gt: GroundTruth) -> TargetImages:
     """The target images: ``test_targets_bop24.json``; else the images of the BOP'19 file (what the toolkit uses when
     given it); else every loaded image (the synthetic sets, DIMO). Scenes in order of first appearance, then images.
 
+    Target images of scenes not loaded (the scenes of a partial run, as BOP'19 scoring cuts its targets) are left
+    out, and the note says how many.
+
     Raises:
-        DatasetError: a file names an image that the split does not hold (or that was not loaded).
+        DatasetError: none of the target images is loaded (the loader has checked that each exists in the split).
     """
     path = dataset.root / TARGETS_FILE_BOP24
     if path.is_file():
@@ -88,11 +91,12 @@ def target_images(dataset: Dataset, gt: GroundTruth) -> TargetImages:
         keys, source = list(gt.images), SOURCE_ALL
         note = f"no {TARGETS_FILE_BOP24} or {TARGETS_FILE}: every image of the split is a target image"
     missing = [k for k in keys if k not in gt.images]
-    if missing:
+    if missing and len(missing) == len(keys):
         shown = ", ".join(f"scene {s} image {i}" for s, i in missing[:5]) + (" ..." if len(missing) > 5 else "")
-        raise DatasetError(
-            f"{len(missing)} target image(s) are not in the split as loaded ({shown})", file=path, field="im_id"
-        )
+        raise DatasetError(f"none of the target images is in the split as loaded ({shown})", file=path, field="im_id")
+    if missing:  # the loaders load every target image, so these are of scenes left out (a partial run's sidecar)
+        keys = [k for k in keys if k in gt.images]
+        note += f"; {len(missing)} of scenes not loaded (a partial run) left out"
     by_scene: dict[int, list[tuple[int, int]]] = {}
     for key in keys:
         by_scene.setdefault(key[0], []).append(key)

@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from bop_cender.data.bop_io import load_rgb, write_image
+from bop_cender.data.bop_io import write_image
+from bop_cender.data.canvas import read_view_rgb
 from bop_cender.data.types import Dataset
 from bop_cender.net.heatmaps import Heatmaps
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
@@ -120,9 +121,7 @@ def _write_pngs(folder: Path, scene, pred: Heatmaps, gt: Heatmaps | None) -> lis
     folder.mkdir(parents=True, exist_ok=True)
     written = []
     for v, view in enumerate(scene.views):
-        image = (
-            load_rgb(view.rgb_path) if view.rgb_path is not None else np.zeros((view.height, view.width, 3), np.uint8)
-        )
+        image = read_view_rgb(view) if view.rgb_path is not None else np.zeros((view.height, view.width, 3), np.uint8)
         path = folder / f"{scene.key.replace('/', '_')}_{view.im_id:06d}.png"
         write_image(path, side_by_side(image, pred, gt, v))
         written.append(path)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bop_cender.data.bop_io import load_rgb
+from bop_cender.data.canvas import read_view_rgb
 from bop_cender.data.types import Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.heatmaps import Heatmaps, scene_channel_ids
@@ -93,7 +93,7 @@ def scene_rgb(scene: Scene) -> np.ndarray:
             raise DatasetError(
                 f"scene {scene.key} image {view.im_id} has no colour image (no rgb/ or gray/ folder)", file=folder
             )
-        image = load_rgb(view.rgb_path)
+        image = read_view_rgb(view)
         if image.shape[:2] != (view.height, view.width):
             raise DatasetError(
                 f"scene {scene.key}: image is {image.shape[1]}x{image.shape[0]}, expected {view.width}x{view.height}"

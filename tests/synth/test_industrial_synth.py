@@ -147,3 +147,32 @@ def test_bad_options_are_one_error(tmp_path: Path, capsys, extra: list[str], mes
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and message in err and len(err.strip().splitlines()) == 1
     assert not (out / "test").exists()
+
+
+def test_the_method_runs_across_cameras_of_several_sizes_and_writes_the_evaluated_sensors_rows(
+    bins: Path, tmp_path: Path, capsys
+) -> None:
+    """``run --dataset bop`` on the multi-sensor set: every camera at the evaluated one's size (K scaled, image
+    resampled: bop_cender/data/canvas.py), rows for the evaluated sensor only, ``score`` with no flag (BOP'24)."""
+    from bop_cender.data.canvas import RESAMPLED_FROM, on_one_canvas, read_view_rgb
+    from bop_cender.results.bop_csv import read_bop_results
+
+    scene = open_dataset(DatasetRequest("bop", root=bins, split="test")).scene("000001/i000000")
+    seen = on_one_canvas(scene)
+    W, H = scene.views[0].width, scene.views[0].height
+    assert seen.views[0] is scene.views[0] and all((v.width, v.height) == (W, H) for v in seen.views)
+    for before, after in zip(scene.views[1:], seen.views[1:], strict=True):
+        sx, sy = W / before.width, H / before.height
+        assert np.allclose(after.K, np.diag([sx, sy, 1.0]) @ before.K) and after.info[RESAMPLED_FROM] == (
+            before.width, before.height
+        )  # fmt: skip
+        assert read_view_rgb(after).shape == (H, W, 3) and np.array_equal(after.T_cam_world, before.T_cam_world)
+    out = tmp_path / "cendernet-oracle_bins-test.csv"
+    argv = ["run", "--dataset", "bop", "--data-root", str(bins), "--split", "test", "--heatmaps", "oracle",
+            "--task", "detection", "--out", str(out), "--limit-scenes", "1", "--candidates", "48", "--top-k", "1",
+            "--deterministic-time", "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    rows = read_bop_results(out)
+    assert rows and {(r.scene_id, r.im_id) for r in rows} == {(1, 0)}  # the evaluated sensor's image only
+    assert main(["score", str(out), "--no-progress"]) == 0
+    assert "bop25_mAP_mm" in capsys.readouterr().out
