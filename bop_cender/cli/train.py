@@ -136,14 +136,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         " they were, --variant dimo-centers ... --train-only center_branch,center_head the curvature (modules: e1 e2 e3"
         " bottleneck context d2 d1 center_head curvature_head refine center_branch vote_head; default: all)",
     )
-    p.add_argument(
-        "--input-norm",
-        choices=("none", "channel"),
-        default="none",
-        help="what the network does to each image first: none (the paper's) or channel (each image's colour channels"
-        " standardised, so the camera's exposure and white balance change nothing it sees; weights without it may"
-        " start it, --init-weights)",
-    )
     p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder (checkpoints, weights, metrics)")
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -178,9 +170,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
     variant = args.variant or f"{kind}-lean"
     channels = 1 if kind == "dimo" else 2  # "one per object id": the data's count is known once it is read
-    spec = network_spec_of(  # before the data
-        variant, args.width, channels, args.factored_centers, args.center_votes, args.input_norm
-    )
+    spec = network_spec_of(variant, args.width, channels, args.factored_centers, args.center_votes)  # before the data
     factored, votes = spec.factored_centers, spec.center_votes
     if args.class_loss_weight is not None and not factored:  # it would be recorded in config.json and not used
         raise ConfigError(
@@ -203,7 +193,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
-        center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers, input_norm=args.input_norm,
+        center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,
         center_votes=args.center_votes and not UNetSpec.named(variant, center_channels=channels).center_votes,
         train_only=tuple(n.strip() for n in args.train_only.split(",")) if args.train_only is not None else (),
         **({} if args.class_loss_weight is None else {"class_loss_weight": args.class_loss_weight}),

@@ -41,7 +41,7 @@ from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
 from bop_cender.net.predictor import known_class_mask
 from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
-from bop_cender.net.unet import INPUT_NORMS, UNet, UNetSpec, factored_center_logits
+from bop_cender.net.unet import UNet, UNetSpec, factored_center_logits
 from bop_cender.net.votes import vote_loss
 from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights, weights_payload
 from bop_cender.progress import progress_bar
@@ -93,8 +93,6 @@ class TrainConfig:
             0.595 -> 0.705, ``results/net/dimo.md``); ``refine,curvature_head`` leaves the centres as they were.
         center_votes: give ``variant`` a vote head (``dimo-votes`` and ``tless-votes`` have one): e.g. the paper's
             networks with votes for a GPU run (``--variant tless --factored-centers --center-votes``).
-        input_norm: the network's input normalisation (:attr:`UNetSpec.input_norm`: ``none``, ``channel``); weights
-            of a network without it may start a run with it (``--init-weights``: the same layers, another input).
         vote_loss_weight: for a network with a vote head (``dimo-votes``, ``tless-votes``): the weight of
             :func:`~bop_cender.net.votes.vote_loss` in the sum (ours: 1; its three terms are means of order 0.1-1).
     """
@@ -123,7 +121,6 @@ class TrainConfig:
     train_only: tuple[str, ...] = ()
     center_votes: bool = False
     vote_loss_weight: float = 1.0
-    input_norm: str = "none"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "train_only", tuple(self.train_only))
@@ -189,18 +186,11 @@ class TrainConfig:
         """
         if center_channels is None:
             center_channels = 1 if self.dataset == "dimo" else 2
-        return network_spec_of(
-            self.variant, self.width, center_channels, self.factored_centers, self.center_votes, self.input_norm
-        )
+        return network_spec_of(self.variant, self.width, center_channels, self.factored_centers, self.center_votes)
 
 
 def network_spec_of(
-    variant: str,
-    width: float,
-    center_channels: int,
-    factored_centers: bool = False,
-    center_votes: bool = False,
-    input_norm: str = "none",
+    variant: str, width: float, center_channels: int, factored_centers: bool = False, center_votes: bool = False
 ) -> UNetSpec:
     """``variant`` at ``width`` with ``center_channels`` outputs, factored and with a vote head where asked (the CLI
     checks its flags with it before any data is read; :class:`TrainConfig` builds the run's network with it).
@@ -220,10 +210,6 @@ def network_spec_of(
         spec = replace(spec, factored_centers=True, name=f"{spec.name}+factored")
     if center_votes and not spec.center_votes:
         spec = replace(spec, center_votes=True, name=f"{spec.name}+votes")
-    if input_norm not in INPUT_NORMS:
-        raise ConfigError(f"expected one of {', '.join(INPUT_NORMS)}, got {input_norm!r}", field="--input-norm")
-    if input_norm != spec.input_norm:
-        spec = replace(spec, input_norm=input_norm, name=f"{spec.name}+{input_norm}-norm")
     if spec.center_votes and spec.center_channels > 1 and not spec.factored_centers:
         raise ConfigError(
             "votes make one class-agnostic centre map: with one center channel per object id they need a factored"
@@ -427,7 +413,7 @@ def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
     so the run starts from exactly what ``init`` computed)."""
     if init == spec:
         return True
-    base = replace(spec, name=init.name, input_norm=init.input_norm)  # the same layers see another input
+    base = replace(spec, name=init.name)
     if not init.context_dilations:
         base = replace(base, context_dilations=())
     if not init.refine_channels:

@@ -48,8 +48,6 @@ from bop_cender.net.votes import VOTE_CHANNELS, vote_map
 VOTE_SIGMA_RANGE_PX = (0.1, 100.0)
 #: How a vote map joins the center head's (:attr:`UNetSpec.vote_mix`).
 VOTE_MIXES = ("max", "votes")
-#: What the network may do to an image before its first layer (UNetSpec.input_norm).
-INPUT_NORMS = ("none", "channel")
 
 
 @dataclass(frozen=True)
@@ -91,11 +89,6 @@ class UNetSpec:
         vote_sigma_px: the standard deviation (pixels of the input) of the Gaussian that blurs the votes.
         vote_mix: how the votes' map joins the center head's class-agnostic map: ``max`` (their maximum: the head
             keeps the parts whose centre it finds, the votes add the others) or ``votes`` (the votes alone).
-        input_norm: what the network does to an image before its first layer (issue 42's input-normalisation
-            lever): ``none`` (the paper's: the RGB values as they are) or ``channel`` (each image's channels
-            standardised over its pixels, :func:`normalise_channels`: an exposure, a white balance or a contrast
-            of the camera changes nothing the network sees). Weights files written before this field have
-            ``none``.
     """
 
     channels: tuple[int, int, int] = (32, 32, 64)
@@ -111,7 +104,6 @@ class UNetSpec:
     center_votes: bool = False
     vote_sigma_px: float = 3.0
     vote_mix: str = "max"
-    input_norm: str = "none"
 
     def __post_init__(self) -> None:
         if len(self.channels) != 3 or len(self.strides) != 3:
@@ -133,8 +125,6 @@ class UNetSpec:
             raise ValueError(f"vote sigma must be {lo:g} to {hi:g} pixels, got {self.vote_sigma_px}")
         if self.vote_mix not in VOTE_MIXES:
             raise ValueError(f"vote mix must be one of {', '.join(VOTE_MIXES)}, got {self.vote_mix!r}")
-        if self.input_norm not in INPUT_NORMS:
-            raise ValueError(f"input norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
         if self.refine_channels and self.strides[0] == 1:
             raise ValueError(
                 "a full-resolution refinement needs a first stride above 1 (the heads are at full resolution)"
@@ -270,7 +260,6 @@ class UNetSpec:
             center_votes=_flag(d.get("center_votes", False), "center_votes"),
             vote_sigma_px=_real(d.get("vote_sigma_px", 3.0), "vote_sigma_px"),
             vote_mix=_text(d.get("vote_mix", "max"), "vote_mix"),
-            input_norm=_text(d.get("input_norm", "none"), "input_norm"),
         )
 
 
@@ -511,8 +500,6 @@ class UNet(nn.Module):
         :mod:`bop_cender.net.votes`)."""
         if image.dim() != 4 or image.shape[1] != 3:
             raise ValueError(f"image must be (B, 3, H, W), got {tuple(image.shape)}")
-        if self.spec.input_norm == "channel":
-            image = normalise_channels(image)
         H, W = image.shape[-2:]
         stride = self.spec.total_stride
         pad_h, pad_w = (-H) % stride, (-W) % stride
@@ -537,21 +524,6 @@ class UNet(nn.Module):
         if self.refine is not None:
             curvature = self.refine(x, curvature_features, curvature)
         return center[..., :H, :W], curvature[:, 0, :H, :W], votes[..., :H, :W] if votes is not None else None
-
-
-def normalise_channels(image: torch.Tensor) -> torch.Tensor:
-    """Each image's channels standardised over its pixels and put back about mid-grey: ``(B, 3, H, W) -> (B, 3, H, W)``.
-
-    ``0.5 + 0.2 * (x - mean) / (std + 0.01)`` per image and channel: a gain per channel (exposure, white balance) and
-    an offset cancel (up to clipping) but for the 0.01, which keeps a flat channel (a blank image) finite: with a
-    channel's std of 0.1-0.2, as in our images, halving its gain moves values by under 0.05; 0.5 and 0.2 keep the
-    values near the range of the images the un-normalised networks were trained on, so weights of those start a
-    fine-tuning without a jump.
-    """
-    x = image.float()
-    mean = x.mean(dim=(-2, -1), keepdim=True)
-    std = x.std(dim=(-2, -1), keepdim=True, unbiased=False)
-    return (0.5 + 0.2 * (x - mean) / (std + 0.01)).to(image.dtype)
 
 
 def factored_center_logits(raw: torch.Tensor) -> torch.Tensor:

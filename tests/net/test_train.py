@@ -518,20 +518,3 @@ def test_a_vote_run_learns_its_votes_resumes_exactly_and_guards_its_loss_weight(
     assert not (tmp_path / "refused").exists()
     paper = _config(tiny_root, variant="dimo", center_votes=True).network_spec(1)
     assert paper.center_votes and paper.name == "dimo+votes" and paper.channels == UNetSpec.dimo().channels
-
-
-def test_a_network_without_input_norm_starts_one_with_it(tiny_root, tmp_path) -> None:
-    """``--input-norm channel --init-weights PLAIN.pt``: the same layers, another input (issue 42's lever)."""
-    train(_config(tiny_root, epochs=1, val_split=None), tmp_path / "plain", progress=False)
-    normed = train(
-        _config(
-            tiny_root, epochs=1, val_split=None, input_norm="channel", init_weights=str(tmp_path / "plain" / WEIGHTS)
-        ),
-        tmp_path / "normed",
-        progress=False,
-    )
-    assert normed.epochs_done == 1
-    spec = load_weights(tmp_path / "normed" / WEIGHTS).model.spec
-    assert spec.input_norm == "channel" and spec.name.endswith("+channel-norm")
-    with pytest.raises(ConfigError, match="--input-norm"):
-        _config(tiny_root, input_norm="gray").network_spec()

@@ -248,34 +248,3 @@ def test_the_factored_variant_outputs_one_more_raw_channel_and_round_trips() -> 
     assert not UNetSpec.from_dict(old).factored_centers
     with pytest.raises(ValueError, match="at least 2 center channels"):
         UNetSpec(center_channels=1, factored_centers=True)
-
-
-def test_channel_input_norm_makes_the_network_blind_to_gains_and_offsets_per_channel() -> None:
-    """Issue 42's input-normalisation lever: each image's channels standardised first, so an exposure, a white
-    balance or a contrast of the camera (a gain and an offset per channel) changes nothing the network sees."""
-    from dataclasses import replace
-
-    from bop_cender.net.unet import normalise_channels
-
-    torch.manual_seed(0)
-    spec = replace(UNetSpec.dimo_lean(width=0.5), input_norm="channel")
-    model = UNet(spec).eval()
-    image = torch.rand(2, 3, 48, 64) * 0.6 + 0.1
-    gain = torch.tensor([0.5, 1.0, 1.6]).view(1, 3, 1, 1)
-    with torch.no_grad():
-        a, b = model(image), model(image * gain + 0.05)
-    assert torch.allclose(a[0], b[0], atol=1e-4) and torch.allclose(a[1], b[1], atol=1e-4)
-    seen = normalise_channels(image)  # a gain and an offset cancel but for the 0.01 that keeps a flat channel finite
-    assert (seen - normalise_channels(image * gain + 0.05)).abs().max() < 0.05
-    assert (seen - normalise_channels(image * 1.3 + 0.05)).abs().max() < 0.01
-    assert (image - image * gain).abs().max() > 0.3
-    plain = UNet(UNetSpec.dimo_lean(width=0.5)).eval()
-    with torch.no_grad():  # without it, the first layer sees the gains
-        assert not torch.allclose(plain.e1(image), plain.e1(image * gain), atol=1e-3)
-    flat = normalise_channels(torch.full((1, 3, 8, 8), 0.3))
-    assert torch.isfinite(flat).all() and torch.allclose(flat, torch.full_like(flat, 0.5))
-    assert UNetSpec.from_dict(spec.as_dict()) == spec
-    old = {k: v for k, v in UNetSpec.dimo_lean().as_dict().items() if k != "input_norm"}
-    assert UNetSpec.from_dict(old).input_norm == "none"  # weights written before the field
-    with pytest.raises(ValueError, match="input norm"):
-        replace(spec, input_norm="batch")
