@@ -159,7 +159,9 @@ def run_config(args: argparse.Namespace) -> CenDerNetConfig:
     Raises:
         ConfigError: a bad setting, or more starts to refine than candidates (naming the option that gave them).
     """
+    from bop_cender.data.registry import DEFAULT_SPLIT
     from bop_cender.method import CenDerNetConfig
+    from bop_cender.runner.request import config_layout
 
     options = [f"poses.seed={args.seed}"]
     for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1
@@ -167,7 +169,8 @@ def run_config(args: argparse.Namespace) -> CenDerNetConfig:
             options.append(f"poses.{name}={value}")
     if args.no_occlusion:
         options.append("poses.occlusion=false")
-    config = CenDerNetConfig.for_dataset(args.dataset, args.preset).for_task(args.task or "localization")
+    layout = config_layout(args.dataset, args.data_root, args.split or DEFAULT_SPLIT[args.dataset])
+    config = CenDerNetConfig.for_dataset(layout, args.preset).for_task(args.task or "localization")
     config = config.with_settings([*options, *(args.set or [])])
     config.poses.check_refinable(  # once every setting is in, whatever their order; naming the option given
         "--top-k" if args.top_k is not None else "--candidates" if args.candidates is not None else "--set"

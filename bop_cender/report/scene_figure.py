@@ -155,7 +155,7 @@ def scene_figure(
         mask = (est_inst[v] >= 0) | (gt_inst[v] >= 0)
         top, left, h, w = crop_box(mask, np.concatenate([detected_xy, gt_xy]))
         window = (slice(top, top + h), slice(left, left + w))
-        rgb = _read_rgb(view.rgb_path, H, W)
+        rgb = _read_rgb(view, H, W)
         axes[0, v].imshow(rgb[window])
         axes[0, v].set_title(f"image {view.im_id}", fontsize=7)
         axes[1, v].imshow(center[v][window], cmap="magma", vmin=0, vmax=1)
@@ -227,12 +227,14 @@ def _outline(mask: np.ndarray) -> np.ndarray:
     return mask & ~inner
 
 
-def _read_rgb(path: Path | None, H: int, W: int) -> np.ndarray:
-    if path is None or not Path(path).is_file():
-        return np.zeros((H, W, 3), np.uint8)
-    import cv2
+def _read_rgb(view, H: int, W: int) -> np.ndarray:
+    """The view's image as the method saw it (:func:`~bop_cender.data.canvas.read_view_rgb`); black where unreadable."""
+    from bop_cender.data.canvas import read_view_rgb
+    from bop_cender.errors import BopCenderError
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
+    if view.rgb_path is None or not Path(view.rgb_path).is_file():
         return np.zeros((H, W, 3), np.uint8)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    try:
+        return read_view_rgb(view)
+    except BopCenderError:
+        return np.zeros((H, W, 3), np.uint8)

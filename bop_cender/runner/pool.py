@@ -89,11 +89,12 @@ def estimate_scene(
     except (BopCenderError, ValueError, RuntimeError) as e:
         return SceneOutcome(scene.key, None, f"{type(e).__name__}: {e}")
     if vis_dir is not None:
+        from bop_cender.data.canvas import on_one_canvas
         from bop_cender.report.scene_figure import scene_figure
 
         scene_figure(
             output,
-            scene,
+            on_one_canvas(scene),  # the views as the method saw them (a multi-sensor capture: one size)
             method.models,
             method.meshes,
             Path(vis_dir) / shard_path(Path(), scene.key).with_suffix(".png").name,

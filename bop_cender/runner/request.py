@@ -89,7 +89,7 @@ class RunRequest:
 
     def __post_init__(self) -> None:
         if self.config is None:
-            config = CenDerNetConfig.for_dataset(self.dataset)
+            config = CenDerNetConfig.for_dataset(config_layout(self.dataset, self.data_root, self.split))
             object.__setattr__(self, "config", config.for_task(self.task) if self.task in TASKS else config)
         if self.task not in TASKS:
             raise ConfigError(f"expected one of {', '.join(TASKS)}, got {self.task!r}", field="--task")
@@ -124,6 +124,17 @@ class RunRequest:
             "max_views": self.max_views,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def config_layout(dataset: str, data_root: str | Path | None, split: str) -> str:
+    """The name the method's settings are made for (:meth:`CenDerNetConfig.for_dataset`): ``dataset``, except
+    ``industrial`` for a ``bop`` folder in the multi-sensor layout (bin-picking piles: their own centre targets)."""
+    if dataset == "bop" and data_root is not None:
+        from bop_cender.data.industrial import multi_sensor_folder
+
+        if multi_sensor_folder(Path(data_root), split) is not None:
+            return "industrial"
+    return dataset
 
 
 def _file_digest(path: str | None) -> str | None:

@@ -176,3 +176,19 @@ def test_the_method_runs_across_cameras_of_several_sizes_and_writes_the_evaluate
     assert rows and {(r.scene_id, r.im_id) for r in rows} == {(1, 0)}  # the evaluated sensor's image only
     assert main(["score", str(out), "--no-progress"]) == 0
     assert "bop25_mAP_mm" in capsys.readouterr().out
+
+
+def test_a_multi_sensor_folder_gets_the_bin_picking_centre_targets(bins: Path, tmp_path: Path) -> None:
+    """A blob from 10 % visible, s_e 0.5 (T-LESS's 50 % left most parts of a bin without one: oracle bop25_mAP 0.395
+    against 0.893, results/accuracy/industrial/README.md); a classic BOP folder keeps T-LESS's."""
+    from bop_cender.method import CenDerNetConfig
+    from bop_cender.runner.request import config_layout
+
+    assert (
+        config_layout("bop", str(bins), "test") == "industrial" and config_layout("tless", str(bins), "test") == "tless"
+    )
+    assert config_layout("bop", str(tmp_path), "test") == "bop" and config_layout("bop", None, "test") == "bop"
+    targets = CenDerNetConfig.for_dataset("industrial").targets
+    assert (targets.min_visib_fract, targets.s_e, targets.per_object_channels) == (0.1, 0.5, True)
+    assert CenDerNetConfig.for_dataset("ipd").targets == targets
+    assert CenDerNetConfig.for_dataset("bop").targets.min_visib_fract == 0.5
