@@ -70,9 +70,10 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
     dataset = open_with_demo(data_request(args), announce=announce)
     meshes = MeshCache(dataset.models)
     if args.weights == "oracle":
+        from bop_cender.data.industrial import config_layout
         from bop_cender.net.oracle import OraclePredictor
 
-        targets = TargetConfig.for_dataset(kind)
+        targets = TargetConfig.for_dataset(config_layout(args.dataset, args.data_root, dataset.split))
         predictor = OraclePredictor(dataset.models, meshes, targets, device=device)
         source = "oracle"
     else:

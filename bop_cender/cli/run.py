@@ -159,9 +159,9 @@ def run_config(args: argparse.Namespace) -> CenDerNetConfig:
     Raises:
         ConfigError: a bad setting, or more starts to refine than candidates (naming the option that gave them).
     """
+    from bop_cender.data.industrial import config_layout
     from bop_cender.data.registry import DEFAULT_SPLIT
     from bop_cender.method import CenDerNetConfig
-    from bop_cender.runner.request import config_layout
 
     options = [f"poses.seed={args.seed}"]
     for name, value in (("candidates.n", args.candidates), ("candidates.top_k", args.top_k)):  # count() refused < 1

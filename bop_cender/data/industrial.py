@@ -59,6 +59,15 @@ def multi_sensor_folder(root: Path, split: str, split_type: str | None = None) -
         return None
 
 
+def config_layout(dataset: str, data_root: str | Path | None, split: str) -> str:
+    """The name the method's settings and centre targets are made for (``CenDerNetConfig.for_dataset``,
+    ``TargetConfig.for_dataset``): ``dataset``, except ``industrial`` for a ``bop`` folder in the multi-sensor layout
+    (bin-picking piles: their own centre targets). The one place ``run``, ``train`` and ``heatmaps`` choose it."""
+    if dataset == "bop" and data_root is not None and multi_sensor_folder(Path(data_root), split) is not None:
+        return "industrial"
+    return dataset
+
+
 def open_industrial(
     root: str | Path,
     split: str,

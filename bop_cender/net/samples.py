@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from bop_cender.data.bop_io import atomic_path
+from bop_cender.data.canvas import on_one_canvas
 from bop_cender.data.types import Dataset, ObjectModel, Scene
 from bop_cender.errors import DatasetError
 from bop_cender.net.patch_maps import PatchMaps
@@ -108,7 +109,7 @@ def load_samples(
     vote_tables: list[np.ndarray] = []
     size = None
     for key in progress_bar(keys, desc=f"targets {dataset.name} {dataset.split}", unit="scene", disable=not progress):
-        scene = dataset.loader(key)
+        scene = on_one_canvas(dataset.loader(key))  # a multi-sensor capture's cameras at the evaluated one's size
         rgb = scene_rgb(scene)
         if size is None:
             size = rgb.shape[1:3]

@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from bop_cender.data.bop_io import check_output_dir, write_text_atomic
+from bop_cender.data.industrial import config_layout
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
@@ -274,8 +275,8 @@ def train(
     if checkpoint_path.exists() and not resume:
         raise ConfigError("holds a training run already: pass --resume to continue it, or another --out", file=run_dir)
     device = torch.device(device)
-    kind = "dimo" if config.dataset == "dimo" else "tless"
-    targets = TargetConfig.for_dataset(kind)
+    kind = "dimo" if config.dataset == "dimo" else "tless"  # the weights' kind (one channel, or one per object)
+    targets = TargetConfig.for_dataset(config_layout(config.dataset, config.data_root, config.split))
     votes = config.network_spec().center_votes
     train_set = _open_samples(
         config.dataset, config.data_root, config.split, config.limit_scenes, targets, cache_dir, progress, votes=votes

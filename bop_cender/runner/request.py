@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bop_cender.data.bop_io import check_output_dir, check_output_file
+from bop_cender.data.industrial import config_layout
 from bop_cender.data.types import Dataset, Scene
 from bop_cender.errors import BopCenderError, ConfigError, DatasetWarning
 from bop_cender.eval.toolkit_constants import TOOLKIT_TEST_WIDTHS
@@ -124,17 +125,6 @@ class RunRequest:
             "max_views": self.max_views,
         }
         return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def config_layout(dataset: str, data_root: str | Path | None, split: str) -> str:
-    """The name the method's settings are made for (:meth:`CenDerNetConfig.for_dataset`): ``dataset``, except
-    ``industrial`` for a ``bop`` folder in the multi-sensor layout (bin-picking piles: their own centre targets)."""
-    if dataset == "bop" and data_root is not None:
-        from bop_cender.data.industrial import multi_sensor_folder
-
-        if multi_sensor_folder(Path(data_root), split) is not None:
-            return "industrial"
-    return dataset
 
 
 def _file_digest(path: str | None) -> str | None:

@@ -181,8 +181,8 @@ def test_the_method_runs_across_cameras_of_several_sizes_and_writes_the_evaluate
 def test_a_multi_sensor_folder_gets_the_bin_picking_centre_targets(bins: Path, tmp_path: Path) -> None:
     """A blob from 10 % visible, s_e 0.5 (T-LESS's 50 % left most parts of a bin without one: oracle bop25_mAP 0.395
     against 0.893, results/accuracy/industrial/README.md); a classic BOP folder keeps T-LESS's."""
+    from bop_cender.data.industrial import config_layout
     from bop_cender.method import CenDerNetConfig
-    from bop_cender.runner.request import config_layout
 
     assert (
         config_layout("bop", str(bins), "test") == "industrial" and config_layout("tless", str(bins), "test") == "tless"
@@ -192,3 +192,18 @@ def test_a_multi_sensor_folder_gets_the_bin_picking_centre_targets(bins: Path, t
     assert (targets.min_visib_fract, targets.s_e, targets.per_object_channels) == (0.1, 0.5, True)
     assert CenDerNetConfig.for_dataset("ipd").targets == targets
     assert CenDerNetConfig.for_dataset("bop").targets.min_visib_fract == 0.5
+
+
+def test_train_reads_the_multi_sensor_train_split_at_one_size_with_the_bin_targets(bins: Path, tmp_path: Path) -> None:
+    """``train`` on the layout's train split: every camera of a capture at the evaluated one's size, the centre
+    targets of bins (one place chooses them for run, train and heatmaps: data/industrial.py config_layout)."""
+    from bop_cender.net.train import TrainConfig, train
+    from bop_cender.net.weights import load_weights
+
+    config = TrainConfig(dataset="bop", data_root=str(bins), split="train", epochs=1, batch_size=4,
+                         variant="tless-lean", width=0.25, seed=1)  # fmt: skip
+    result = train(config, tmp_path / "run", progress=False)
+    assert result.epochs_done == 1
+    weights = load_weights(tmp_path / "run" / "weights.pt")
+    assert weights.targets.min_visib_fract == 0.1 and weights.targets.s_e == 0.5
+    assert weights.channel_obj_ids == (1, 2, 3, 4, 5, 6)
