@@ -53,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
 
     split = args.split or DEFAULT_SPLIT[args.dataset]
     with tempfile.TemporaryDirectory() as tmp:
-        request = RunRequest(args.dataset, args.data_root, split, Path(tmp) / "x_dimo-sim.csv", heatmaps=args.heatmaps,
+        out = Path(tmp) / f"rescored_{args.dataset}-{split}.csv"  # never written: the rows are scored in memory
+        request = RunRequest(args.dataset, args.data_root, split, out, heatmaps=args.heatmaps,
                              weights=args.weights, task="detection")  # fmt: skip
         request, dataset, method = method_for(request)
         keys = dataset.scene_keys[: args.limit_scenes]

@@ -61,16 +61,12 @@ INSTALL = "pip install bpy==4.2.0 (Blender as a Python module, Python 3.11 only;
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bop_cender.synth.relook import add_look_arguments
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("src", type=Path, help="a DIMO- or T-LESS-layout dataset root")
-    ap.add_argument("dst", type=Path, help="where the copy goes (must not exist)")
-    ap.add_argument("--dataset", choices=("dimo", "tless"), default="dimo", help="the layout of SRC (default dimo)")
-    ap.add_argument(
-        "--split", default=None, help="the split whose images are rendered again (default: dimo sim, tless test)"
-    )
+    add_look_arguments(ap)
     ap.add_argument("--seed", type=int, default=0, help="draws the looks and Cycles' sampling (default 0)")
     ap.add_argument("--samples", type=int, default=32, help="Cycles samples per pixel (default 32)")
-    ap.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
     ap.add_argument("--resume", action="store_true", help="continue DST.partial of an earlier, unfinished run")
     ap.add_argument("--threads", type=int, default=0, help="CPU threads for Cycles (default 0: all cores)")
     ap.add_argument("--no-denoise", action="store_true", help="no OpenImageDenoise (noisier, a little faster)")

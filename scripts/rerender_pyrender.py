@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -34,16 +33,12 @@ _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bop_cender.synth.relook import add_look_arguments
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("src", type=Path, help="a DIMO- or T-LESS-layout dataset root")
-    ap.add_argument("dst", type=Path, help="where the copy goes (must not exist)")
-    ap.add_argument("--dataset", choices=("dimo", "tless"), default="dimo", help="the layout of SRC (default dimo)")
-    ap.add_argument(
-        "--split", default=None, help="the split whose images are rendered again (default: dimo sim, tless test)"
-    )
+    add_look_arguments(ap)
     ap.add_argument("--seed", type=int, default=0, help="draws the sensor noise")
     ap.add_argument("--noise", type=float, default=3.0, help="sensor noise, standard deviation in grey levels")
-    ap.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
     args = ap.parse_args(argv)
     for flag, bad, expected in (("--noise", args.noise < 0, "0 or more"),
                                 ("--limit-scenes", args.limit_scenes is not None and args.limit_scenes < 1, "1 or more")):  # fmt: skip

@@ -29,6 +29,7 @@ import numpy as np
 
 from bop_cender.data.layout import TARGETS_FILE
 from bop_cender.data.types import Dataset, ObjectModel
+from bop_cender.eval.detection import time_per_image
 from bop_cender.eval.ground_truth import GroundTruth, collect_ground_truth
 from bop_cender.eval.matching import (
     MSPD_THRESHOLDS,
@@ -292,13 +293,10 @@ def build_report(
 
 
 def average_time_per_image(rows: Sequence[BopEstimate]) -> float | None:
-    """``bop19_average_time_per_image``: mean over images of their time; None if any row has time < 0."""
-    times: dict[tuple[int, int], float] = {}
-    for row in rows:
-        if row.time < 0:
-            return None
-        times.setdefault((row.scene_id, row.im_id), row.time)
-    return float(np.mean(list(times.values()))) if times else None
+    """``bop19_average_time_per_image``: mean over images of their time; None if any row has time < 0 (the toolkit's
+    ``check_consistent_timings``, shared with BOP'24: :func:`~bop_cender.eval.detection.time_per_image`; the reader
+    has checked the times' consistency)."""
+    return time_per_image(rows)[0]
 
 
 # --------------------------------------------------------------------------------------------- helpers

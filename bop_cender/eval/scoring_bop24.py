@@ -177,7 +177,7 @@ def score_detections(
                 status[name][first : first + n] = np.where(hit, np.where(visible[np.maximum(taken, 0)], 1, -1), 0)
             best_gt[first : first + n] = np.asarray(gt_ids)[np.argmin(values["mssd_mm"][cols], axis=1)]
         first += n
-    n_gts = _visible_instances(gt, images.keys, visib, targetable)
+    n_gts, hidden = _instances(gt, images.keys, visib, targetable)
     obj_ids = np.array([r.obj_id for r in evaluated], dtype=np.int64)
     est_scores = np.array([r.score for r in evaluated], dtype=np.float64)
     per_type = {
@@ -203,7 +203,7 @@ def score_detections(
         pairs=len(pairs),
         target_images=len(images.keys),
         gt_instances=sum(n_gts.values()),
-        gt_instances_hidden=_hidden_instances(gt, images.keys, visib, targetable),
+        gt_instances_hidden=hidden,
     )
     return DetectionReport(
         scores=scores,
@@ -296,26 +296,23 @@ def _pairs(
     return Pairs(as_int(est), as_int(img), as_int(gt_id), as_int(obj), poses(T_e), poses(T_g), images), per_group
 
 
-def _visible_instances(
+def _instances(
     gt: GroundTruth, images: Sequence[tuple[int, int]], visib: dict, targetable: set[int]
-) -> dict[int, int]:
-    """Per target object, its GT instances at least 10 % visible in the target images (recall's denominator)."""
+) -> tuple[dict[int, int], int]:
+    """Per target object, its GT instances at least 10 % visible in the target images (recall's denominator), and
+    how many target-object instances are less visible (neither hits nor misses)."""
     counts: dict[int, int] = {}
+    hidden = 0
     for key in images:
         fracts = visib.get(key, {})
         for g in gt.images[key].instances:
-            if g.obj_id in targetable and fracts.get(g.gt_id, 0.0) >= MIN_VISIB_FRACT:
+            if g.obj_id not in targetable:
+                continue
+            if fracts.get(g.gt_id, 0.0) >= MIN_VISIB_FRACT:
                 counts[g.obj_id] = counts.get(g.obj_id, 0) + 1
-    return counts
-
-
-def _hidden_instances(gt: GroundTruth, images: Sequence[tuple[int, int]], visib: dict, targetable: set[int]) -> int:
-    return sum(
-        1
-        for key in images
-        for g in gt.images[key].instances
-        if g.obj_id in targetable and visib.get(key, {}).get(g.gt_id, 0.0) < MIN_VISIB_FRACT
-    )
+            else:
+                hidden += 1
+    return counts, hidden
 
 
 def _records(evaluated, pairs: Pairs, mssd_mm, values, status, best_gt) -> list[EvaluatedEstimate]:

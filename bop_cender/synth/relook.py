@@ -29,6 +29,22 @@ Redraw = Callable[[Scene, CameraView, str], np.ndarray]
 DEFAULT_SPLIT = {"dimo": "sim", "tless": "test"}
 
 
+def add_look_arguments(parser) -> None:
+    """The arguments every re-rendering script takes (``scripts/rerender_*.py``): ``src``, ``dst``, ``--dataset``,
+    ``--split``, ``--limit-scenes``; each script adds its own."""
+    from pathlib import Path as _Path
+
+    parser.add_argument("src", type=_Path, help="a DIMO- or T-LESS-layout dataset root")
+    parser.add_argument("dst", type=_Path, help="where the copy goes (must not exist)")
+    parser.add_argument(
+        "--dataset", choices=tuple(DEFAULT_SPLIT), default="dimo", help="the layout of SRC (default dimo)"
+    )
+    parser.add_argument(
+        "--split", default=None, help="the split whose images are rendered again (default: dimo sim, tless test)"
+    )
+    parser.add_argument("--limit-scenes", type=int, default=None, help="only the first K scenes of the split")
+
+
 def open_every_image(layout: str, root: Path, split: str) -> Dataset:
     """The split with every image a view of some scene (DIMO: every variant and viewpoint, not only the paper's
     selection; T-LESS / BOP: each image its own group), so that no image of the copy keeps the source's look."""

@@ -30,6 +30,14 @@ DOMAINS = ("sim", "real", "tless", "pbr", "randomised")
 #: ``bop-cender synth --appearance`` values: the layout's own look of its training folders (DIMO's sim camera,
 #: T-LESS's ``train_pbr`` renders), or domain randomisation of them. Test folders keep their look either way.
 APPEARANCES = ("default", "randomised")
+
+
+def check_appearance(appearance: str) -> None:
+    """Raise ValueError unless ``appearance`` is one of :data:`APPEARANCES` (every synth spec's check)."""
+    if appearance not in APPEARANCES:
+        raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {appearance!r}")
+
+
 #: Surfaces of the ``randomised`` domain's objects: DIMO's metal parts, T-LESS's plastic ones.
 SURFACES = ("metal", "plastic")
 #: Background kinds: a tiled procedural texture under a gradient, or one flat colour.

@@ -35,7 +35,7 @@ from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier, make_part_set
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import dimo_rig
-from bop_cender.synth.styles import APPEARANCES, make_style
+from bop_cender.synth.styles import check_appearance, make_style
 
 N_CARRIERS = 3
 #: (min, max) number of parts per composition id; compositions in SAME_TYPE use one part type.
@@ -87,8 +87,7 @@ class DimoSpec:
     appearance: str = "default"
 
     def __post_init__(self) -> None:
-        if self.appearance not in APPEARANCES:
-            raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
+        check_appearance(self.appearance)
         bad = [v for v in self.variants if not 0 <= v <= 70]
         if bad:
             raise ValueError(f"sim variants (--variants) must be 0..70, got {bad}")

@@ -35,7 +35,7 @@ from bop_cender.synth.imaging import render_views
 from bop_cender.synth.parts import Part, make_carrier
 from bop_cender.synth.piles import PileGeometryCache, build_pile
 from bop_cender.synth.rigs import _direction, intrinsics, look_at
-from bop_cender.synth.styles import APPEARANCES, make_style
+from bop_cender.synth.styles import check_appearance, make_style
 from bop_cender.synth.write_dimo import DIMO_CATALOGUE_SEED, dimo_models
 from bop_cender.synth.write_tless import write_targets as write_bop_targets
 
@@ -82,8 +82,7 @@ class IndustrialSynthSpec:
     appearance: str = "default"
 
     def __post_init__(self) -> None:
-        if self.appearance not in APPEARANCES:
-            raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
+        check_appearance(self.appearance)
         lo, hi = self.parts_per_scene
         if not 1 <= lo <= hi <= 40:
             raise ValueError(f"parts per bin (--parts) must be MIN,MAX with 1 <= MIN <= MAX <= 40, got {lo},{hi}")

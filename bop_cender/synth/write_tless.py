@@ -33,7 +33,7 @@ from bop_cender.synth.models_info import write_model_folders
 from bop_cender.synth.parts import Part, make_carrier
 from bop_cender.synth.piles import PileGeometryCache
 from bop_cender.synth.rigs import TLESS_FX, TLESS_FY, TLESS_WIDTH, tless_cameras
-from bop_cender.synth.styles import APPEARANCES, make_style
+from bop_cender.synth.styles import check_appearance, make_style
 
 DEPTH_SCALE = 0.1
 #: The split's camera file at the dataset root.
@@ -83,8 +83,7 @@ class TlessSpec:
     appearance: str = "default"
 
     def __post_init__(self) -> None:
-        if self.appearance not in APPEARANCES:
-            raise ValueError(f"appearance must be one of {', '.join(APPEARANCES)}, got {self.appearance!r}")
+        check_appearance(self.appearance)
         for name in ("objects_per_scene", "models_per_scene"):
             lo, hi = getattr(self, name)
             if not 1 <= lo <= hi:
