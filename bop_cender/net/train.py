@@ -38,6 +38,7 @@ from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment_with_votes
+from bop_cender.net.init_from import start_from
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
 from bop_cender.net.predictor import known_class_mask
 from bop_cender.net.samples import SampleSet, load_samples
@@ -302,25 +303,7 @@ def train(
     torch.manual_seed(config.seed)
     model = UNet(spec).to(device)
     if config.init_weights is not None:
-        init = load_weights(config.init_weights, dataset=config.dataset, field="--init-weights")
-        if not _can_start_from(init.model.spec, spec):
-            raise ConfigError(
-                f"its network ({init.model.spec.name}, {init.model.spec.center_channels} center channels) is not"
-                f" this run's ({spec.name}, {spec.center_channels})",
-                file=config.init_weights,
-                field="--init-weights",
-            )
-        if init.channel_obj_ids != train_set.channel_obj_ids:
-            raise ConfigError(
-                f"its center channels are of object ids {_ids_text(init.channel_obj_ids)}; this run's data has"
-                f" {_ids_text(train_set.channel_obj_ids)}",
-                file=config.init_weights,
-                field="--init-weights",
-            )
-        missing, unexpected = model.load_state_dict(init.model.state_dict(), strict=False)
-        # the modules a run may add to the init weights' network: each starts as the identity (_can_start_from)
-        new_modules = ("context.", "refine.", "center_branch.", "vote_head.")
-        assert not unexpected and all(k.startswith(new_modules) for k in missing), (missing, unexpected)
+        start_from(model, config.init_weights, train_set.channel_obj_ids)
     trainable = _freeze_all_but(model, config.train_only)
     optimiser = torch.optim.Adam(trainable, lr=config.lr)
     history: list[EpochRecord] = []
@@ -369,10 +352,6 @@ def train(
     return TrainSummary(run_dir, config.epochs, start_epoch, history, time.perf_counter() - t_start)
 
 
-def _ids_text(ids: tuple[int, ...] | None) -> str:
-    return "none (one shared channel)" if ids is None else str(list(ids))
-
-
 def _freeze_all_but(model: UNet, train_only: tuple[str, ...]) -> list[torch.nn.Parameter]:
     """Freezes (``requires_grad`` False) every top-level module not named in ``train_only`` (empty: none) and returns
     the parameters that train; :func:`_train_mode` keeps the frozen modules in eval mode.
@@ -406,24 +385,6 @@ def _train_mode(model: UNet, train_only: tuple[str, ...]) -> None:
         for name, module in model.named_children():
             if name not in train_only:
                 module.eval()
-
-
-def _can_start_from(init: UNetSpec, spec: UNetSpec) -> bool:
-    """Whether weights of network ``init`` can start a run of ``spec``: the same network, or ``spec`` adds context
-    convolutions, a full-resolution refinement, a centre branch and/or a vote head to it (all start as the identity,
-    so the run starts from exactly what ``init`` computed)."""
-    if init == spec:
-        return True
-    base = replace(spec, name=init.name)
-    if not init.context_dilations:
-        base = replace(base, context_dilations=())
-    if not init.refine_channels:
-        base = replace(base, refine_channels=0)
-    if not init.center_branch_channels:
-        base = replace(base, center_branch_channels=0)
-    if not init.center_votes:  # a new vote head: no pixel votes at first, so the maps are the head's
-        base = replace(base, center_votes=False, vote_sigma_px=init.vote_sigma_px, vote_mix=init.vote_mix)
-    return base == init
 
 
 def _open_samples(
