@@ -81,7 +81,8 @@ def estimate_figure(scene_key: str, panels: Sequence[Panel], meshes: MeshCache, 
     panels = list(panels)[:MAX_IMAGES]
     n = max(1, len(panels))
     H, W = (panels[0].image.height, panels[0].image.width) if panels else (1, 1)
-    fig, axes = plt.subplots(1, n, figsize=(2.4 * n, 2.4 * H / W + 0.7), squeeze=False)
+    panel = max(2.4, 5.0 / n)  # inches per panel: a scene of one or two images is not drawn as a thumbnail
+    fig, axes = plt.subplots(1, n, figsize=(panel * n, panel * H / W + 0.7), squeeze=False)
     for ax, panel in zip(axes[0], panels, strict=False):
         im = panel.image
         instance = panel_masks(panel, meshes)
