@@ -26,6 +26,7 @@ COMMANDS = (
     "bop_cender.cli.synth",
     "bop_cender.cli.score",
     "bop_cender.cli.compare",
+    "bop_cender.cli.report",
     "bop_cender.cli.convert_pvnet",
     "bop_cender.cli.run",
     "bop_cender.cli.train",
@@ -58,7 +59,7 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
 
 #: Sub-commands that render a lot and gain from tcmalloc (see bop_cender/launcher.py); ``info`` may
 #: generate the embedded demo.
-HEAVY_COMMANDS = {"info", "synth", "score", "compare", "run", "train", "heatmaps", "crosscheck"}
+HEAVY_COMMANDS = {"info", "synth", "score", "compare", "report", "run", "train", "heatmaps", "crosscheck"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

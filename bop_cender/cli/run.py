@@ -117,6 +117,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         " has test_targets_bop24.json and no test_targets_bop19.json, else localization)",
     )
     p.add_argument("--score", action="store_true", help="score the results when done (bop-cender score)")
+    p.add_argument(
+        "--report",
+        action="store_true",
+        help="write the run's page when done (bop-cender report): <csv stem>_report/index.html beside the CSV, with"
+        " the --vis figures where given",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
 
@@ -248,6 +254,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_scored(score_file(summary.out, progress=not args.no_progress), summary.out)
     else:
         print(f"next: bop-cender score {summary.out}")
+    if args.report:  # after a partial failure too: the page lists the failed scenes
+        from bop_cender.cli.report import print_written
+        from bop_cender.report.run_report import write_report
+
+        print_written(write_report(summary.out, vis_dir=request.vis_dir, progress=not args.no_progress))
     if summary.failed:  # the file is whole for the other scenes, but the run did not do what was asked
         print(f"error: {len(summary.failed)} of {summary.scenes} scene(s) failed (above; listed in {summary.sidecar},"
               " their targets count as misses); mend the input and rerun with --resume to redo only them",

@@ -99,6 +99,9 @@ class DetectionReport:
     notes: list[str] = field(default_factory=list)
     method: str | None = None
     data_origin: str | None = None
+    #: ``(scene_id, im_id, gt_id, obj_id)`` of every GT instance at least 10 % visible in the target images (recall's
+    #: denominators), kept so that recall can be broken down per scene (``bop-cender report``); not in the JSON.
+    visible_gts: tuple[tuple[int, int, int, int], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The scores JSON content (module docstring)."""

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bop_cender.data.bop_io import load_json, write_text_atomic, write_texts_atomic
+from bop_cender.eval.matching import Matches
 
 #: The scores, in the order they are printed and written.
 SCORE_KEYS = ("AR", "AR_VSD", "AR_MSSD", "AR_MSPD", "AR_MSPD<5px", "AR_MSSD<5%")
@@ -152,6 +153,9 @@ class ScoreReport:
         notes: human-readable lines on what was done and why.
         records: one per evaluated estimate.
         timings: seconds per stage.
+        matches: the greedy matches per metric (``mssd``, ``mspd``, ``vsd`` with depth) over the valid GTs, kept so
+            that recall can be broken down per object or scene (``bop-cender report``) without scoring again; not
+            written to the scores JSON.
     """
 
     scores: dict[str, float | None]
@@ -166,6 +170,7 @@ class ScoreReport:
     notes: list[str] = field(default_factory=list)
     records: list[EstimateRecord] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
+    matches: dict[str, Matches] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """The scores JSON content (see the module docstring)."""

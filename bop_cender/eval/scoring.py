@@ -289,6 +289,11 @@ def build_report(
         notes=notes,
         records=records,
         timings={} if timings is None else timings,
+        matches={
+            "mssd": matched.mssd,
+            "mspd": matched.mspd,
+            **({"vsd": matched.vsd} if matched.vsd is not None else {}),
+        },
     )
 
 

@@ -177,7 +177,7 @@ def score_detections(
                 status[name][first : first + n] = np.where(hit, np.where(visible[np.maximum(taken, 0)], 1, -1), 0)
             best_gt[first : first + n] = np.asarray(gt_ids)[np.argmin(values["mssd_mm"][cols], axis=1)]
         first += n
-    n_gts, hidden = _instances(gt, images.keys, visib, targetable)
+    n_gts, hidden, visible = _instances(gt, images.keys, visib, targetable)
     obj_ids = np.array([r.obj_id for r in evaluated], dtype=np.int64)
     est_scores = np.array([r.score for r in evaluated], dtype=np.float64)
     per_type = {
@@ -221,6 +221,7 @@ def score_detections(
         gt_pose_source=gt.pose_source,
         records=records,
         timings=timings,
+        visible_gts=visible,
     )
 
 
@@ -298,10 +299,12 @@ def _pairs(
 
 def _instances(
     gt: GroundTruth, images: Sequence[tuple[int, int]], visib: dict, targetable: set[int]
-) -> tuple[dict[int, int], int]:
-    """Per target object, its GT instances at least 10 % visible in the target images (recall's denominator), and
-    how many target-object instances are less visible (neither hits nor misses)."""
+) -> tuple[dict[int, int], int, tuple[tuple[int, int, int, int], ...]]:
+    """Per target object, its GT instances at least 10 % visible in the target images (recall's denominator), how
+    many target-object instances are less visible (neither hits nor misses), and the visible ones'
+    ``(scene_id, im_id, gt_id, obj_id)``."""
     counts: dict[int, int] = {}
+    visible: list[tuple[int, int, int, int]] = []
     hidden = 0
     for key in images:
         fracts = visib.get(key, {})
@@ -310,9 +313,10 @@ def _instances(
                 continue
             if fracts.get(g.gt_id, 0.0) >= MIN_VISIB_FRACT:
                 counts[g.obj_id] = counts.get(g.obj_id, 0) + 1
+                visible.append((key[0], key[1], g.gt_id, g.obj_id))
             else:
                 hidden += 1
-    return counts, hidden
+    return counts, hidden, tuple(visible)
 
 
 def _records(evaluated, pairs: Pairs, mssd_mm, values, status, best_gt) -> list[EvaluatedEstimate]:

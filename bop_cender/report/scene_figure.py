@@ -155,7 +155,7 @@ def scene_figure(
         mask = (est_inst[v] >= 0) | (gt_inst[v] >= 0)
         top, left, h, w = crop_box(mask, np.concatenate([detected_xy, gt_xy]))
         window = (slice(top, top + h), slice(left, left + w))
-        rgb = _read_rgb(view, H, W)
+        rgb = read_rgb(view, H, W)
         axes[0, v].imshow(rgb[window])
         axes[0, v].set_title(f"image {view.im_id}", fontsize=7)
         axes[1, v].imshow(center[v][window], cmap="magma", vmin=0, vmax=1)
@@ -169,10 +169,10 @@ def scene_figure(
         if verdicts is not None:
             for k, found in enumerate(verdicts.gt_found):
                 if not found:
-                    overlay[_outline(gt_inst[v] == k)] = MISSED
+                    overlay[outline(gt_inst[v] == k)] = MISSED
         for k in range(len(est)):
             colour = UNJUDGED if verdicts is None else (RIGHT if verdicts.estimate_right[k] else WRONG)
-            overlay[_outline(est_inst[v] == k)] = colour
+            overlay[outline(est_inst[v] == k)] = colour
         axes[3, v].imshow(overlay[window])
     pose_label = "poses (yellow)" if verdicts is None else "poses: right (green) /\nwrong (red) / missed GT (cyan)"
     for ax, label in zip(axes[:, 0], ("input", "centers", "curvature", pose_label), strict=True):
@@ -220,14 +220,14 @@ def _instances(objects, scene: Scene, meshes, H: int, W: int) -> np.ndarray:
     return render_scene(mesh_list, torch.as_tensor(T, dtype=torch.float32), Ks, H, W).instance.numpy()
 
 
-def _outline(mask: np.ndarray) -> np.ndarray:
+def outline(mask: np.ndarray) -> np.ndarray:
     """``(H, W)`` bool: the pixels of ``mask`` with a 4-neighbour outside it (or on the image's border)."""
     inner = np.zeros_like(mask)
     inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
     return mask & ~inner
 
 
-def _read_rgb(view, H: int, W: int) -> np.ndarray:
+def read_rgb(view, H: int, W: int) -> np.ndarray:
     """The view's image as the method saw it (:func:`~bop_cender.data.canvas.read_view_rgb`); black where unreadable."""
     from bop_cender.data.canvas import read_view_rgb
     from bop_cender.errors import BopCenderError

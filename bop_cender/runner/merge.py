@@ -59,6 +59,7 @@ def merge(
     """
     rows = []
     stage_seconds: dict[str, float] = {}
+    scene_seconds: dict[str, dict[str, float]] = {}
     failed, empty = {}, []
     n_estimates = 0
     for key in keys:
@@ -73,6 +74,7 @@ def merge(
         n_estimates += len(est.objects)
         for stage, seconds in est.timings.items():
             stage_seconds[stage] = stage_seconds.get(stage, 0.0) + seconds
+        scene_seconds[key] = {stage: round(seconds, 3) for stage, seconds in est.timings.items()}
         scene = dataset.scene(key)
         image_time = -1.0 if request.deterministic_time else est.time_s / max(1, len(scene.evaluated_views))
         rows.extend(scene_estimates_to_rows(scene, replace(est, time_s=image_time)))
@@ -103,6 +105,21 @@ def merge(
             "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
             # scenes with no rows because they failed (their targets count as misses); absent when none did
             **({"failed_scenes": failed} if failed else {}),
+            # seconds per stage, in all and per scene (`bop-cender report` shows them); left out where the run was
+            # asked for reproducible files (--deterministic-time), as the rows' times are
+            **(
+                {}
+                if request.deterministic_time
+                else {
+                    "timings": {
+                        "stages": {stage: round(seconds, 3) for stage, seconds in stage_seconds.items()},
+                        "wall": round(time.perf_counter() - start, 3),
+                        "scenes": scene_seconds,
+                    }
+                }
+            ),
+            # where the run wrote its per-scene figures (`bop-cender report` shows them)
+            **({"vis_dir": str(request.vis_dir.resolve())} if request.vis_dir is not None else {}),
         },
     )
     if not failed:

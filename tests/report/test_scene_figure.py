@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from bop_cender.data.types import ObjectModel
 from bop_cender.geometry.symmetry import ContinuousSymmetry
-from bop_cender.report.scene_figure import _outline, crop_box, figure_title, judge_estimates
+from bop_cender.report.scene_figure import crop_box, figure_title, judge_estimates, outline
 
 
 def _pose(rotvec=(0.0, 0.0, 0.0), t=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -95,11 +95,11 @@ def test_crop_box_moves_inside_the_image_and_never_exceeds_it() -> None:
 def test_outline_is_the_mask_pixels_next_to_the_outside() -> None:
     mask = np.zeros((6, 7), dtype=bool)
     mask[1:5, 1:6] = True
-    outline = _outline(mask)
-    assert outline[1, 1:6].all() and outline[4, 1:6].all() and outline[1:5, 1].all() and outline[1:5, 5].all()
-    assert not outline[2:4, 2:5].any() and not outline[~mask].any()
+    edge = outline(mask)
+    assert edge[1, 1:6].all() and edge[4, 1:6].all() and edge[1:5, 1].all() and edge[1:5, 5].all()
+    assert not edge[2:4, 2:5].any() and not edge[~mask].any()
     full = np.ones((3, 3), dtype=bool)
-    assert _outline(full).sum() == 8  # the image's border counts as outside
+    assert outline(full).sum() == 8  # the image's border counts as outside
 
 
 def test_the_title_of_a_narrow_figure_wraps_and_keeps_each_time_whole() -> None:
