@@ -21,7 +21,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from bop_cender import __version__
 from bop_cender.errors import ConfigError
 
 #: Where the work can run: this machine (one process or ``--workers`` processes) or a Ray cluster.
@@ -163,44 +162,34 @@ def start_actors(cls: type, count: int, *args: Any) -> list[Any]:
 
 @dataclass(frozen=True)
 class WorkerHello:
-    """What an actor says once built (its ``hello()``): its node, its bop-cender version, and why it cannot work
-    (None: it can)."""
+    """What an actor says once built (its ``hello()``): its node, and why it cannot work (None: it can)."""
 
     node: str
-    version: str
     problem: str | None = None
 
     @classmethod
     def here(cls, problem: str | None = None) -> WorkerHello:
         """This process's hello, on the node it runs on."""
-        return cls(node_name(), __version__, problem)
+        return cls(node_name(), problem)
 
 
 def check_started(actors: list[Any]) -> list[WorkerHello]:
-    """Every actor built, on its node, before any job (each answers ``hello()``): a node without bop-cender, or with
-    another version, stops the command with one error, not with every job failed the same way. The hellos, for the
-    caller to judge their problems.
+    """Every actor built, on its node, before any job (each answers ``hello()``): a node without bop-cender stops the
+    command with one error, not with every job failed the same way. The hellos, for the caller to judge their
+    problems.
 
     Raises:
-        ConfigError: an actor could not start, or runs another bop-cender version than this process.
+        ConfigError: an actor could not start.
     """
     ray = import_ray()
     try:
-        hellos = ray.get([actor.hello.remote() for actor in actors])
+        return ray.get([actor.hello.remote() for actor in actors])
     except ray.exceptions.RayError as e:
         raise ConfigError(
-            f"a Ray worker could not start ({first_line(e)}); every node needs bop-cender {__version__} installed,"
-            " with torch: docs/cluster.md",
+            f"a Ray worker could not start ({first_line(e)}); every node needs bop-cender installed (the same"
+            " version as here), with torch: docs/cluster.md",
             field="--executor",
         ) from None
-    for hello in hellos:
-        if hello.version != __version__:
-            raise ConfigError(
-                f"node {hello.node} runs bop-cender {hello.version}, this process {__version__}: install the same"
-                " version on every node",
-                field="--executor",
-            )
-    return hellos
 
 
 def stop_actors(actors: list[Any]) -> None:

@@ -90,7 +90,7 @@ class SceneWorker:
             )
 
     def hello(self) -> WorkerHello:
-        """The node, the version and the problem, if any: asked once by the run's process before any scene."""
+        """The node and the problem, if any: asked once by the run's process before any scene."""
         return WorkerHello.here(self.problem)
 
     def estimate(self, key: str) -> RemoteOutcome:
@@ -127,7 +127,7 @@ def ray_scenes(
 
     Raises:
         ConfigError: Ray not installed, the cluster cannot be reached, more workers than its CPUs, or an actor
-            could not start (bop-cender not installed on its node, or another version).
+            could not start (bop-cender not installed on its node).
         DatasetError: a node cannot open the data.
     """
     build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any actor starts

@@ -64,7 +64,7 @@ class SynthWorker:
         self.worker = LayoutWorker.build(layout, spec)
 
     def hello(self) -> WorkerHello:
-        """The node and the version, asked once by the driver before any job."""
+        """The node (and no problem: a synth actor needs nothing of its node), asked once before any job."""
         return WorkerHello.here()
 
     def write_job(self, job: Any) -> list[FolderFiles]:
