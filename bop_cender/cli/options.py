@@ -186,6 +186,32 @@ def add_protocol_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--workers``, ``--executor`` and ``--address``: where ``what`` (scenes, scene folders) are done, the same
+    options for ``run`` and ``synth`` (docs/cluster.md)."""
+    p.add_argument(
+        "--workers",
+        type=count("--workers"),
+        default=None,
+        help="processes, one torch thread each (default 1); with --executor ray: Ray actors, one CPU each (default:"
+        f" one per CPU of the cluster, at most one per {what})",
+    )
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help=f"local: this machine (default); ray: the {what} as Ray tasks on a cluster, their files sent back here"
+        ' (pip install -e ".[ray]"; every node needs bop-cender and the data at the same path: docs/cluster.md)',
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        metavar="auto|HOST:PORT",
+        help="with --executor ray: the cluster (auto: the one started on this machine with `ray start --head`;"
+        " HOST:PORT: its head); default: a Ray instance started on this machine for the command",
+    )
+
+
 def announce(line: str) -> None:
     """Tell the user what the command does on their behalf (the embedded demo), on stderr."""
     print(f"[bop-cender] {line}", file=sys.stderr)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from bop_cender.cli.options import add_data_options, announce, count, resolve_device
+from bop_cender.cli.options import add_data_options, add_executor_options, announce, count, resolve_device
 
 if TYPE_CHECKING:
     from bop_cender.method import CenDerNetConfig
@@ -16,6 +16,7 @@ EPILOG = """examples:
   bop-cender run --dataset dimo --split sim --data-root ~/dimo --workers 2 --out cendernet-oracle_dimo-sim.csv
   bop-cender run --dataset tless --data-root ~/bop/tless --split test --n-views 5 --score
   bop-cender run --dataset dimo --split sim --resume      # continue an interrupted run
+  bop-cender run --dataset dimo --split sim --data-root ~/dimo --executor ray --address HEAD:6379  # on a cluster
 Heatmaps: --heatmaps net (the default where weights are shipped for the dataset: --weights or the shipped ones);
 --heatmaps oracle renders them from the ground truth (stages 2 and 3 alone, no network).
 """
@@ -56,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="results CSV, named for the run's dataset and split (default: cendernet-<heatmaps>_<dataset>-<split>.csv here; split train_pbr: -train-pbr)",
     )
-    p.add_argument("--workers", type=count("--workers"), default=1, help="processes, one torch thread each (default 1)")
+    add_executor_options(p, "scene")
     p.add_argument(
         "--threads",
         type=count("--threads"),
@@ -216,6 +217,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         workers=args.workers, limit_scenes=args.limit_scenes, resume=args.resume,
         deterministic_time=args.deterministic_time, device=device, pose_device=pose_device,
         vis_dir=Path(args.vis) if args.vis else None, max_views=args.max_views, threads=args.threads, task=args.task,
+        executor=args.executor, address=args.address,
     )  # fmt: skip
     bar = None
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bop_cender.cli.options import announce, count
+from bop_cender.cli.options import add_executor_options, announce, count
 from bop_cender.errors import ConfigError
 
 EXAMPLES = """examples:
@@ -14,6 +14,7 @@ EXAMPLES = """examples:
   bop-cender synth --layout tless --out data/tless_synth --scenes 5 --views 20 --pbr-scenes 2
   bop-cender synth --layout tless --out data/tless_test --scenes 5 --seed 1
   bop-cender synth --layout industrial --out data/bins --scenes 2 --views 3 --train-scenes 2 --parts 10,20
+  bop-cender synth --layout dimo --out data/dimo_synth --scenes 200 --executor ray --address HEAD:6379
 --layout industrial writes the BOP-Industrial multi-sensor layout (as IPD, XYZ-IBD, ITODD-MV): bins of 10-16
 DIMO parts (--parts MIN,MAX) seen by 4 sensors: hires (gray 320x256, the evaluated one), left and right (RGB
 256x192), tof (gray + depth 240x180); test/ (with BOP'19 and BOP'24 targets) and train/. Read it with
@@ -94,7 +95,7 @@ def register(sub) -> None:
         "industrial: train/); "
         "test folders keep their look",
     )
-    p.add_argument("--workers", type=count("--workers"), default=1, help="processes (default 1)")
+    add_executor_options(p, "scene job")
     p.add_argument("--no-contact-sheets", action="store_true")
     p.add_argument(
         "--force", action="store_true", help="write into a non-empty --out folder that bop-cender synth did not make"
@@ -230,7 +231,10 @@ def cmd_synth(args: argparse.Namespace) -> int:
             )
     except ValueError as e:
         raise ConfigError(str(e), field="--parts" if "--parts" in str(e) else None) from None
-    report = generate(args.layout, args.out, spec, workers=args.workers, announce=announce)
+    report = generate(
+        args.layout, args.out, spec, workers=args.workers, announce=announce, executor=args.executor,
+        address=args.address,
+    )  # fmt: skip
     if args.layout == "dimo" and spec.n_viewpoints != 13:
         announce(_dimo_views_note(spec.n_viewpoints))
     print(

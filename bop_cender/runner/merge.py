@@ -101,6 +101,8 @@ def merge(
             "model_type": request.model_type,
             "config": request.config.as_dict(),
             "devices": {"heatmaps": request.device, "poses": request.pose_device},
+            # where this run's scenes were estimated (not in the shards' fingerprint: a resume may use another)
+            "executor": request.executor,
             "curvature_threshold": {"value": threshold[0], "from": threshold[1]},
             "time": "per image: the scene's wall time divided by its views" if not request.deterministic_time else -1,
             # scenes with no rows because they failed (their targets count as misses); absent when none did

@@ -1,5 +1,6 @@
-"""Where the scenes are estimated: in the run's process (with ``--threads`` for the compiled loops) or in a pool of
-worker processes (``--workers``), one outcome per scene as scenes finish.
+"""Where the scenes are estimated: in the run's process (with ``--threads`` for the compiled loops), in a pool of
+worker processes (``--workers``) or on a Ray cluster (``--executor ray``, :mod:`~bop_cender.runner.ray_executor`),
+one outcome per scene as scenes finish. :func:`execute_scenes` is the one place the executor is chosen.
 
 Worker processes are started with ``spawn``; each opens the dataset and builds the method itself (once, in its
 initializer), with one torch thread. Every random draw is seeded per scene, so the rows are the same whatever the
@@ -11,19 +12,19 @@ from __future__ import annotations
 import os
 import sys
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, replace
 from multiprocessing import get_context
-from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bop_cender.data.types import Dataset, ObjectModel, Scene
-from bop_cender.errors import BopCenderError, DatasetWarning
-from bop_cender.method import CenDerNet
-from bop_cender.runner.build import build_method, open_run_dataset
+from bop_cender.data.types import Dataset
+from bop_cender.errors import DatasetWarning
+from bop_cender.runner.build import build_method
 from bop_cender.runner.request import RunRequest
-from bop_cender.runner.shards import SceneOutcome, shard_path
+from bop_cender.runner.shards import SceneOutcome
+from bop_cender.runner.worker import WorkerState, estimate_scene
+
+__all__ = ["WorkerState", "estimate_scene", "execute_scenes"]
 
 if TYPE_CHECKING:  # the network code loads only where a run uses a network
     from bop_cender.net.weights import NetWeights
@@ -32,14 +33,20 @@ if TYPE_CHECKING:  # the network code loads only where a run uses a network
 def execute_scenes(
     request: RunRequest, dataset: Dataset, keys: list[str], weights: NetWeights | None = None
 ) -> Iterator[SceneOutcome]:
-    """Yield a :class:`SceneOutcome` per key as scenes finish (in order with one worker).
+    """Yield a :class:`SceneOutcome` per key as scenes finish (in order with one worker), on the request's executor.
 
     ``weights``: the request's network weights, already read by this process
     (:func:`~bop_cender.runner.build.read_weights`; None: read here where a network is used); each worker process
-    reads them once itself."""
+    reads them once itself, each Ray actor gets them from this process."""
     if not keys:
         return
-    if request.workers == 1 or len(keys) == 1:
+    if request.executor == "ray":
+        from bop_cender.runner.ray_executor import ray_scenes
+
+        yield from ray_scenes(request, dataset, keys, weights)
+        return
+    workers = min(request.workers or 1, len(keys))
+    if workers == 1:
         # One torch thread here too: the method's tensors are small (Nelder-Mead steps of a few poses, chunks
         # of a few hundred canvases), where torch's OpenMP threads cost more than they give, and on a busy
         # machine they wait for each other a scheduler slice per operation: a 9-part DIMO scene took 28 s
@@ -63,64 +70,10 @@ def execute_scenes(
         return
     build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")
-    workers = min(request.workers, len(keys))
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(request,)) as pool:
         futures = [pool.submit(_worker_scene, key) for key in keys]
         for future in as_completed(futures):
             yield future.result()
-
-
-def estimate_scene(
-    method: CenDerNet,
-    scene: Scene,
-    vis_dir: Path | None = None,
-    max_views: int | None = None,
-    eval_models: Mapping[int, ObjectModel] | None = None,
-) -> SceneOutcome:
-    """One scene, never raising for a problem of that scene: the error becomes the outcome.
-
-    With ``vis_dir``, the scene's figure is written there as ``<scene key>.png`` (its verdicts judged on
-    ``eval_models``, the scorer's, where given: T-LESS estimates on ``models_cad``, scores on ``models_eval``); with
-    ``max_views`` only the first K views are given to the method."""
-    if max_views is not None:
-        scene = replace(scene, views=scene.views[:max_views])
-    try:
-        output = method.run_scene(scene)
-    except (BopCenderError, ValueError, RuntimeError) as e:
-        return SceneOutcome(scene.key, None, f"{type(e).__name__}: {e}")
-    if vis_dir is not None:
-        from bop_cender.data.canvas import on_one_canvas
-        from bop_cender.report.scene_figure import scene_figure
-
-        scene_figure(
-            output,
-            on_one_canvas(scene),  # the views as the method saw them (a multi-sensor capture: one size)
-            method.models,
-            method.meshes,
-            Path(vis_dir) / shard_path(Path(), scene.key).with_suffix(".png").name,
-            judge_models=eval_models or None,
-        )
-    return SceneOutcome(scene.key, output.estimate)
-
-
-@dataclass
-class WorkerState:
-    """What a worker process builds once (in its initializer) and uses for each of its scenes."""
-
-    request: RunRequest
-    dataset: Dataset
-    method: CenDerNet
-
-    @classmethod
-    def build(cls, request: RunRequest) -> WorkerState:
-        """The dataset opened and the method built, its weights read: once per worker, not once per scene."""
-        dataset = open_run_dataset(request)
-        return cls(request, dataset, build_method(request, dataset))
-
-    def estimate(self, key: str) -> SceneOutcome:
-        """Scene ``key`` of the dataset, as :func:`estimate_scene` gives it."""
-        request, dataset = self.request, self.dataset
-        return estimate_scene(self.method, dataset.scene(key), request.vis_dir, request.max_views, dataset.eval_models)
 
 
 _STATE: list[WorkerState] = []  # one entry in a worker process, set by its initializer

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from bop_cender.cluster import check_executor
 from bop_cender.data.bop_io import check_output_dir, check_output_file
 from bop_cender.data.industrial import config_layout
 from bop_cender.data.types import Dataset, Scene
@@ -49,7 +50,9 @@ class RunRequest:
         seed: seed of the view grouping and of the method's random candidates.
         config: the method's settings (None: :meth:`CenDerNetConfig.for_dataset` of ``dataset``, as ``run``
             makes them: T-LESS / BOP targets and stage 3 differ from DIMO's).
-        workers: processes; scenes are spread over them.
+        workers: processes (``executor`` ``local``) or Ray actors (``ray``); scenes are spread over them. None: the
+            executor's default (``local``: one process; ``ray``: one actor per CPU of the cluster, at most one per
+            scene).
         limit_scenes: only the first K scenes of the split (None: all).
         resume: keep the shards of an earlier, interrupted run with the same settings.
         deterministic_time: write ``-1`` as every row's time (reproducible files, for tests).
@@ -65,6 +68,12 @@ class RunRequest:
         task: ``localization`` (BOP'19: the instance counts and objects of each image are known) or ``detection``
             (BOP'24/'25: neither is; the config must not use them, :data:`TASKS`); the sidecar names the protocol
             the file is for (``bop19`` / ``bop24``), so ``score FILE.csv`` needs no flag.
+        executor: where the scenes run (:data:`~bop_cender.cluster.EXECUTORS`): ``local`` (this process or
+            ``workers`` processes of this machine) or ``ray`` (actors on a Ray cluster,
+            :mod:`~bop_cender.runner.ray_executor`). Not in the fingerprint: a run resumed on another executor keeps
+            its shards.
+        address: the Ray cluster of ``executor`` ``ray``: ``auto`` (the one running on this machine) or
+            ``HOST:PORT`` of its head; None: a Ray instance started on this machine for the run.
     """
 
     dataset: str
@@ -77,7 +86,7 @@ class RunRequest:
     weights: str | None = None
     seed: int = 0
     config: CenDerNetConfig = None  # type: ignore[assignment]  # set in __post_init__
-    workers: int = 1
+    workers: int | None = 1
     limit_scenes: int | None = None
     resume: bool = False
     deterministic_time: bool = False
@@ -87,6 +96,8 @@ class RunRequest:
     max_views: int | None = None
     threads: int = 1
     task: str = "localization"
+    executor: str = "local"
+    address: str | None = None
 
     def __post_init__(self) -> None:
         if self.config is None:
@@ -107,7 +118,7 @@ class RunRequest:
         return TASKS[self.task]
 
     def fingerprint(self, weights: NetWeights | None = None) -> str:
-        """What a shard depends on: data, heatmap source, seed and config (not out, workers or resume).
+        """What a shard depends on: data, heatmap source, seed and config (not out, workers, executor or resume).
 
         ``weights``: the request's weights as read for the run (their file's digest is taken from them: the file is
         not read again); None: the file named by ``self.weights`` is read for it."""
@@ -180,11 +191,16 @@ def check_request(request: RunRequest) -> None:
     from bop_cender.results.files import default_result_filename, name_contradiction, parse_result_filename
 
     check_source(request.heatmaps)
-    if request.workers < 1:
-        raise ConfigError(f"expected at least 1 worker, got {request.workers}", field="--workers")
+    check_executor(request.executor, request.address, request.workers)
     if request.threads < 1:
         raise ConfigError(f"expected at least 1 thread, got {request.threads}", field="--threads")
-    if request.threads > 1 and request.workers > 1:
+    if request.threads > 1 and request.executor == "ray":
+        raise ConfigError(
+            f"--threads {request.threads} is for one process of this machine; each Ray actor has one thread"
+            " (--workers sets how many actors)",
+            field="--threads",
+        )
+    if request.threads > 1 and (request.workers or 1) > 1:
         raise ConfigError(
             f"--threads {request.threads} is for one process; with --workers {request.workers} each process has one"
             " thread (give one of the two)",

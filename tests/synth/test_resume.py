@@ -11,7 +11,7 @@ import pytest
 
 from bop_cender.cli import main
 from bop_cender.synth import generate as generate_module
-from bop_cender.synth import write_dimo
+from bop_cender.synth import layouts, write_dimo
 from bop_cender.synth.done import marker_path, scene_done
 from bop_cender.synth.generate import generate
 from bop_cender.synth.write_dimo import DimoSpec
@@ -61,7 +61,7 @@ def test_a_finished_dataset_resumes_without_making_models_or_workers(fresh: Path
         raise AssertionError("set-up work for a dataset that is complete")
 
     monkeypatch.setattr(generate_module, "_init_worker", refused)
-    monkeypatch.setattr(generate_module.TlessLayout, "write_models", refused)
+    monkeypatch.setattr(layouts.TlessLayout, "write_models", refused)
     report = generate("tless", resumed, SPEC, workers=2, progress=False)
     assert (report.written, report.skipped) == (0, 3)
     assert digest(resumed) == digest(fresh)
