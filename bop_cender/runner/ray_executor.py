@@ -2,9 +2,10 @@
 
 Each actor (:class:`SceneWorker`, one CPU, one torch thread) opens the dataset and builds the method once, from the
 request, and then estimates scene after scene (:class:`~bop_cender.runner.worker.WorkerState`, as a worker process of
-``--workers`` does). The network weights travel from the run's process, read once there; the data do not: each node
-opens the request's data path itself, so every node needs the data at that path (a copy will do), and an actor that
-cannot open them stops the run before any scene with an error naming its node and the path. What comes back is each
+``--workers`` does). Neither the data nor the weights travel: each node opens the request's data path and reads the
+weights file itself (the shipped weights: those of its own install), so every node needs the data and a ``--weights``
+file at the same paths (a copy will do; the actors' arguments stay small, so that Ray can restart an actor from them),
+and an actor that cannot open them stops the run before any scene with an error naming its node and the path. What comes back is each
 scene's :class:`~bop_cender.runner.shards.SceneOutcome` (and its ``--vis`` figure as PNG bytes): the run's process
 writes the shards, the figures and the results, so the nodes share no disk.
 
