@@ -73,6 +73,10 @@ def import_toolkit(toolkit_dir: str | Path | None) -> tuple[ModuleType, Path]:
         ToolkitUnavailable: not importable (the import error is in the message), or no ``scripts/``.
     """
     if toolkit_dir is not None:
+        if not (Path(toolkit_dir) / "bop_toolkit_lib").is_dir():  # else an import made earlier would pass for it
+            raise ToolkitUnavailable(
+                f"the BOP toolkit (bop_toolkit_lib) is not importable from {toolkit_dir}: no bop_toolkit_lib folder there"
+            )
         path = str(Path(toolkit_dir).resolve())
         if path not in sys.path:
             sys.path.insert(0, path)
