@@ -151,3 +151,19 @@ def full_scene_cost(meshes, poses: dict[int, np.ndarray], cams, edges, dist) -> 
     return backend_named("auto").scene_cost(
         [meshes(i) for i in ids], torch.as_tensor(T_cm, dtype=torch.float32), Ks, edges, dist, BOX_T_B
     )
+
+
+#: Cheap stage-3 settings for runner tests: the rows are not precise, but every run with them must give the same rows.
+CHEAP = ["poses.candidates.n=48", "poses.candidates.top_k=2", "poses.refine.nelder_mead.maxfev=40"]
+
+
+def cheap_request(root: Path, out: Path, **kw):
+    """A :class:`~bop_cender.runner.RunRequest` of the oracle on ``root``'s ``real`` split (a :func:`build` set) with
+    :data:`CHEAP` settings and deterministic times; ``kw`` replaces any field."""
+    from bop_cender.method import CenDerNetConfig
+    from bop_cender.runner import RunRequest
+
+    base = dict(dataset="dimo", data_root=str(root), split="real", out=out, deterministic_time=True,
+                config=CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP))  # fmt: skip
+    base.update(kw)
+    return RunRequest(**base)

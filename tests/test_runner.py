@@ -26,8 +26,7 @@ from bop_cender.net.oracle import Degradation, OraclePredictor  # noqa: E402
 from bop_cender.results.bop_csv import read_bop_results  # noqa: E402
 from bop_cender.runner import RunRequest, estimate_scene, run, work_dir  # noqa: E402
 
-#: Cheap settings: the rows are not precise, but every run with them must give the same rows.
-CHEAP = ["poses.candidates.n=48", "poses.candidates.top_k=2", "poses.refine.nelder_mead.maxfev=40"]
+CHEAP = method_data.CHEAP
 
 
 @pytest.fixture(scope="module")
@@ -35,11 +34,7 @@ def mini_root(tmp_path_factory) -> Path:
     return method_data.build(tmp_path_factory.mktemp("runner") / "dimo", n_scenes=2)
 
 
-def request(root: Path, out: Path, **kw) -> RunRequest:
-    base = dict(dataset="dimo", data_root=str(root), split="real", out=out, deterministic_time=True,
-                config=CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP))  # fmt: skip
-    base.update(kw)
-    return RunRequest(**base)
+request = method_data.cheap_request
 
 
 @pytest.fixture(scope="module")

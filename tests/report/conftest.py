@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).parents[1]))
 import method_data  # noqa: E402
 
 #: Cheap settings of the method (tests/test_runner.py's): rows of no precision, made in seconds.
-CHEAP = ["poses.candidates.n=48", "poses.candidates.top_k=2", "poses.refine.nelder_mead.maxfev=40"]
+CHEAP = method_data.CHEAP
 
 
 @pytest.fixture(scope="session")

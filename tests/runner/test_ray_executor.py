@@ -27,12 +27,10 @@ from bop_cender import cluster  # noqa: E402
 from bop_cender.cli import main  # noqa: E402
 from bop_cender.data.dimo import open_dimo  # noqa: E402
 from bop_cender.errors import ConfigError, DatasetError  # noqa: E402
-from bop_cender.method import CenDerNetConfig  # noqa: E402
-from bop_cender.runner import RunRequest, run, work_dir  # noqa: E402
+from bop_cender.runner import run, work_dir  # noqa: E402
 from bop_cender.runner.ray_executor import SceneWorker, ray_scenes  # noqa: E402
 
-#: Cheap settings (as tests/test_runner.py's): the rows are not precise, but every executor must give the same.
-CHEAP = ["poses.candidates.n=48", "poses.candidates.top_k=2", "poses.refine.nelder_mead.maxfev=40"]
+CHEAP = method_data.CHEAP
 CLI_CHEAP = ["--candidates", "48", "--top-k", "2", "--set", "poses.refine.nelder_mead.maxfev=40"]
 OUT = "cendernet-oracle_dimo-real.csv"
 
@@ -53,11 +51,7 @@ def mini_root(tmp_path_factory) -> Path:
     return method_data.build(tmp_path_factory.mktemp("ray") / "dimo", n_scenes=2)
 
 
-def request(root: Path, out: Path, **kw) -> RunRequest:
-    base = dict(dataset="dimo", data_root=str(root), split="real", out=out, deterministic_time=True,
-                config=CenDerNetConfig.for_dataset("dimo").with_settings(CHEAP))  # fmt: skip
-    base.update(kw)
-    return RunRequest(**base)
+request = method_data.cheap_request
 
 
 @pytest.fixture(scope="module")
