@@ -12,15 +12,13 @@ import json
 import re
 import shutil
 import tempfile
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bop_cender.data.bop_io import check_output_dir, load_rgb
-from bop_cender.data.registry import DatasetRequest, open_dataset
-from bop_cender.data.types import Dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.report.breakdown import error_values, thresholds
@@ -89,16 +87,8 @@ def write_report(
     *,
     vis_dir: str | Path | None = None,
     max_figures: int = DEFAULT_MAX_FIGURES,
-    dataset: str | None = None,
-    data_root: str | Path | None = None,
-    split: str | None = None,
-    n_views: int | None = None,
-    seed: int | None = None,
-    model_type: str | None = None,
-    vsd_delta: float | None = None,
-    protocol: str | None = None,
     progress: bool = False,
-    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
+    **data_options: Any,
 ) -> WrittenReport:
     """Score ``results`` (as ``bop-cender score``), gather the page and write its folder ``out`` (default
     :func:`default_report_dir`), replacing an earlier report there.
@@ -107,7 +97,9 @@ def write_report(
         vis_dir: the run's ``--vis`` figures (default: the folder its sidecar names, where it still exists); a scene
             without one there gets a figure drawn from its rows (:mod:`bop_cender.report.estimate_figure`).
         max_figures: figures of at most this many scenes, the worst first (every scene stays in the table).
-        dataset ... open_data: the data options of ``score`` (:func:`~bop_cender.eval.score_file.score_file`).
+        data_options: where the data are and how to score, as :func:`~bop_cender.report.page_data.collect_page`
+            takes them (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``, ``model_type``, ``vsd_delta``,
+            ``protocol``, ``open_data``): ``score``'s options.
 
     Raises:
         ConfigError: ``out`` is a file or a folder that is not a report; the data cannot be told.
@@ -117,10 +109,7 @@ def write_report(
     folder = check_report_dir(Path(out) if out is not None else default_report_dir(results))
     if max_figures < 0:
         raise ConfigError(f"expected a number of scenes >= 0, got {max_figures}", field="--max-figures")
-    data = collect_page(
-        results, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
-        model_type=model_type, vsd_delta=vsd_delta, protocol=protocol, progress=progress, open_data=open_data,
-    )  # fmt: skip
+    data = collect_page(results, progress=progress, **data_options)
     vis = Path(vis_dir) if vis_dir is not None else _sidecar_vis_dir(data)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
