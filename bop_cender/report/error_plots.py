@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bop_cender.data.bop_io import atomic_path
+from bop_cender.report.png import pyplot, save_png
 
 #: The plotted range: up to this multiple of the loosest threshold.
 RANGE = 1.5
@@ -25,10 +25,7 @@ def error_plot(name: str, errors: np.ndarray, thresholds: np.ndarray, path: Path
     """Write the cumulative distribution of ``errors (N,)`` against ``thresholds (K,)`` to ``path`` (PNG, atomically).
 
     Returns ``path``; a file of no evaluated row gets an empty chart that says so (the page still shows it)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     errors = np.asarray(errors, dtype=np.float64)
     top = float(np.max(thresholds)) * RANGE
@@ -54,12 +51,7 @@ def error_plot(name: str, errors: np.ndarray, thresholds: np.ndarray, path: Path
         f"{name.upper()}: {len(errors)} evaluated rows, {beyond} beyond {top:g}; thresholds dashed, strictest red",
         fontsize=8,
     )
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=100)
 
 
 def share_within(errors: np.ndarray, threshold: float) -> float | None:

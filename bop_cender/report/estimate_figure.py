@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bop_cender.data.bop_io import atomic_path
 from bop_cender.eval.ground_truth import ImageGt
 from bop_cender.meshes import MeshCache
 from bop_cender.render.rasterizer import render_scene
 from bop_cender.report.breakdown import LEFT_OUT, RIGHT, WRONG
+from bop_cender.report.png import pyplot, save_png
 from bop_cender.report.scene_figure import MISSED, UNJUDGED, crop_box, outline
 from bop_cender.report.scene_figure import RIGHT as GREEN
 from bop_cender.report.scene_figure import WRONG as RED
@@ -73,10 +73,7 @@ def draw_outlines(rgb: np.ndarray, instance: np.ndarray, outlines: Sequence[Outl
 
 def estimate_figure(scene_key: str, panels: Sequence[Panel], meshes: MeshCache, title: str, path: Path) -> Path:
     """Write the figure of one scene (one column per panel, each cropped to its parts) to ``path`` (PNG, atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     panels = list(panels)[:MAX_IMAGES]
     n = max(1, len(panels))
@@ -96,11 +93,7 @@ def estimate_figure(scene_key: str, panels: Sequence[Panel], meshes: MeshCache, 
     if not panels:
         axes[0, 0].text(0.5, 0.5, "no image of this scene is evaluated", ha="center", va="center", fontsize=7)
     fig.suptitle(title, fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=90)
 
 
 def scene_panels(

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bop_cender.data.bop_io import atomic_path
 from bop_cender.data.types import ObjectModel, Scene
 from bop_cender.eval.model_points import eval_vertices
 from bop_cender.eval.pose_errors import hull_vertices, mssd
@@ -29,6 +28,7 @@ from bop_cender.geometry.camera import project_points
 from bop_cender.geometry.poses import transform_points
 from bop_cender.render.mesh import RenderMesh
 from bop_cender.render.rasterizer import render_scene
+from bop_cender.report.png import pyplot, save_png
 
 TITLE_CHARS_PER_INCH = 13
 """How many characters of the 8-point title fit an inch of the figure: a narrow figure (one or two views) wraps its
@@ -131,10 +131,7 @@ def scene_figure(
 
     ``models`` and ``meshes``: the method's (centres, outlines); ``judge_models``: those the verdicts are judged on,
     the scorer's evaluation models where the dataset has its own (default: ``models``)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     views = scene.views
     V = len(views)
@@ -185,12 +182,7 @@ def scene_figure(
         judged = f", {sum(verdicts.estimate_right)} right (MSSD < {MSSD_FRACTION:.0%} of the diameter)"
     title = f"scene {scene.key}: {len(est)} estimated, {len(gt)} GT{judged}"
     fig.suptitle(figure_title(title, output.estimate.timings, fig.get_figwidth()), fontsize=8)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def figure_title(head: str, timings: Mapping[str, float], width_in: float) -> str:

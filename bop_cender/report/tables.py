@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from bop_cender.data.bop_io import atomic_path, check_output_dir, check_output_file, require_file, write_text_atomic
+from bop_cender.data.bop_io import check_output_dir, check_output_file, require_file, write_text_atomic
 from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ConfigError, ResultsError, ResultsWarning
@@ -41,6 +41,7 @@ from bop_cender.eval.score_file import (
     write_scored,
 )
 from bop_cender.eval.score_report import SCORE_KEYS, read_scores_json
+from bop_cender.report.png import pyplot, save_png
 from bop_cender.report.reference_table import (  # noqa: F401  (re-exported: the tables' one import site)
     PAPER_TABLES,
     REFERENCE_COLUMNS,
@@ -344,10 +345,7 @@ def _named_apart(rows: list[MethodRow], paths: list[Path]) -> list[MethodRow]:
 
 def bar_chart(comparison: Comparison, path: Path) -> None:
     """Grouped bars: one group per score, one bar per method (no bar where not available); PNG, written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = comparison.rows
     n = max(1, len(rows))
@@ -364,10 +362,7 @@ def bar_chart(comparison: Comparison, path: Path) -> None:
     ax.set_title(comparison.title)
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 def _check_inputs(inputs: list[str | Path]) -> list[Path]:
