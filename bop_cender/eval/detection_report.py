@@ -21,6 +21,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import write_texts_atomic
 from bop_cender.eval.detection import BOP24_KEYS, RECALL_POINTS, ErrorTypeScores
+from bop_cender.eval.ground_truth import GroundTruth
 from bop_cender.eval.score_report import finite_json, number_text
 
 #: The ``protocol`` value of a BOP'24 scores JSON.
@@ -102,6 +103,8 @@ class DetectionReport:
     #: ``(scene_id, im_id, gt_id, obj_id)`` of every GT instance at least 10 % visible in the target images (recall's
     #: denominators), kept so that recall can be broken down per scene (``bop-cender report``); not in the JSON.
     visible_gts: tuple[tuple[int, int, int, int], ...] = ()
+    #: the split's ground truth the file was scored against (the report page's images and scenes); not in the JSON.
+    ground_truth: GroundTruth | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """The scores JSON content (module docstring)."""

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bop_cender.data.bop_io import load_json, write_text_atomic, write_texts_atomic
+from bop_cender.eval.ground_truth import GroundTruth
 from bop_cender.eval.matching import Matches
 
 #: The scores, in the order they are printed and written.
@@ -156,6 +157,8 @@ class ScoreReport:
         matches: the greedy matches per metric (``mssd``, ``mspd``, ``vsd`` with depth) over the valid GTs, kept so
             that recall can be broken down per object or scene (``bop-cender report``) without scoring again; not
             written to the scores JSON.
+        ground_truth: the split's ground truth the file was scored against (the report page's images and scenes,
+            without reading the split again); not written.
     """
 
     scores: dict[str, float | None]
@@ -171,6 +174,7 @@ class ScoreReport:
     records: list[EstimateRecord] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     matches: dict[str, Matches] = field(default_factory=dict)
+    ground_truth: GroundTruth | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         """The scores JSON content (see the module docstring)."""

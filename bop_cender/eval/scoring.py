@@ -289,6 +289,7 @@ def build_report(
         notes=notes,
         records=records,
         timings={} if timings is None else timings,
+        ground_truth=gt,
         matches={
             "mssd": matched.mssd,
             "mspd": matched.mspd,

@@ -222,6 +222,7 @@ def score_detections(
         records=records,
         timings=timings,
         visible_gts=visible,
+        ground_truth=gt,
     )
 
 

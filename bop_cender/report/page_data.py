@@ -8,16 +8,14 @@ timings and failures from its sidecar (absent without one: the page says so).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.data.types import Dataset
 from bop_cender.errors import ResultsError
 from bop_cender.eval.detection_report import DetectionReport
-from bop_cender.eval.ground_truth import GroundTruth, ImageGt, collect_ground_truth
+from bop_cender.eval.ground_truth import GroundTruth, ImageGt
 from bop_cender.eval.score_file import ScoredFile, method_name, score_file
 from bop_cender.eval.score_report import SCORE_KEYS
 from bop_cender.report import breakdown
@@ -88,18 +86,14 @@ class PageData:
 def collect_page(
     results: str | Path,
     *,
-    dataset: str | None = None,
-    data_root: str | Path | None = None,
-    split: str | None = None,
-    n_views: int | None = None,
-    seed: int | None = None,
-    model_type: str | None = None,
-    vsd_delta: float | None = None,
-    protocol: str | None = None,
     progress: bool = False,
-    open_data: Callable[[DatasetRequest], Dataset] = open_dataset,
+    **data_options: Any,
 ) -> PageData:
     """Score ``results`` as ``bop-cender score`` would (nothing written) and gather the page's content.
+
+    ``data_options``: where the data are and how to score, as :func:`~bop_cender.eval.score_file.score_file` takes
+    them (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``, ``model_type``, ``vsd_delta``, ``protocol``,
+    ``open_data``): ``score``'s options.
 
     Raises:
         ResultsError: the CSV or its sidecar is missing or malformed, a row names an unknown scene, image or object
@@ -107,28 +101,24 @@ def collect_page(
         ConfigError: the data cannot be told (as ``score``: give ``--dataset``, ``--data-root``, ``--split``).
     """
     results = Path(results)
-    scored = score_file(
-        results, dataset=dataset, data_root=data_root, split=split, n_views=n_views, seed=seed,
-        model_type=model_type, vsd_delta=vsd_delta, progress=progress, render_process=False, open_data=open_data,
-        write=False, protocol=protocol,
-    )  # fmt: skip
+    scored = score_file(results, progress=progress, render_process=False, write=False, **data_options)
     sidecar = read_run_sidecar(results)
     extra = (sidecar or {}).get("extra", {})
     report = scored.report
     ds = scored.dataset
-    gt = collect_ground_truth(ds, progress=False)
+    gt = report.ground_truth
+    assert gt is not None, "score_file's reports keep the ground truth they were scored against"
     scene_of = {im.key: im.scene_key for im in gt}
     keys = list(ds.scene_keys)
+    rows = [ScoreRow(method_name(results), f"scored {results.name}", dict(report.scores))]
     if isinstance(report, DetectionReport):
         keys_shown: tuple[str, ...] = MAP_KEYS
-        rows = [ScoreRow(method_name(results), f"scored {results.name}", dict(report.scores))]
         summary = report.summary_lines()
         objects = breakdown.objects_bop24(report)
         scenes = breakdown.scenes_bop24(report, scene_of, keys)
         verdicts = breakdown.verdicts_bop24(report)
     else:
         keys_shown = SCORE_KEYS
-        rows = [ScoreRow(method_name(results), f"scored {results.name}", dict(report.scores))]
         meta = report.metadata
         rows += [ScoreRow(r.method, r.source, r.scores) for r in reference_rows(PAPER_TABLES, meta.dataset, meta.split)]
         summary = summary_lines(report)
