@@ -249,18 +249,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"the network's curvature binarised at {summary.curvature_threshold:.3g}"
               f" ({summary.curvature_threshold_source})")  # fmt: skip
     print(f"wrote {summary.out} and {summary.sidecar}")
+    scored = None
     if args.score:
         from bop_cender.cli.score import print_scored
         from bop_cender.eval.score_file import score_file
 
-        print_scored(score_file(summary.out, progress=not args.no_progress), summary.out)
+        scored = score_file(summary.out, progress=not args.no_progress)
+        print_scored(scored, summary.out)
     else:
         print(f"next: bop-cender score {summary.out}")
     if args.report:  # after a partial failure too: the page lists the failed scenes
         from bop_cender.cli.report import print_written
         from bop_cender.report.run_report import write_report
 
-        print_written(write_report(summary.out, vis_dir=request.vis_dir, progress=not args.no_progress))
+        print_written(write_report(summary.out, vis_dir=request.vis_dir, progress=not args.no_progress, scored=scored))
     if summary.failed:  # the file is whole for the other scenes, but the run did not do what was asked
         print(f"error: {len(summary.failed)} of {summary.scenes} scene(s) failed (above; listed in {summary.sidecar},"
               " their targets count as misses); mend the input and rerun with --resume to redo only them",

@@ -87,13 +87,15 @@ def collect_page(
     results: str | Path,
     *,
     progress: bool = False,
+    scored: ScoredFile | None = None,
     **data_options: Any,
 ) -> PageData:
     """Score ``results`` as ``bop-cender score`` would (nothing written) and gather the page's content.
 
     ``data_options``: where the data are and how to score, as :func:`~bop_cender.eval.score_file.score_file` takes
     them (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``, ``model_type``, ``vsd_delta``, ``protocol``,
-    ``open_data``): ``score``'s options.
+    ``open_data``): ``score``'s options. ``scored``: the file already scored by ``score_file`` (``run --score
+    --report``), not scored again.
 
     Raises:
         ResultsError: the CSV or its sidecar is missing or malformed, a row names an unknown scene, image or object
@@ -101,7 +103,8 @@ def collect_page(
         ConfigError: the data cannot be told (as ``score``: give ``--dataset``, ``--data-root``, ``--split``).
     """
     results = Path(results)
-    scored = score_file(results, progress=progress, render_process=False, write=False, **data_options)
+    if scored is None:
+        scored = score_file(results, progress=progress, render_process=False, write=False, **data_options)
     sidecar = read_run_sidecar(results)
     extra = (sidecar or {}).get("extra", {})
     report = scored.report

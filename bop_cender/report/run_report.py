@@ -20,6 +20,7 @@ import numpy as np
 
 from bop_cender.data.bop_io import check_output_dir, load_rgb
 from bop_cender.errors import BopCenderError, ConfigError
+from bop_cender.eval.score_file import ScoredFile
 from bop_cender.meshes import MeshCache
 from bop_cender.report.breakdown import error_values, thresholds
 from bop_cender.report.error_plots import error_plot, share_within
@@ -88,6 +89,7 @@ def write_report(
     vis_dir: str | Path | None = None,
     max_figures: int = DEFAULT_MAX_FIGURES,
     progress: bool = False,
+    scored: ScoredFile | None = None,
     **data_options: Any,
 ) -> WrittenReport:
     """Score ``results`` (as ``bop-cender score``), gather the page and write its folder ``out`` (default
@@ -99,7 +101,8 @@ def write_report(
         max_figures: figures of at most this many scenes, the worst first (every scene stays in the table).
         data_options: where the data are and how to score, as :func:`~bop_cender.report.page_data.collect_page`
             takes them (``dataset``, ``data_root``, ``split``, ``n_views``, ``seed``, ``model_type``, ``vsd_delta``,
-            ``protocol``, ``open_data``): ``score``'s options.
+            ``protocol``, ``open_data``): ``score``'s options. ``scored``: the file already scored (``run --score
+            --report``): not scored again.
 
     Raises:
         ConfigError: ``out`` is a file or a folder that is not a report; the data cannot be told.
@@ -109,7 +112,7 @@ def write_report(
     folder = check_report_dir(Path(out) if out is not None else default_report_dir(results))
     if max_figures < 0:
         raise ConfigError(f"expected a number of scenes >= 0, got {max_figures}", field="--max-figures")
-    data = collect_page(results, progress=progress, **data_options)
+    data = collect_page(results, progress=progress, scored=scored, **data_options)
     vis = Path(vis_dir) if vis_dir is not None else _sidecar_vis_dir(data)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))

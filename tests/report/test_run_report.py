@@ -132,6 +132,24 @@ def test_a_detection_run_with_report_shows_map(tmp_path, capsys, report_run):
     assert [o["object"] for o in data["objects"]] and all(0 <= o["mAP_mssd"] <= 1 for o in data["objects"])
 
 
+def test_run_score_and_report_score_the_file_once(tmp_path, capsys, report_run, monkeypatch):
+    """``run --score --report``: the page shows the scores ``--score`` computed, not scored a second time."""
+    import bop_cender.eval.score_file as score_module
+
+    calls = []
+    real = score_module.score_file
+    monkeypatch.setattr(score_module, "score_file", lambda *a, **kw: calls.append(real(*a, **kw)) or calls[-1])
+    root = report_run.parent.parent / "dimo"
+    out = tmp_path / "cendernet-oracle_dimo-real.csv"
+    code = main(["run", "--heatmaps", "oracle", "--dataset", "dimo", "--data-root", str(root), "--split", "real",
+                 "--out", str(out), "--candidates", "32", "--top-k", "1", "--limit-scenes", "1", "--no-progress",
+                 "--deterministic-time", "--score", "--report"])  # fmt: skip
+    assert code == 0 and len(calls) == 1
+    assert (tmp_path / "scores_cendernet-oracle_dimo-real.json").is_file()  # --score's files, written once
+    page = summary(tmp_path / "cendernet-oracle_dimo-real_report")["scores"][0]
+    assert page["AR_MSSD"] == calls[0].report.scores["AR_MSSD"]
+
+
 def test_a_csv_without_sidecar_needs_the_data_options_as_score_does(report_run, tmp_path, capsys):
     out = tmp_path / report_run.name
     shutil.copyfile(report_run, out)
