@@ -108,7 +108,7 @@ def ray_session(address: str | None) -> Iterator[Any]:
         options["include_dashboard"] = False  # only for an instance this process starts
     try:
         ray.init(address=address, **options)
-    except (ConnectionError, RuntimeError, ValueError) as e:
+    except (OSError, RuntimeError, ValueError, ray.exceptions.RayError) as e:  # Ray's start-up raises all of them
         where = "on this machine (--address auto; start one with `ray start --head`)" if address == "auto" else address
         raise ConfigError(f"cannot join the Ray cluster {where}: {e}", field="--address") from None
     try:
@@ -173,17 +173,28 @@ class WorkerHello:
         return cls(node_name(), problem)
 
 
+#: How long the actors may take to be placed and built (data opened, meshes and weights read) before the command
+#: stops: a cluster whose CPUs are all held by other work would otherwise leave it waiting with no word.
+START_TIMEOUT_S = 600.0
+
+
 def check_started(actors: list[Any]) -> list[WorkerHello]:
     """Every actor built, on its node, before any job (each answers ``hello()``): a node without bop-cender stops the
     command with one error, not with every job failed the same way. The hellos, for the caller to judge their
     problems.
 
     Raises:
-        ConfigError: an actor could not start.
+        ConfigError: an actor could not start, or not within :data:`START_TIMEOUT_S`.
     """
     ray = import_ray()
     try:
-        return ray.get([actor.hello.remote() for actor in actors])
+        return ray.get([actor.hello.remote() for actor in actors], timeout=START_TIMEOUT_S)
+    except ray.exceptions.GetTimeoutError:
+        raise ConfigError(
+            f"{len(actors)} Ray workers asked for, not all started after {START_TIMEOUT_S:.0f} s: the cluster's CPUs"
+            " are held by other work (each worker needs one free), or its nodes are too slow to build the method",
+            field="--workers",
+        ) from None
     except ray.exceptions.RayError as e:
         raise ConfigError(
             f"a Ray worker could not start ({first_line(e)}); every node needs bop-cender installed (the same"

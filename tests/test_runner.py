@@ -696,7 +696,7 @@ def test_a_process_reads_the_weights_file_once(mini_root, tmp_path, monkeypatch)
     import bop_cender.net.weights as weights_module
     from bop_cender.net.targets import TargetConfig
     from bop_cender.net.unet import UNet, UNetSpec
-    from bop_cender.runner.pool import WorkerState
+    from bop_cender.runner.worker import WorkerState
 
     torch.manual_seed(0)
     path = tmp_path / "w.pt"

@@ -24,8 +24,6 @@ from bop_cender.runner.request import RunRequest
 from bop_cender.runner.shards import SceneOutcome
 from bop_cender.runner.worker import WorkerState, estimate_scene
 
-__all__ = ["WorkerState", "estimate_scene", "execute_scenes"]
-
 if TYPE_CHECKING:  # the network code loads only where a run uses a network
     from bop_cender.net.weights import NetWeights
 
@@ -37,15 +35,17 @@ def execute_scenes(
 
     ``weights``: the request's network weights, already read by this process
     (:func:`~bop_cender.runner.build.read_weights`; None: read here where a network is used); each worker process
-    reads them once itself, each Ray actor gets them from this process."""
+    reads them once itself, as each Ray actor does on its node."""
     if not keys:
         return
+    workers = min(request.workers or 1, len(keys))
+    if request.executor == "ray" or workers > 1:
+        build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any worker starts
     if request.executor == "ray":
         from bop_cender.runner.ray_executor import ray_scenes
 
-        yield from ray_scenes(request, dataset, keys, weights)
+        yield from ray_scenes(request, keys)
         return
-    workers = min(request.workers or 1, len(keys))
     if workers == 1:
         # One torch thread here too: the method's tensors are small (Nelder-Mead steps of a few poses, chunks
         # of a few hundred canvases), where torch's OpenMP threads cost more than they give, and on a busy
@@ -68,7 +68,6 @@ def execute_scenes(
         finally:
             torch.set_num_threads(threads)
         return
-    build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any process starts
     ctx = get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(request,)) as pool:
         futures = [pool.submit(_worker_scene, key) for key in keys]

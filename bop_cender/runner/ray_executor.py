@@ -37,7 +37,6 @@ from bop_cender.cluster import (
     stop_actors,
 )
 from bop_cender.data.bop_io import atomic_path
-from bop_cender.data.types import Dataset
 from bop_cender.errors import BopCenderError, ConfigError, DatasetError, DatasetWarning
 from bop_cender.runner.build import build_method, open_run_dataset
 from bop_cender.runner.request import RunRequest, uses_network
@@ -45,7 +44,7 @@ from bop_cender.runner.shards import SceneOutcome
 from bop_cender.runner.worker import WorkerState, figure_name
 
 if TYPE_CHECKING:  # the network code loads only where a run uses a network
-    from bop_cender.net.weights import NetWeights
+    pass
 
 
 @dataclass(frozen=True)
@@ -113,28 +112,20 @@ class SceneWorker:
             shutil.rmtree(self.figures, ignore_errors=True)
 
 
-def ray_scenes(
-    request: RunRequest,
-    dataset: Dataset,
-    keys: list[str],
-    weights: NetWeights | None = None,
-    worker: type[SceneWorker] | None = None,
-) -> Iterator[SceneOutcome]:
+def ray_scenes(request: RunRequest, keys: list[str]) -> Iterator[SceneOutcome]:
     """Yield a :class:`SceneOutcome` per key as the actors finish them, each scene's figure written first (``--vis``).
 
-    ``dataset`` and ``weights``: the run's, opened and read here (a bad request fails on them before the cluster is
-    joined; each actor reads its node's copies once); ``worker``: the actor class (None: :class:`SceneWorker`; a
-    test's subclass kills its process on a scene).
+    The request has been checked here already (:func:`~bop_cender.runner.pool.execute_scenes` builds its method once
+    before any worker starts); each actor reads its node's data and weights once.
 
     Raises:
         ConfigError: Ray not installed, the cluster cannot be reached, more workers than its CPUs, or an actor
-            could not start (bop-cender not installed on its node).
-        DatasetError: a node cannot open the data.
+            could not start (bop-cender not installed on its node, or no CPU free for it).
+        DatasetError: a node cannot open the data or read the weights (the message says which).
     """
-    build_method(request, dataset, weights=weights)  # a bad request fails here, once, before any actor starts
     request = _for_the_nodes(request)
     with ray_session(request.address):
-        actors = start_actors(worker or SceneWorker, actor_count(request.workers, len(keys)), request)
+        actors = start_actors(SceneWorker, actor_count(request.workers, len(keys)), request)
         try:
             for hello in check_started(actors):
                 if hello.problem is not None:

@@ -164,7 +164,7 @@ def test_a_node_without_the_data_is_one_error_naming_it_and_the_path(mini_root, 
     dataset = open_dimo(root, "real")
     root.rename(tmp_path / "moved")  # the run's process has the data, the workers' path has none
     with pytest.raises(DatasetError, match=f"node .* cannot open the data at {root}.*same path"):
-        next(ray_scenes(request(root, tmp_path / OUT, executor="ray", workers=1), dataset, dataset.scene_keys))
+        next(ray_scenes(request(root, tmp_path / OUT, executor="ray", workers=1), dataset.scene_keys))
 
 
 def test_more_workers_than_the_clusters_cpus_are_refused(mini_root, tmp_path, capsys):
@@ -214,3 +214,25 @@ def test_the_actors_get_absolute_paths_and_find_the_shipped_weights_on_their_own
     (tmp_path / "w.pt").write_bytes(b"")
     given = ray_executor._for_the_nodes(replace(shipped, weights="../" + tmp_path.name + "/w.pt"))
     assert given.weights == str((tmp_path / "w.pt").resolve())
+
+
+class SlowToStart:
+    """An actor that takes longer to build than the test allows (as one waiting for a CPU held by other work)."""
+
+    def __init__(self) -> None:
+        import time
+
+        time.sleep(5)
+
+    def hello(self) -> cluster.WorkerHello:
+        return cluster.WorkerHello.here()
+
+
+def test_workers_that_do_not_start_in_time_are_one_error_not_a_wait(monkeypatch):
+    monkeypatch.setattr(cluster, "START_TIMEOUT_S", 0.5)
+    actors = cluster.start_actors(SlowToStart, 1)
+    try:
+        with pytest.raises(ConfigError, match=r"--workers: 1 Ray workers asked for, not all started after 0 s"):
+            cluster.check_started(actors)
+    finally:
+        cluster.stop_actors(actors)
