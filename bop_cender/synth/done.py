@@ -32,17 +32,21 @@ def marker_path(scene_dir: Path) -> Path:
     return scene_dir.parent.parent / DONE_DIR / scene_dir.parent.name / f"{scene_dir.name}.json"
 
 
+def marker_files(scene_dir: Path) -> dict[str, int] | None:
+    """The files the marker of ``scene_dir`` lists (paths relative to the dataset root) with their sizes; None where
+    there is no marker, or one that cannot be read (it proves nothing)."""
+    try:
+        files = json.loads(marker_path(scene_dir).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return files if isinstance(files, dict) and files else None
+
+
 def scene_done(scene_dir: Path) -> bool:
     """Whether the scene folder is complete: its marker lists files that all exist with their recorded size."""
     scene_dir = Path(scene_dir)
-    marker = marker_path(scene_dir)
-    if not scene_dir.is_dir() or not marker.is_file():
-        return False
-    try:
-        files = json.loads(marker.read_text(encoding="utf-8"))["files"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return False  # a marker that cannot be read proves nothing
-    if not isinstance(files, dict) or not files:
+    files = marker_files(scene_dir) if scene_dir.is_dir() else None
+    if files is None:
         return False
     root = scene_dir.parent.parent
     for rel, size in files.items():

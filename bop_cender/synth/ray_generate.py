@@ -12,7 +12,6 @@ fails is named at the end, after every other job's folders are written (the same
 
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -33,7 +32,7 @@ from bop_cender.cluster import (
 from bop_cender.data.bop_io import atomic_path
 from bop_cender.errors import BopCenderError
 from bop_cender.synth.bop_files import scene_folder
-from bop_cender.synth.done import marker_path
+from bop_cender.synth.done import marker_files
 from bop_cender.synth.layouts import LayoutWorker
 
 
@@ -80,10 +79,11 @@ class SynthWorker:
 
 def _collect(root: Path, folder: Path) -> FolderFiles:
     """The folder's files and subfolders, and the files outside it that its done marker lists (its contact sheet)."""
-    files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-    dirs = tuple(p.relative_to(folder).as_posix() for p in sorted(folder.rglob("*")) if p.is_dir())
+    paths = sorted(folder.rglob("*"))
+    files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in paths if p.is_file()}
+    dirs = tuple(p.relative_to(folder).as_posix() for p in paths if p.is_dir())
     rel = folder.relative_to(root).as_posix()
-    listed = json.loads(marker_path(folder).read_text(encoding="utf-8"))["files"]
+    listed = marker_files(folder) or {}  # the actor has just written the folder and its marker
     extra = {name: (root / name).read_bytes() for name in listed if not name.startswith(rel + "/")}
     return FolderFiles(rel, files, dirs, extra)
 
