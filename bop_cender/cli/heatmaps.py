@@ -66,7 +66,6 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
                           field="--test-flips")  # fmt: skip
     out = check_output_dir(args.out)
     device = resolve_device(args.device)
-    kind = "dimo" if args.dataset == "dimo" else "tless"
     dataset = open_with_demo(data_request(args), announce=announce)
     meshes = MeshCache(dataset.models)
     if args.weights == "oracle":
@@ -80,7 +79,7 @@ def cmd_heatmaps(args: argparse.Namespace) -> int:
         from bop_cender.net.predictor import NetPredictor
         from bop_cender.net.weights import check_covers_targets, load_weights, shipped_weights_path
 
-        path = Path(args.weights) if args.weights else shipped_weights_path(kind)
+        path = Path(args.weights) if args.weights else shipped_weights_path(args.dataset)
         weights = load_weights(path, dataset=args.dataset)
         check_covers_targets(weights, dataset.models)
         targets = weights.targets

@@ -139,7 +139,7 @@ def default_heatmaps(dataset: str, weights: str | None) -> str:
     from bop_cender.net.weights import shipped_weights_path
 
     try:
-        shipped_weights_path("dimo" if dataset == "dimo" else "tless")
+        shipped_weights_path(dataset)
     except ConfigError:
         return "oracle"
     return "net"

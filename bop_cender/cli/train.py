@@ -164,9 +164,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from bop_cender.errors import ConfigError
     from bop_cender.net.train import TrainConfig, network_spec_of, train
     from bop_cender.net.unet import UNetSpec
+    from bop_cender.net.weights import weights_kind
     from bop_cender.synth.demo import cache_dir
 
-    kind = "dimo" if args.dataset == "dimo" else "tless"
+    kind = weights_kind(args.dataset)
     crop = parse_crop(args.crop)  # before the data is resolved (the demo may be generated first)
     variant = args.variant or f"{kind}-lean"
     channels = 1 if kind == "dimo" else 2  # "one per object id": the data's count is known once it is read

@@ -45,7 +45,7 @@ from bop_cender.net.samples import SampleSet, load_samples
 from bop_cender.net.targets import TargetConfig
 from bop_cender.net.unet import UNet, UNetSpec, factored_center_logits
 from bop_cender.net.votes import vote_loss
-from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights, weights_payload
+from bop_cender.net.weights import CURVATURE_THRESHOLD, load_weights, save_weights, weights_kind, weights_payload
 from bop_cender.progress import progress_bar
 
 CENTER_LOSSES = ("bce", "focal")
@@ -276,7 +276,7 @@ def train(
     if checkpoint_path.exists() and not resume:
         raise ConfigError("holds a training run already: pass --resume to continue it, or another --out", file=run_dir)
     device = torch.device(device)
-    kind = "dimo" if config.dataset == "dimo" else "tless"  # the weights' kind (one channel, or one per object)
+    kind = weights_kind(config.dataset)  # one channel, or one per object
     targets = TargetConfig.for_dataset(config_layout(config.dataset, config.data_root, config.split))
     votes = config.network_spec().center_votes
     train_set = _open_samples(

@@ -101,13 +101,19 @@ def save_weights(path: str | Path, payload: dict[str, Any]) -> None:
         Path(tmp).write_bytes(buffer.getvalue())
 
 
+def weights_kind(dataset: str) -> str:
+    """The kind of weights a dataset layout takes: ``dimo`` (one shared centre channel) for DIMO, ``tless`` (one
+    channel per object id) for T-LESS and every other BOP layout."""
+    return "dimo" if dataset == "dimo" else "tless"
+
+
 def shipped_weights_path(dataset: str) -> Path:
-    """The shipped weights of ``dataset`` (``dimo``, ``tless``).
+    """The shipped weights for ``dataset`` (any layout name: those of its :func:`weights_kind`).
 
     Raises:
         ConfigError: none are shipped for it.
     """
-    name = SHIPPED.get(dataset)
+    name = SHIPPED.get(weights_kind(dataset))
     path = None if name is None else Path(str(resources.files("bop_cender.net") / "weights" / name))
     if path is None or not path.is_file():
         raise ConfigError(
@@ -187,7 +193,7 @@ def load_weights(path: str | Path, dataset: str | None = None, field: str = "--w
         raise ConfigError(f"malformed weights file ({type(exc).__name__}: {_first_line(exc)})", file=path) from None
     _check_channels(path, spec, kind, channel_obj_ids)
     if dataset is not None:
-        wanted = "dimo" if dataset == "dimo" else "tless"
+        wanted = weights_kind(dataset)
         if kind != wanted:
             raise ConfigError(
                 f"these weights were trained for {kind!r} data; dataset {dataset!r} needs {wanted!r} weights",

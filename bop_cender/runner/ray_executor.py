@@ -159,6 +159,6 @@ def _shipped(dataset: str) -> Path | None:
     from bop_cender.net.weights import shipped_weights_path
 
     try:
-        return shipped_weights_path("dimo" if dataset == "dimo" else "tless").resolve()
+        return shipped_weights_path(dataset).resolve()
     except ConfigError:
         return None

@@ -167,7 +167,7 @@ def resolve_weights(request: RunRequest) -> RunRequest:
         return request
     from bop_cender.net.weights import shipped_weights_path
 
-    return replace(request, weights=str(shipped_weights_path("dimo" if request.dataset == "dimo" else "tless")))
+    return replace(request, weights=str(shipped_weights_path(request.dataset)))
 
 
 def results_dataset_name(dataset: str, data_root: str | Path | None) -> str:

@@ -350,3 +350,10 @@ def test_a_calibrated_curvature_threshold_is_read_checked_and_passed_to_the_heat
     assert net_predictor(split, dataset).predict(scene).curvature_threshold == 0.45
     assert "curvature_threshold_by_split" not in load_weights(tmp_path / "split.pt").extra
     assert net_predictor(replace(split, split="sim"), dataset).predict(scene).curvature_threshold == 0.55
+
+
+def test_every_layout_finds_the_shipped_weights_of_its_kind() -> None:
+    from bop_cender.net.weights import shipped_weights_path, weights_kind
+
+    assert [weights_kind(d) for d in ("dimo", "tless", "bop", "ipd")] == ["dimo", "tless", "tless", "tless"]
+    assert shipped_weights_path("bop") == shipped_weights_path("tless") != shipped_weights_path("dimo")
