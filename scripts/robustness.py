@@ -3,7 +3,9 @@
 Why: the network must hold on images it never saw (a real camera is another look). Every look is a copy of the
 test set with the same scenes, poses, cameras and models; only the images differ. The figure per look is the
 paper's strict one on DIMO layouts (AR_MSSD<5%) and the BOP AR on T-LESS layouts, and the drop is measured against
-the own look on the same scenes.
+the own look on the same scenes. ``--measure heatmaps`` measures stage 1 alone instead (``bop-cender heatmaps``: the
+centre peaks' F1 and the curvature's AP against the oracle maps, per view): a few seconds per look instead of
+minutes, and hundreds of centres rather than tens of parts, so the figure to screen a lever with before the poses.
 
 Looks (none of the foreign ones is ever used for training; training sets use the own look, ``synth --appearance
 default`` or ``randomised``):
@@ -33,6 +35,8 @@ from pathlib import Path
 LOOKS = ("own", "sensor", "pyrender", "cycles")
 #: The figure per layout: the paper's strict one for DIMO, BOP's AR for T-LESS.
 FIGURE = {"dimo": "AR_MSSD<5%", "tless": "AR"}
+#: The figures of ``--measure heatmaps`` and their keys in ``bop-cender heatmaps``' JSON.
+HEATMAP_FIGURES = {"centre F1": "center_f1", "curvature AP": "curvature_ap"}
 SCRIPTS = Path(__file__).resolve().parent
 
 
@@ -44,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--looks", default="own,sensor,pyrender", help=f"comma-separated, of {', '.join(LOOKS)}")
     ap.add_argument("--weights", type=Path, default=None, help="the network (default: the shipped weights)")
     ap.add_argument("--heatmaps", default="net", help="run's --heatmaps (net; oracle checks that a look changes no GT)")
+    ap.add_argument("--measure", choices=("pose", "heatmaps"), default="pose",
+                    help="pose: run and score (default); heatmaps: stage 1 alone, centre F1 and curvature AP")  # fmt: skip
     ap.add_argument("--looks-root", type=Path, default=None, help="where the looks' copies go (default DATA.looks/)")
     ap.add_argument("--out", type=Path, required=True, help="folder of the results, scores and the table")
     ap.add_argument("--seed", type=int, default=0, help="draws of the sensor look and the renderers' noise")
@@ -69,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     looks_root = args.looks_root or args.data_root.with_name(args.data_root.name + ".looks")
     args.out.mkdir(parents=True, exist_ok=True)
+    figures = [FIGURE[args.dataset]] if args.measure == "pose" else list(HEATMAP_FIGURES)
     rows = []
     for split in splits:
         for look in looks:
@@ -77,15 +84,19 @@ def main(argv: list[str] | None = None) -> int:
                 code = make_look(look, args.dataset, args.data_root, root, split, args.seed, args.limit_scenes)
                 if code:
                     return code
-            figure = run_and_score(args, root, look, split)
-            if figure is None:
+            measured = (
+                run_and_score(args, root, look, split)
+                if args.measure == "pose"
+                else heatmap_figures(args, root, look, split)
+            )
+            if measured is None:
                 return 2
-            rows.append({"look": look, "split": split, "figure": figure})
-    lines = table(rows, args.dataset, looks, splits)
+            rows.append({"look": look, "split": split, **measured})
+    lines = table(rows, figures, looks, splits)
     print("\n".join(lines))
     (args.out / "robustness.md").write_text("\n".join(lines) + "\n")
     with open(args.out / "robustness.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, ["look", "split", "figure"])
+        writer = csv.DictWriter(f, ["look", "split", *figures])
         writer.writeheader()
         writer.writerows(rows)
     print(f"wrote {args.out / 'robustness.md'} and {args.out / 'robustness.csv'}")
@@ -116,8 +127,31 @@ def make_look(look: str, dataset: str, src: Path, dst: Path, split: str, seed: i
     return subprocess.call(command)
 
 
-def run_and_score(args: argparse.Namespace, root: Path, look: str, split: str) -> float | None:
-    """``bop-cender run`` on one look's copy, then its score; the figure (None: the run or the score failed)."""
+def heatmap_figures(args: argparse.Namespace, root: Path, look: str, split: str) -> dict[str, float] | None:
+    """``bop-cender heatmaps`` on one look's copy; its figures by name (None: the command failed or wrote no figure)."""
+    import json
+
+    out = args.out / f"heatmaps{look}_{args.dataset}-{split}"
+    report = out / f"heatmaps_{args.dataset}-{split}.json"
+    if not report.exists():
+        command = [sys.executable, "-m", "bop_cender.cli", "heatmaps", "--dataset", args.dataset, "--data-root",
+                   str(root), "--split", split, "--out", str(out), "--no-progress"]  # fmt: skip
+        command += [] if args.weights is None else ["--weights", str(args.weights)]
+        command += [] if args.limit_scenes is None else ["--limit-scenes", str(args.limit_scenes)]
+        if subprocess.call(command):
+            print(f"error: the heatmaps of {root} ({look}, {split}) failed", file=sys.stderr)
+            return None
+    try:
+        metrics = json.loads(report.read_text())["metrics"]
+        return {name: float(metrics[key]) for name, key in HEATMAP_FIGURES.items()}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"error: {report}: no heatmap figures ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return None
+
+
+def run_and_score(args: argparse.Namespace, root: Path, look: str, split: str) -> dict[str, float] | None:
+    """``bop-cender run`` on one look's copy, then its score; the figure by name (None: the run or the score
+    failed)."""
     from bop_cender.errors import BopCenderError
     from bop_cender.eval.score_file import score_file
 
@@ -150,20 +184,22 @@ def run_and_score(args: argparse.Namespace, root: Path, look: str, split: str) -
         print(f"error: {csv_path}: {FIGURE[args.dataset]} is not available ({'; '.join(scored.report.notes)})",
               file=sys.stderr)  # fmt: skip
         return None
-    return float(figure)
+    return {FIGURE[args.dataset]: float(figure)}
 
 
-def table(rows: list[dict], dataset: str, looks: list[str], splits: list[str]) -> list[str]:
-    """A markdown table: one row per look, per split its figure and the drop from the own look (absolute, %)."""
-    figure = {(r["look"], r["split"]): r["figure"] for r in rows}
-    head = f"| look | {' | '.join(f'{s} {FIGURE[dataset]} | drop' for s in splits)} |"
-    lines = [head, "|---|" + "---:|---:|" * len(splits)]
+def table(rows: list[dict], figures: list[str], looks: list[str], splits: list[str]) -> list[str]:
+    """A markdown table: one row per look, per split and figure its value and the drop from the own look (absolute,
+    %)."""
+    by_look = {(r["look"], r["split"]): r for r in rows}
+    head = f"| look | {' | '.join(f'{s} {name} | drop' for s in splits for name in figures)} |"
+    lines = [head, "|---|" + "---:|---:|" * len(splits) * len(figures)]
     for look in looks:
         cells = []
         for split in splits:
-            value, own = figure[(look, split)], figure.get(("own", split))
-            drop = "" if own is None or look == "own" else f"{value - own:+.3f} ({(value / own - 1) * 100:+.0f} %)"
-            cells.append(f"{value:.3f} | {drop}" if own else f"{value:.3f} | ")
+            for name in figures:
+                value, own = by_look[(look, split)][name], by_look.get(("own", split), {}).get(name)
+                drop = "" if not own or look == "own" else f"{value - own:+.3f} ({(value / own - 1) * 100:+.0f} %)"
+                cells.append(f"{value:.3f} | {drop}")
         lines.append(f"| {look} | {' | '.join(cells)} |")
     return lines
 

@@ -70,6 +70,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=positive_number("--width"), default=1.0, help="channel multiplier (default 1)")
     p.add_argument("--crop", default=None, metavar="HxW", help="train on random HxW crops (default: whole images)")
     p.add_argument("--no-augment", action="store_true", help="no data augmentation (ablation)")
+    p.add_argument(
+        "--camera-augment",
+        action="store_true",
+        help="after the paper's augmentations, another camera per image: colour cast, tone curve, defocus, resolution"
+        " loss, signal-dependent noise, grey (issue 42's lever; results/robustness/)",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--seed", type=count("--seed", 0), default=0, help="everything random derives from it (default 0)")
     p.add_argument(
@@ -191,7 +197,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         dataset=args.dataset, data_root=str(root), split=args.split or ("train" if kind == "dimo" else "train_pbr"),
         val_split=args.val_split, val_data_root=args.val_data_root, epochs=args.epochs, batch_size=args.batch_size,
         lr=args.lr, variant=variant, width=args.width, crop=crop,
-        augment=not args.no_augment, seed=args.seed, limit_scenes=args.limit_scenes,
+        augment=not args.no_augment, camera_augment=args.camera_augment, seed=args.seed, limit_scenes=args.limit_scenes,
         val_limit_scenes=args.val_limit_scenes, init_weights=args.init_weights,
         center_pos_weight=args.center_pos_weight, center_loss=args.center_loss,
         center_loss_weight=args.center_loss_weight, factored_centers=args.factored_centers,

@@ -38,6 +38,7 @@ from bop_cender.data.registry import DatasetRequest, open_dataset
 from bop_cender.errors import BopCenderError, ConfigError
 from bop_cender.meshes import MeshCache
 from bop_cender.net.augment import AugmentConfig, augment_with_votes
+from bop_cender.net.camera_augment import camera_augment
 from bop_cender.net.init_from import start_from
 from bop_cender.net.metrics import HeatmapMetrics, HeatmapMetricsConfig
 from bop_cender.net.predictor import known_class_mask
@@ -62,6 +63,10 @@ class TrainConfig:
         variant, width: network variant (:meth:`UNetSpec.named`) and width multiplier.
         crop: ``(H, W)`` random crops of every sample (None: whole images).
         augment: the appendix's augmentations (False: none, for tests and ablations).
+        camera_augment: after them, another camera per sample (:mod:`bop_cender.net.camera_augment`: colour cast,
+            tone curve, defocus, resolution loss, signal-dependent noise, grey), drawn from its own stream so that
+            the appendix's draws stay those of a run without it (issue 42's lever, measured in
+            ``results/robustness/``).
         seed: everything random derives from it.
         limit_scenes, val_limit_scenes: the first K scenes only (smoke runs).
         init_weights: start from these weights (same network spec) instead of a random init: fine-tuning,
@@ -111,6 +116,7 @@ class TrainConfig:
     width: float = 1.0
     crop: tuple[int, int] | None = None
     augment: bool = True
+    camera_augment: bool = False
     seed: int = 0
     limit_scenes: int | None = None
     val_limit_scenes: int | None = None
@@ -153,6 +159,9 @@ class TrainConfig:
             raise ConfigError(f"must be a positive number, got {self.class_loss_weight}", field="--class-loss-weight")
         if not (math.isfinite(self.vote_loss_weight) and self.vote_loss_weight > 0):
             raise ConfigError(f"must be a positive number, got {self.vote_loss_weight}", field="--vote-loss-weight")
+        if self.camera_augment and not self.augment:
+            raise ConfigError("adds to the appendix's augmentations, which --no-augment turns off",
+                              field="--camera-augment")  # fmt: skip
         if self.crop is not None and min(self.crop) < 1:
             raise ConfigError(f"crop sizes must be >= 1, got {self.crop}", field="--crop")
         if self.val_data_root is not None and self.val_split is None:
@@ -514,6 +523,7 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
     order = torch.randperm(len(samples), generator=_epoch_generator(config.seed, epoch, 0)).numpy()
     batches = [order[i : i + config.batch_size] for i in range(0, len(order), config.batch_size)]
     gen = _epoch_generator(config.seed, epoch, 1)
+    camera_gen = _epoch_generator(config.seed, epoch, 2)
     totals = np.zeros(3)
     seen = 0
     t0 = time.perf_counter()
@@ -526,6 +536,8 @@ def _train_epoch(model, optimiser, samples: SampleSet, config, aug, epoch, devic
         if config.crop is not None:
             image, center, curvature, votes = random_crop(image, center, curvature, config.crop, gen, votes)
         image, center, curvature, votes = augment_with_votes(image, center, curvature, votes, aug, gen)
+        if config.camera_augment:
+            image = camera_augment(image, camera_gen)
         with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=device.type == "cuda"):
             center_logits, curvature_logits, vote_logits = model.forward_outputs(image)
         loss_center = _center_loss(config, center_logits.float(), center, model.spec.factored_centers)

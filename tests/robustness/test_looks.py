@@ -3,6 +3,7 @@ look (``synth/relook.py``) and the benchmark's table (``scripts/robustness.py``)
 
 from __future__ import annotations
 
+import csv
 import filecmp
 import sys
 from pathlib import Path
@@ -102,15 +103,39 @@ def test_a_relook_that_fails_midway_leaves_nothing(tmp_path: Path) -> None:
 
 def test_the_table_gives_each_look_its_drop_from_the_own_look() -> None:
     rows = [
-        {"look": "own", "split": "sim", "figure": 0.8},
-        {"look": "sensor", "split": "sim", "figure": 0.6},
-        {"look": "own", "split": "real", "figure": 0.5},
-        {"look": "sensor", "split": "real", "figure": 0.5},
+        {"look": "own", "split": "sim", "AR_MSSD<5%": 0.8},
+        {"look": "sensor", "split": "sim", "AR_MSSD<5%": 0.6},
+        {"look": "own", "split": "real", "AR_MSSD<5%": 0.5},
+        {"look": "sensor", "split": "real", "AR_MSSD<5%": 0.5},
     ]
-    lines = robustness.table(rows, "dimo", ["own", "sensor"], ["sim", "real"])
+    lines = robustness.table(rows, ["AR_MSSD<5%"], ["own", "sensor"], ["sim", "real"])
     assert lines[0] == "| look | sim AR_MSSD<5% | drop | real AR_MSSD<5% | drop |"
     assert lines[2] == "| own | 0.800 |  | 0.500 |  |"
     assert lines[3] == "| sensor | 0.600 | -0.200 (-25 %) | 0.500 | +0.000 (+0 %) |"
+    two = [
+        {"look": "own", "split": "sim", "a": 0.5, "b": 0.0},
+        {"look": "pyrender", "split": "sim", "a": 0.4, "b": 0.1},
+    ]
+    lines = robustness.table(two, ["a", "b"], ["own", "pyrender"], ["sim"])
+    assert lines[0] == "| look | sim a | drop | sim b | drop |" and lines[1] == "|---|---:|---:|---:|---:|"
+    assert lines[3] == "| pyrender | 0.400 | -0.100 (-20 %) | 0.100 |  |"  # no drop from an own figure of 0
+
+
+def test_the_heatmap_measure_scores_stage_one_per_look_and_keeps_its_reports(tmp_path: Path) -> None:
+    """``--measure heatmaps`` with oracle maps: every look's centre F1 and curvature AP are 1 (a look changes no
+    ground truth), written to the table and CSV; a second call reads the kept reports and runs nothing."""
+    src = method_data.build(tmp_path / "src", n_scenes=1)
+    out = tmp_path / "out"
+    args = ["--dataset", "dimo", "--data-root", str(src), "--splits", "real", "--looks", "own,sensor", "--weights",
+            "oracle", "--measure", "heatmaps", "--out", str(out)]  # fmt: skip
+    assert robustness.main(args) == 0
+    with open(out / "robustness.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["look"] for r in rows] == ["own", "sensor"]
+    assert all(float(r["centre F1"]) == 1.0 and float(r["curvature AP"]) > 0.99 for r in rows)
+    assert (out / "robustness.md").read_text().startswith("| look | real centre F1 | drop | real curvature AP | drop |")
+    (out / "heatmapsown_dimo-real" / "heatmaps_dimo-real.json").write_text("{")
+    assert robustness.main(args) == 2  # a damaged report is one error, not a traceback
 
 
 def test_an_unknown_look_or_a_missing_data_root_is_one_error(tmp_path: Path, capsys) -> None:
