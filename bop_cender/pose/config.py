@@ -63,6 +63,9 @@ class CandidateSettings:
         segments: size of the sparse edge model that ranks the candidates (segments; 600; 2026-12-02).
         rerank: best candidates re-ranked by the full edge model (count; 100; 2026-12-03 third session).
         start_separation_rad: least rotation between two starts of the edge search (rad; 0.35; 2026-12-03 third).
+        symmetric_separation: measure that rotation modulo the object's symmetries (``models_info``), so that the
+            starts of a symmetric part are distinct poses, not copies of one (bool; false; measured on the bins:
+            ``results/accuracy/industrial/README.md``).
     """
 
     n: int = 2000
@@ -72,6 +75,7 @@ class CandidateSettings:
     segments: int = 600
     rerank: int = 100
     start_separation_rad: float = 0.35
+    symmetric_separation: bool = False
 
 
 _CANDIDATES = {
@@ -248,7 +252,7 @@ class PoseConfig:
                 section = getattr(section, part)
             if not isinstance(section, kind):
                 raise ConfigError(f"poses.{name}: expected a {kind.__name__}, got {section!r}", field="--set")
-            check_settings(f"poses.{name}", section, bounds)
+            check_settings(f"poses.{name}", section, bounds, flags=_SECTION_FLAGS.get(name, ()))
 
 
 _POSES = {
@@ -271,6 +275,10 @@ _SECTIONS: tuple[tuple[str, type, Mapping[str, Bound]], ...] = (
     ("scene_polish.nelder_mead", NelderMead, _NELDER_MEAD),
     ("network", NetworkSettings, _NETWORK),
 )
+
+
+#: The bool fields of a section (checked as flags).
+_SECTION_FLAGS: dict[str, tuple[str, ...]] = {"candidates": ("symmetric_separation",)}
 
 
 def _where_set(section: object, **values: object) -> object:

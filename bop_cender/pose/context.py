@@ -40,6 +40,9 @@ class SceneContext:
         backend: the code that computes every render and cost (``config.backend``,
             :func:`~bop_cender.pose.backend.backend_named`: one object per name and process).
         cost_threads: threads that render the chunks of the render search's candidate batch side by side.
+        symmetries: the rotations ``(S, 3, 3)`` of an object id's symmetries (identity first; BOP's set,
+            :meth:`~bop_cender.data.types.ObjectModel.symmetry_transforms`); None: none known. Read only with
+            ``candidates.symmetric_separation``.
     """
 
     config: PoseConfig
@@ -51,6 +54,7 @@ class SceneContext:
     edge_threshold: float
     backend: Backend
     cost_threads: int = 1
+    symmetries: Callable[[int], np.ndarray] | None = None
 
     @property
     def cameras(self) -> SceneCameras:
@@ -74,6 +78,7 @@ def scene_context(
     curvature_scale: float = DEFAULT_CURVATURE_SCALE,
     target_threshold: float | None = None,
     device: torch.device | str | None = None,
+    symmetries: Callable[[int], np.ndarray] | None = None,
 ) -> SceneContext:
     """The context of a scene whose predicted curvature is ``curvature (V, H, W)`` in [0, 1].
 
@@ -94,6 +99,7 @@ def scene_context(
         device: where every render and cost runs (None: the device of ``curvature``, CPU for an array).
             The distance transform runs on the CPU (SciPy), once per scene; its maps, the meshes and the
             edge models then live on ``device`` (``cost_threads`` only counts on the CPU).
+        symmetries: see :class:`SceneContext`.
     """
     if device is None:
         device = curvature.device if isinstance(curvature, torch.Tensor) else torch.device("cpu")
@@ -111,7 +117,9 @@ def scene_context(
         coarse = CostMaps(cameras.downscaled(f), torch.as_tensor(distance_maps(pooled.numpy())).to(device))
     edge_threshold = config.t_b * curvature_scale
     backend = backend_named(config.backend)
-    return SceneContext(config, fine, coarse, meshes, edges, model_centers, edge_threshold, backend, cost_threads)
+    return SceneContext(
+        config, fine, coarse, meshes, edges, model_centers, edge_threshold, backend, cost_threads, symmetries
+    )
 
 
 class _MeshesOn:

@@ -48,6 +48,15 @@ class Refinement:
         """The object's 3D centre ``(3,)`` in model coordinates (mm)."""
         return self.context.model_centers(self.obj_id)
 
+    @cached_property
+    def start_symmetries(self) -> np.ndarray | None:
+        """The rotations ``(S, 3, 3)`` modulo which the starts of this object are kept apart
+        (``candidates.symmetric_separation`` and known symmetries), else None (the plain rotation)."""
+        symmetries = self.context.symmetries
+        if not self.config.candidates.symmetric_separation or symmetries is None:
+            return None
+        return np.asarray(symmetries(self.obj_id), dtype=np.float64)
+
     @property
     def mesh(self) -> RenderMesh:
         return self.context.meshes(self.obj_id)

@@ -127,13 +127,13 @@ def edge_search_starts(problem: Refinement, ranked: np.ndarray, search_cost) -> 
     basin's best candidate, and only refining shows which is which, and screened starts often meet in one basin.
     Without it, the ``top_k`` best diverse candidates (:func:`diverse_starts`)."""
     config, cand = problem.config, problem.config.candidates
-    top_k, separation = max(1, cand.top_k), cand.start_separation_rad
+    top_k, separation, sym = max(1, cand.top_k), cand.start_separation_rad, problem.start_symmetries
     if min(config.screen.starts, len(ranked)) <= top_k:
-        return ranked[diverse_starts(ranked, top_k, separation)], 0
-    screened = ranked[diverse_starts(ranked, config.screen.starts, separation)]
+        return ranked[diverse_starts(ranked, top_k, separation, sym)], 0
+    screened = ranked[diverse_starts(ranked, config.screen.starts, separation, sym)]
     T_s, f_s, fev = refine(screened, problem, search_cost, config.screen.nelder_mead)
     refined = T_s[np.argsort(f_s, kind="stable")]
-    return refined[diverse_starts(refined, top_k, separation)], fev
+    return refined[diverse_starts(refined, top_k, separation, sym)], fev
 
 
 def search_on_render(
@@ -152,18 +152,23 @@ def search_on_render(
     return T_ref, c_ref, fev + len(T)
 
 
-def diverse_starts(T: np.ndarray, k: int, separation_rad: float) -> np.ndarray:
+def diverse_starts(T: np.ndarray, k: int, separation_rad: float, symmetries: np.ndarray | None = None) -> np.ndarray:
     """Indices of up to ``k`` of the poses ``T (n, 4, 4)`` (best first): greedily, each one whose rotation
     differs from every pose taken before by more than ``separation_rad`` (0: the first k), topped up in
-    order when too few differ."""
+    order when too few differ. With ``symmetries (S, 3, 3)`` (the object's symmetry rotations, identity among
+    them) the difference is the least over the symmetric copies ``R @ S`` of a pose: copies of one pose are not
+    diverse starts."""
     if separation_rad <= 0 or len(T) <= 1:
         return np.arange(min(k, len(T)))
     R = T[:, :3, :3]
+    S = np.eye(3)[None] if symmetries is None else np.asarray(symmetries, dtype=np.float64).reshape(-1, 3, 3)
     taken = [0]
     for i in range(1, len(T)):
         if len(taken) == k:
             break
-        cos = (np.einsum("kij,ij->k", R[taken], R[i]) - 1.0) / 2.0  # cos of the angle between rotations
+        rel = np.einsum("kji,jl->kil", R[taken], R[i])  # R_taken^T R_i
+        # cos of the angle between rotations, the nearest symmetric copy of pose i
+        cos = (np.einsum("kij,sji->ks", rel, S).max(axis=1) - 1.0) / 2.0
         if np.all(cos < np.cos(separation_rad)):
             taken.append(i)
     rest = [i for i in range(len(T)) if i not in taken][: k - len(taken)]

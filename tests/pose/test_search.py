@@ -4,6 +4,7 @@ starts, the starts kept apart in rotation, and an earlier sweep's pose as one mo
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -98,6 +99,37 @@ def test_diverse_starts_are_positions_in_the_ranking_best_first_and_apart_in_rot
     np.testing.assert_array_equal(diverse_starts(ranked, 3, 0.0), [0, 1, 2])
     # too few far apart: topped up in ranking order
     np.testing.assert_array_equal(diverse_starts(ranked[:2], 2, np.radians(20)), [0, 1])
+
+
+def test_diverse_starts_modulo_symmetries_skip_the_symmetric_copies_of_a_start():
+    """With an object's symmetry rotations, a pose 60 degrees about the axis of a 6-fold symmetric part is the same
+    pose, not a diverse start: the next distinct pose is taken instead."""
+
+    def pose(axis, deg):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler(axis, deg, degrees=True).as_matrix()
+        return T
+
+    sixfold = np.stack([Rotation.from_euler("z", 60 * k, degrees=True).as_matrix() for k in range(6)])
+    ranked = np.stack([pose("z", 0), pose("z", 60), pose("z", 125), pose("x", 90)])  # best first
+    np.testing.assert_array_equal(diverse_starts(ranked, 2, np.radians(20)), [0, 1])
+    np.testing.assert_array_equal(diverse_starts(ranked, 2, np.radians(20), sixfold), [0, 3])
+    np.testing.assert_array_equal(diverse_starts(ranked, 2, np.radians(20), np.eye(3)[None]), [0, 1])  # none
+
+
+def test_the_starts_are_kept_apart_modulo_symmetries_only_where_set(mini):
+    """``candidates.symmetric_separation`` hands the context's symmetry rotations to the starts (off by default,
+    and without symmetries known to the context)."""
+    sixfold = np.stack([Rotation.from_euler("z", 60 * k, degrees=True).as_matrix() for k in range(6)])
+    target = _target(mini)
+    for settings, symmetries, expected in (((), lambda obj_id: sixfold, False),
+                                           (("candidates.symmetric_separation=true",), lambda obj_id: sixfold, True),
+                                           (("candidates.symmetric_separation=true",), None, False)):  # fmt: skip
+        context = replace(pose_context(mini, pose_config(*settings)), symmetries=symmetries)
+        got = Refinement(context, target, 3).start_symmetries
+        assert (got is not None) == expected
+        if expected:
+            np.testing.assert_array_equal(got, sixfold)
 
 
 def test_the_candidates_spread_about_the_target_centre(mini):
