@@ -47,6 +47,19 @@ def test_the_search_screen_is_on_for_dimo_and_off_for_tless_layouts_unless_set()
     assert {k: v for k, v in tless.items() if dimo[k] != v} == {"screen": {**dimo["screen"], "starts": 0}}
 
 
+def test_bins_keep_the_screen_and_separate_their_starts_modulo_symmetries_unless_set():
+    dimo = asdict(PoseConfig())
+    for name in ("industrial", "ipd", "xyzibd", "itoddmv"):
+        bins = CenDerNetConfig.for_dataset(name)
+        assert bins.poses.screen.starts == 8 and bins.poses.candidates.symmetric_separation
+        assert bins.targets == CenDerNetConfig.for_dataset("industrial").targets
+        changed = {k: v for k, v in asdict(bins.poses).items() if dimo[k] != v}
+        assert changed == {"candidates": {**dimo["candidates"], "symmetric_separation": True}}
+    unset = CenDerNetConfig.for_dataset("ipd").with_settings(["poses.candidates.symmetric_separation=false"])
+    assert not unset.poses.candidates.symmetric_separation
+    assert not CenDerNetConfig.for_dataset("bop").poses.candidates.symmetric_separation
+
+
 def test_the_curvature_thresholds_are_checked():
     with pytest.raises(ConfigError, match="poses.t_b: expected a number in"):
         PoseConfig(t_b=1.0)
