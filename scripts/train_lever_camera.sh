@@ -5,7 +5,8 @@
 # curve, defocus, resolution loss, signal-dependent noise, grey). The control is that v2 run (RUN_CONTROL, made by
 # commit 95c6b39's scripts/train_lever_norm.sh with --input-norm none, which is the default network).
 # Then the three networks (shipped, control, lever) through the stage-1 measure on the looks of an unseen set.
-# Resumable: run it again. On 2 CPU cores: about 5 x 6 min of training, 15 min of measuring.
+# Resumable: run it again. On 2 CPU cores shared with other jobs: 62 min of training (5 epochs), 3 x 5 min of
+# heatmap figures, 3 x 6 x 2 min of pose runs (2026-12-08; results/robustness/README.md, v4).
 # Usage: DATA=/work/lever TEST=/work/rob/dimo_60631 RUN_CONTROL=/work/lever/runs/lever-norm-none-ft \
 #   bash scripts/train_lever_camera.sh
 set -euo pipefail
@@ -30,4 +31,9 @@ train_stage "$RUN-ft" "${common[@]}" --epochs 1 --lr 1e-4 --seed 43 --init-weigh
 for net in "shipped:bop_cender/net/weights/dimo.pt" "control:$RUN_CONTROL/weights.pt" "camera:$RUN-ft/weights.pt"; do
   python scripts/robustness.py --dataset dimo --data-root "$TEST" --measure heatmaps --looks own,sensor,pyrender \
     --weights "${net#*:}" --out "$RUN-ft/robustness-heatmaps/${net%%:*}"
+done
+# End to end (AR_MSSD<5% per look; the looks' copies above are reused).
+for net in "shipped:bop_cender/net/weights/dimo.pt" "control:$RUN_CONTROL/weights.pt" "camera:$RUN-ft/weights.pt"; do
+  python scripts/robustness.py --dataset dimo --data-root "$TEST" --splits sim,real --looks own,sensor,pyrender \
+    --weights "${net#*:}" --out "$RUN-ft/robustness-pose/${net%%:*}" --workers 2
 done
