@@ -168,7 +168,6 @@ class CenDerNet:
         self.config = config
         self.predictor = predictor
         self.meshes = meshes or MeshCache(models)
-        self._symmetries: dict[int, np.ndarray] = {}
 
     def estimate(self, scene: Scene) -> SceneEstimate:
         return self.run_scene(scene).estimate
@@ -212,7 +211,7 @@ class CenDerNet:
                 curvature_scale=self.config.targets.curvature_scale,
                 target_threshold=self._curvature_threshold(heatmaps),
                 device=self.pose_device,
-                symmetries=self._symmetry_rotations,
+                symmetries=lambda obj_id: self.models[obj_id].symmetry_transforms()[0],
             )
             placed = optimise_scene(context, targets)
         t3 = time.perf_counter()
@@ -223,12 +222,6 @@ class CenDerNet:
         timings = {"heatmaps": t1 - t0, "centers": t2 - t1, "poses": t3 - t2}
         estimate = SceneEstimate(scene.key, scene.scene_id, objects, time_s=t3 - t0, timings=timings)
         return SceneOutput(estimate, heatmaps, centers, placed)
-
-    def _symmetry_rotations(self, obj_id: int) -> np.ndarray:
-        """The rotations ``(S, 3, 3)`` of ``obj_id``'s BOP symmetries (identity first), computed once per object."""
-        if obj_id not in self._symmetries:
-            self._symmetries[obj_id] = self.models[obj_id].symmetry_transforms()[0]
-        return self._symmetries[obj_id]
 
     def _curvature_threshold(self, heatmaps: Heatmaps) -> float | None:
         """Where stage 3 binarises ``heatmaps``' curvature: a network's (heatmaps that carry a threshold) at

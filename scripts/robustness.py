@@ -47,7 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--splits", default=None, help="comma-separated (default: dimo sim,real; tless test)")
     ap.add_argument("--looks", default="own,sensor,pyrender", help=f"comma-separated, of {', '.join(LOOKS)}")
     ap.add_argument("--weights", type=Path, default=None, help="the network (default: the shipped weights)")
-    ap.add_argument("--heatmaps", default="net", help="run's --heatmaps (net; oracle checks that a look changes no GT)")
+    ap.add_argument("--heatmaps", choices=("net", "oracle", "oracle-centers", "oracle-curvature"), default="net",
+                    help="run's --heatmaps (net; oracle checks that a look changes no ground truth; --measure heatmaps:"
+                    " net or oracle)")  # fmt: skip
     ap.add_argument("--measure", choices=("pose", "heatmaps"), default="pose",
                     help="pose: run and score (default); heatmaps: stage 1 alone, centre F1 and curvature AP")  # fmt: skip
     ap.add_argument("--looks-root", type=Path, default=None, help="where the looks' copies go (default DATA.looks/)")
@@ -69,6 +71,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.limit_scenes is not None and args.limit_scenes < 1:
         print(f"error: --limit-scenes: expected 1 or more, got {args.limit_scenes}", file=sys.stderr)
+        return 2
+    if args.measure == "heatmaps" and args.heatmaps not in ("net", "oracle"):
+        print(
+            f"error: --heatmaps {args.heatmaps}: --measure heatmaps measures the network or the oracle", file=sys.stderr
+        )
         return 2
     if not args.data_root.is_dir():
         print(f"error: --data-root: {args.data_root} is not a folder", file=sys.stderr)
@@ -131,13 +138,11 @@ def heatmap_figures(args: argparse.Namespace, root: Path, look: str, split: str)
     """``bop-cender heatmaps`` on one look's copy; its figures by name (None: the command failed or wrote no figure)."""
     import json
 
-    out = args.out / f"heatmaps{look}_{args.dataset}-{split}"
+    out = args.out / f"heatmaps-{args.heatmaps}{look}_{args.dataset}-{split}"
     report = out / f"heatmaps_{args.dataset}-{split}.json"
     if not report.exists():
-        command = [sys.executable, "-m", "bop_cender.cli", "heatmaps", "--dataset", args.dataset, "--data-root",
-                   str(root), "--split", split, "--out", str(out), "--no-progress"]  # fmt: skip
-        command += [] if args.weights is None else ["--weights", str(args.weights)]
-        command += [] if args.limit_scenes is None else ["--limit-scenes", str(args.limit_scenes)]
+        weights = "oracle" if args.heatmaps == "oracle" else args.weights  # `heatmaps` takes the oracle as weights
+        command = cli_command(args, "heatmaps", root, split, weights, "--out", str(out), "--no-progress")
         if subprocess.call(command):
             print(f"error: the heatmaps of {root} ({look}, {split}) failed", file=sys.stderr)
             return None
@@ -157,20 +162,8 @@ def run_and_score(args: argparse.Namespace, root: Path, look: str, split: str) -
 
     csv_path = args.out / f"{args.heatmaps}{look}_{args.dataset}-{split}.csv"
     if not csv_path.exists():
-        command = [sys.executable, "-m", "bop_cender.cli", "run", "--dataset", args.dataset, "--data-root", str(root)]
-        command += [
-            "--split",
-            split,
-            "--heatmaps",
-            args.heatmaps,
-            "--out",
-            str(csv_path),
-            "--workers",
-            str(args.workers),
-        ]
-        command += ["--deterministic-time", "--resume"]
-        command += [] if args.weights is None else ["--weights", str(args.weights)]
-        command += [] if args.limit_scenes is None else ["--limit-scenes", str(args.limit_scenes)]
+        command = cli_command(args, "run", root, split, args.weights, "--heatmaps", args.heatmaps, "--out",
+                              str(csv_path), "--workers", str(args.workers), "--deterministic-time", "--resume")  # fmt: skip
         if subprocess.call(command):
             print(f"error: the run on {root} ({look}, {split}) failed", file=sys.stderr)
             return None
@@ -185,6 +178,16 @@ def run_and_score(args: argparse.Namespace, root: Path, look: str, split: str) -
               file=sys.stderr)  # fmt: skip
         return None
     return {FIGURE[args.dataset]: float(figure)}
+
+
+def cli_command(
+    args: argparse.Namespace, subcommand: str, root: Path, split: str, weights: Path | str | None, *extra: str
+) -> list[str]:
+    """``bop-cender SUBCOMMAND`` on one look's copy (``root``, ``split``) with ``weights`` (None: the shipped ones),
+    ``--limit-scenes`` where given, and ``extra``."""
+    command = [sys.executable, "-m", "bop_cender.cli", subcommand, "--dataset", args.dataset, "--data-root", str(root)]
+    command += ["--split", split, *extra] + ([] if weights is None else ["--weights", str(weights)])
+    return command + ([] if args.limit_scenes is None else ["--limit-scenes", str(args.limit_scenes)])
 
 
 def table(rows: list[dict], figures: list[str], looks: list[str], splits: list[str]) -> list[str]:

@@ -201,8 +201,19 @@ class ObjectModel:
         return load_ply(self.path)
 
     def symmetry_transforms(self, max_sym_disc_step: float = BOP19_MAX_SYM_DISC_STEP) -> tuple[np.ndarray, np.ndarray]:
-        """BOP symmetry set ``R (S, 3, 3)``, ``t (S, 3)``, identity first."""
+        """BOP symmetry set ``R (S, 3, 3)``, ``t (S, 3)``, identity first; at BOP's step, made once per model (a
+        continuous symmetry is hundreds of rotations, asked for by every pose search and every scored pair) and
+        read-only."""
+        if max_sym_disc_step == BOP19_MAX_SYM_DISC_STEP:
+            return self._bop_symmetry_transforms
         return symmetry_transforms(self.symmetries_discrete, self.symmetries_continuous, max_sym_disc_step)
+
+    @cached_property
+    def _bop_symmetry_transforms(self) -> tuple[np.ndarray, np.ndarray]:
+        R, t = symmetry_transforms(self.symmetries_discrete, self.symmetries_continuous, BOP19_MAX_SYM_DISC_STEP)
+        R.setflags(write=False)
+        t.setflags(write=False)
+        return R, t
 
 
 @dataclass(frozen=True, eq=False)

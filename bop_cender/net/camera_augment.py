@@ -26,6 +26,7 @@ operations apply), so a seed gives the same images on CPU and CUDA up to float r
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -60,28 +61,39 @@ def camera_augment(image: torch.Tensor, generator: torch.Generator) -> torch.Ten
     B = image.shape[0]
     if image.numel() == 0:
         return image.clone()
-    u = torch.rand((B, _NUM_DRAWS), generator=generator, dtype=torch.float64)
+    u = torch.rand((B, _NUM_DRAWS), generator=generator, dtype=torch.float64).to(image.device)
     noise = torch.randn(image.shape, generator=generator, dtype=image.dtype).to(image.device)
 
-    def coin(col: int, p: float) -> torch.Tensor:
-        return (u[:, col] < p).to(image.device).view(B, 1, 1, 1)
-
     def uniform(col: int, lo: float, hi: float) -> torch.Tensor:
-        return (lo + (hi - lo) * u[:, col]).to(device=image.device, dtype=image.dtype)
+        return (lo + (hi - lo) * u[:, col]).to(image.dtype)
 
-    img = image
-    gains = torch.ones((B, 3), dtype=image.dtype, device=image.device)
-    gains[:, 0], gains[:, 2] = uniform(_RED, *CAST_GAIN), uniform(_BLUE, *CAST_GAIN)
-    img = torch.where(coin(_CAST_ON, CAST_P), (img * gains.view(B, 3, 1, 1)).clamp(0.0, 1.0), img)
-    gamma = torch.exp(uniform(_GAMMA, -math.log(GAMMA_MAX), math.log(GAMMA_MAX))).view(B, 1, 1, 1)
-    img = torch.where(coin(_TONE_ON, TONE_P), img.clamp_min(1e-6) ** gamma, img)
-    img = torch.where(coin(_BLUR_ON, BLUR_P), gaussian_blur_per_sample(img, uniform(_SIGMA, *BLUR_SIGMA)), img)
-    img = torch.where(coin(_LOWRES_ON, LOWRES_P), _low_resolution(img, uniform(_LOWRES, *LOWRES_FACTOR)), img)
-    shot, read = uniform(_SHOT, 0.0, SHOT_NOISE).view(B, 1, 1, 1), uniform(_READ, 0.0, READ_NOISE).view(B, 1, 1, 1)
-    std = shot * img.sqrt() + read
-    img = torch.where(coin(_NOISE_ON, NOISE_P), (img + std * noise).clamp(0.0, 1.0), img)
-    img = torch.where(coin(_GREY_ON, GREY_P), grayscale(img).expand_as(img), img)
-    return img.contiguous()
+    def where_drawn(img: torch.Tensor, col: int, p: float, op: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]):
+        """``img`` with ``op(img[on], on)`` on the samples ``on`` whose coin in column ``col`` fell under ``p`` (only
+        those are computed)."""
+        on = (u[:, col] < p).nonzero().flatten()
+        if on.numel() == 0:
+            return img
+        out = img.clone()
+        out[on] = op(img[on], on)
+        return out
+
+    gains = torch.stack([uniform(_RED, *CAST_GAIN), torch.ones_like(u[:, 0], dtype=image.dtype),
+                         uniform(_BLUE, *CAST_GAIN)], dim=1)  # fmt: skip
+    gamma = torch.exp(uniform(_GAMMA, -math.log(GAMMA_MAX), math.log(GAMMA_MAX)))
+    sigma, factor = uniform(_SIGMA, *BLUR_SIGMA), uniform(_LOWRES, *LOWRES_FACTOR)
+    shot, read = uniform(_SHOT, 0.0, SHOT_NOISE), uniform(_READ, 0.0, READ_NOISE)
+
+    def noisy(x: torch.Tensor, on: torch.Tensor) -> torch.Tensor:
+        std = shot[on, None, None, None] * x.sqrt() + read[on, None, None, None]  # shot noise grows with the signal
+        return (x + std * noise[on]).clamp(0.0, 1.0)
+
+    img = where_drawn(image, _CAST_ON, CAST_P, lambda x, on: (x * gains[on, :, None, None]).clamp(0.0, 1.0))
+    img = where_drawn(img, _TONE_ON, TONE_P, lambda x, on: x.clamp_min(1e-6) ** gamma[on, None, None, None])
+    img = where_drawn(img, _BLUR_ON, BLUR_P, lambda x, on: gaussian_blur_per_sample(x, sigma[on]))
+    img = where_drawn(img, _LOWRES_ON, LOWRES_P, lambda x, on: _low_resolution(x, factor[on]))
+    img = where_drawn(img, _NOISE_ON, NOISE_P, noisy)
+    img = where_drawn(img, _GREY_ON, GREY_P, lambda x, on: grayscale(x).expand_as(x))
+    return img if img is not image else image.clone()
 
 
 def gaussian_blur_per_sample(image: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:

@@ -23,7 +23,6 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from bop_cender.cluster import (
     WorkerHello,
@@ -42,9 +41,6 @@ from bop_cender.runner.build import build_method, open_run_dataset
 from bop_cender.runner.request import RunRequest, uses_network
 from bop_cender.runner.shards import SceneOutcome
 from bop_cender.runner.worker import WorkerState, figure_name
-
-if TYPE_CHECKING:  # the network code loads only where a run uses a network
-    pass
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,9 @@ def test_object_model_centre_and_symmetry(tmp_path):
     assert m.is_symmetric
     R, t = m.symmetry_transforms()
     assert R.shape == (2, 3, 3)
+    assert m.symmetry_transforms()[0] is R and not R.flags.writeable and not t.flags.writeable  # made once, shared
+    finer, _ = m.symmetry_transforms(max_sym_disc_step=0.001)  # another step: computed, the shared set untouched
+    assert finer is not R and finer.flags.writeable and np.array_equal(finer, R)
     with pytest.raises(DatasetError, match="diameter"):
         ObjectModel(obj_id=2, path=tmp_path, diameter=float("nan"), bbox_min=[0, 0, 0], bbox_size=[1, 1, 1])
 

@@ -126,7 +126,7 @@ def test_the_heatmap_measure_scores_stage_one_per_look_and_keeps_its_reports(tmp
     ground truth), written to the table and CSV; a second call reads the kept reports and runs nothing."""
     src = method_data.build(tmp_path / "src", n_scenes=1)
     out = tmp_path / "out"
-    args = ["--dataset", "dimo", "--data-root", str(src), "--splits", "real", "--looks", "own,sensor", "--weights",
+    args = ["--dataset", "dimo", "--data-root", str(src), "--splits", "real", "--looks", "own,sensor", "--heatmaps",
             "oracle", "--measure", "heatmaps", "--out", str(out)]  # fmt: skip
     assert robustness.main(args) == 0
     with open(out / "robustness.csv", newline="") as f:
@@ -134,7 +134,7 @@ def test_the_heatmap_measure_scores_stage_one_per_look_and_keeps_its_reports(tmp
     assert [r["look"] for r in rows] == ["own", "sensor"]
     assert all(float(r["centre F1"]) == 1.0 and float(r["curvature AP"]) > 0.99 for r in rows)
     assert (out / "robustness.md").read_text().startswith("| look | real centre F1 | drop | real curvature AP | drop |")
-    (out / "heatmapsown_dimo-real" / "heatmaps_dimo-real.json").write_text("{")
+    (out / "heatmaps-oracleown_dimo-real" / "heatmaps_dimo-real.json").write_text("{")
     assert robustness.main(args) == 2  # a damaged report is one error, not a traceback
 
 
@@ -154,5 +154,7 @@ def test_an_empty_split_or_a_limit_below_one_is_one_error(tmp_path: Path, capsys
     base = ["--dataset", "dimo", "--data-root", str(tmp_path), "--out", str(out)]
     assert robustness.main([*base, "--splits", "sim,"]) == 2
     assert "--splits: an empty split name in 'sim,'" in capsys.readouterr().err
+    assert robustness.main([*base, "--measure", "heatmaps", "--heatmaps", "oracle-centers"]) == 2
+    assert "--measure heatmaps measures the network or the oracle" in capsys.readouterr().err
     assert robustness.main([*base, "--limit-scenes", "0"]) == 2
     assert "--limit-scenes: expected 1 or more, got 0" in capsys.readouterr().err and not out.exists()
